@@ -1,0 +1,182 @@
+"""The camera interface every driver implements (sim, replay, aravis, v4l2).
+
+The public methods live here and call the driver's protected ``_open``, ``_configure``,
+``_trigger``, ``_grab`` and ``_close``, so deadlines, logging and error wrapping are written
+once (the python-can pattern: ``recv`` -> ``_recv_internal``). Drivers know no geometry.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from station.errors import CameraTimeout, DriverError, FrameError
+
+log = logging.getLogger("station.drivers")
+
+TRIGGER_MODES = ("free-run", "software", "hardware")
+
+
+@dataclass(frozen=True)
+class CameraSettings:
+    width: int = 1280
+    height: int = 1024
+    pixel_format: str = "Mono8"
+    exposure_us: float = 8000.0
+    gain_db: float = 0.0
+    trigger: str = "software"
+    roi: tuple[int, int, int, int] | None = None  # x, y, w, h; None = full sensor
+
+
+@dataclass(frozen=True)
+class CameraIdentity:
+    vendor: str
+    model: str
+    serial: str
+    width: int
+    height: int
+
+
+@dataclass
+class Frame:
+    """One image from one camera. image: (H, W) uint8 or uint16, or (H, W, 3) uint8."""
+
+    camera_id: str
+    image: np.ndarray
+    timestamp_ns: int  # camera or host clock, monotonic
+    frame_id: int
+    metadata: dict[str, Any] = field(default_factory=dict)
+
+
+class Camera:
+    """Base class. Subclasses implement the ``_`` methods; users call the public ones."""
+
+    scheme = ""
+
+    def __init__(self, camera_id: str, uri: str, settings: CameraSettings | None = None,
+                 context: dict | None = None):
+        self.camera_id = camera_id
+        self.uri = uri
+        self.settings = settings or CameraSettings()
+        self.context = context or {}
+        self.is_open = False
+        self.last_frame: Frame | None = None
+        self._armed = False
+
+    # --- public API -------------------------------------------------------------------------
+    def open(self) -> "Camera":
+        if not self.is_open:
+            self._wrap("open", self._open)
+            self.is_open = True
+            self._wrap("configure", self._configure, self.settings)
+            log.info("%s: opened %s", self.camera_id, self.uri)
+        return self
+
+    def configure(self, **changes) -> None:
+        settings = replace(self.settings, **changes)
+        if settings.trigger not in TRIGGER_MODES:
+            raise DriverError(f"{self.camera_id}: unknown trigger mode {settings.trigger!r}; "
+                              f"expected one of {', '.join(TRIGGER_MODES)}")
+        if self.is_open:
+            self._wrap("configure", self._configure, settings)
+        self.settings = settings
+
+    def arm(self) -> None:
+        """Get ready for the next trigger (start acquisition if needed)."""
+        self._require_open()
+        self._wrap("arm", self._arm)
+        self._armed = True
+
+    def trigger(self) -> None:
+        """Software trigger (no-op for free-run and hardware-triggered cameras)."""
+        self._require_open()
+        if self.settings.trigger == "software":
+            self._wrap("trigger", self._trigger)
+
+    def grab(self, timeout_s: float) -> Frame:
+        """The next frame, or CameraTimeout after ``timeout_s``. Never blocks longer."""
+        self._require_open()
+        deadline = time.monotonic() + timeout_s
+        frame = self._wrap("grab", self._grab, timeout_s)
+        if frame is None or time.monotonic() > deadline + 0.05:
+            raise CameraTimeout(f"{self.camera_id}: no frame within {timeout_s:.3g} s ({self.uri})",
+                                hint="check the camera's cable, power and trigger wiring")
+        self._check_frame(frame)
+        self.last_frame = frame
+        return frame
+
+    def snap(self, timeout_s: float) -> Frame:
+        """arm + trigger + grab: one frame now."""
+        self.arm()
+        self.trigger()
+        return self.grab(timeout_s)
+
+    def identity(self) -> CameraIdentity:
+        self._require_open()
+        return self._wrap("identity", self._identity)
+
+    def close(self) -> None:
+        if self.is_open:
+            try:
+                self._close()
+            except Exception as e:  # closing must never raise; log and go on
+                log.warning("%s: error while closing: %s", self.camera_id, e)
+            self.is_open = False
+            self._armed = False
+
+    def __enter__(self):
+        return self.open()
+
+    def __exit__(self, *exc):
+        self.close()
+
+    # --- to implement -----------------------------------------------------------------------
+    def _open(self) -> None:
+        raise NotImplementedError
+
+    def _configure(self, settings: CameraSettings) -> None:
+        pass
+
+    def _arm(self) -> None:
+        pass
+
+    def _trigger(self) -> None:
+        pass
+
+    def _grab(self, timeout_s: float) -> Frame | None:
+        raise NotImplementedError
+
+    def _identity(self) -> CameraIdentity:
+        s = self.settings
+        return CameraIdentity("unknown", type(self).__name__, self.uri, s.width, s.height)
+
+    def _close(self) -> None:
+        pass
+
+    # --- helpers ----------------------------------------------------------------------------
+    def _require_open(self):
+        if not self.is_open:
+            raise DriverError(f"{self.camera_id}: camera is not open ({self.uri})")
+
+    def _wrap(self, what, fn, *args):
+        try:
+            return fn(*args)
+        except DriverError:
+            raise
+        except Exception as e:
+            raise DriverError(f"{self.camera_id}: {what} failed on {self.uri}: {e}") from e
+
+    def _check_frame(self, frame: Frame) -> None:
+        img = frame.image
+        s = self.settings
+        if not isinstance(img, np.ndarray) or img.dtype not in (np.uint8, np.uint16):
+            raise FrameError(f"{self.camera_id}: frame is not an 8/16-bit image")
+        w, h = (s.roi[2], s.roi[3]) if s.roi else (s.width, s.height)
+        if img.shape[:2] != (h, w):
+            raise FrameError(f"{self.camera_id}: frame is {img.shape[1]}x{img.shape[0]}, "
+                             f"the camera is configured for {w}x{h}",
+                             hint="check the resolution in the station configuration")
