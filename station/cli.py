@@ -79,6 +79,8 @@ def main(argv: list[str] | None = None) -> int:
     except StationError as e:
         print(e.user_message(), file=sys.stderr)
         return EXIT_ERROR
+    except BrokenPipeError:  # output piped into `head` and closed early: not an error
+        return 0
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
