@@ -1,0 +1,159 @@
+"""Alignment angles from the four wheels' centres and outward spin axes.
+
+Formulas and signs: docs/conventions.md ("Car frame", "Alignment angles"). Inputs are in the
+station frame; wheel order is ``WHEELS = ("FL", "FR", "RL", "RR")``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+WHEELS = ("FL", "FR", "RL", "RR")
+SIDE = {"FL": -1.0, "FR": 1.0, "RL": -1.0, "RR": 1.0}
+ANGLE_NAMES = ("FL.toe", "FL.camber", "FR.toe", "FR.camber", "RL.toe", "RL.camber",
+               "RR.toe", "RR.camber", "front.total_toe", "rear.total_toe", "thrust")
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v)
+
+
+def paper_car_frame(centers: dict[str, np.ndarray]) -> np.ndarray:
+    """The paper's car frame: x' wheel 3 -> 4 (RL -> RR), y' wheel 3 -> 2 (RL -> FL), z' = x' x y'.
+
+    Returns R_station_car (3,3) with columns x_hat, y_hat, z_hat (orthonormalised).
+    """
+    x = _unit(centers["RR"] - centers["RL"])
+    z = _unit(np.cross(x, centers["FL"] - centers["RL"]))
+    y = np.cross(z, x)
+    return np.stack([x, y, z], axis=1)
+
+
+def alignment_frame(centers: dict[str, np.ndarray]) -> np.ndarray:
+    """Frame of the signed angles: z as the paper's, y along the geometric centreline.
+
+    Returns R_station_align (3,3) with columns x_a (right), y_a (forward), z_a (up).
+    """
+    z = paper_car_frame(centers)[:, 2]
+    centreline = (centers["FL"] + centers["FR"]) / 2 - (centers["RL"] + centers["RR"]) / 2
+    y = _unit(centreline - z * (z @ centreline))
+    x = np.cross(y, z)
+    return np.stack([x, y, z], axis=1)
+
+
+def wheel_angles_rad(axis_align: np.ndarray, side: float) -> tuple[float, float]:
+    """(toe, camber) in radians of one wheel from its outward axis in the alignment frame."""
+    wx, wy, wz = axis_align
+    return float(np.arctan2(wy, side * wx)), float(np.arctan2(-wz, side * wx))
+
+
+def compute_angles(centers: dict[str, np.ndarray], axes: dict[str, np.ndarray]) -> dict:
+    """All signed angles (degrees) and distances (m) from centres (3,) and outward axes (3,).
+
+    Returns a dict with ``wheels[W] = {toe_deg, camber_deg, [toe_thrust_deg]}``, ``axles``,
+    ``thrust_deg``, ``wheelbase_m``, ``centreline_deg`` (geometric centreline vs the paper's
+    y_hat) and the frames used.
+    """
+    centers = {w: np.asarray(centers[w], float) for w in WHEELS}
+    R_a = alignment_frame(centers)
+    toe, camber = {}, {}
+    for w in WHEELS:
+        axis = _unit(np.asarray(axes[w], float))
+        toe[w], camber[w] = wheel_angles_rad(R_a.T @ axis, SIDE[w])
+    thrust = (toe["RL"] - toe["RR"]) / 2
+    local = {w: R_a.T @ (centers[w] - centers["RL"]) for w in WHEELS}
+    wheels = {}
+    for w in WHEELS:
+        wheels[w] = {"toe_deg": np.degrees(toe[w]), "camber_deg": np.degrees(camber[w])}
+        if w.startswith("F"):
+            wheels[w]["toe_thrust_deg"] = np.degrees(toe[w] + SIDE[w] * thrust)
+    axles = {}
+    for axle, (left, right) in (("front", ("FL", "FR")), ("rear", ("RL", "RR"))):
+        d = local[right] - local[left]
+        axles[axle] = {"total_toe_deg": np.degrees(toe[left] + toe[right]),
+                       "setback_m": float(d[1]), "setback_deg": float(np.degrees(np.arctan2(d[1], d[0]))),
+                       "track_m": float(d[0])}
+    y_paper = paper_car_frame(centers)[:, 1]
+    return {
+        "wheels": wheels,
+        "axles": axles,
+        "thrust_deg": float(np.degrees(thrust)),
+        "wheelbase_m": {"left": float(local["FL"][1] - local["RL"][1]),
+                        "right": float(local["FR"][1] - local["RR"][1])},
+        "centreline_deg": float(np.degrees(np.arctan2(y_paper @ R_a[:, 0], y_paper @ R_a[:, 1]))),
+        "R_station_align": R_a,
+    }
+
+
+def angle_vector(angles: dict) -> np.ndarray:
+    """The angles of ANGLE_NAMES (degrees) as a (11,) vector."""
+    out = []
+    for name in ANGLE_NAMES:
+        head, kind = name.split(".") if "." in name else (name, "")
+        if head in WHEELS:
+            out.append(angles["wheels"][head][f"{kind}_deg"])
+        elif head in ("front", "rear"):
+            out.append(angles["axles"][head]["total_toe_deg"])
+        else:
+            out.append(angles["thrust_deg"])
+    return np.array(out, float)
+
+
+def angle_covariance(centers: dict, axes: dict, cov_center: dict, cov_axis: dict,
+                     step: float = 1e-7) -> np.ndarray:
+    """Covariance (11,11) in deg^2 of ``angle_vector`` by first-order propagation.
+
+    cov_center[W], cov_axis[W]: (3,3) covariances of each wheel's centre (m^2) and axis.
+    The Jacobian is taken numerically (central differences); inputs are independent per wheel.
+    """
+    base = {w: np.asarray(centers[w], float) for w in WHEELS}
+    ax = {w: _unit(np.asarray(axes[w], float)) for w in WHEELS}
+    n_out = len(ANGLE_NAMES)
+    cov = np.zeros((n_out, n_out))
+    for w in WHEELS:
+        for which, source, C in (("c", base, cov_center[w]), ("a", ax, cov_axis[w])):
+            J = np.empty((n_out, 3))
+            for k in range(3):
+                dv = np.zeros(3)
+                dv[k] = step
+                plus = dict(source)
+                minus = dict(source)
+                plus[w] = source[w] + dv
+                minus[w] = source[w] - dv
+                if which == "c":
+                    fp, fm = compute_angles(plus, ax), compute_angles(minus, ax)
+                else:
+                    fp, fm = compute_angles(base, plus), compute_angles(base, minus)
+                J[:, k] = (angle_vector(fp) - angle_vector(fm)) / (2 * step)
+            cov += J @ np.asarray(C, float) @ J.T
+    return cov
+
+
+def paper_front_angles(centers: dict[str, np.ndarray], axes: dict[str, np.ndarray]) -> dict:
+    """The paper's unsigned camber and toe of the front wheels, eqs 39-42 (degrees).
+
+    Wheels 1 = FR, 2 = FL, 3 = RL, 4 = RR. The paper's w vectors are the spin axes; the
+    formulas compare the projection of w_1 (w_2) with w_4 (w_3), all taken here as the outward
+    axes made to point along +x_hat so that the angles are the small deviations, as in Fig. 11.
+    """
+    R = paper_car_frame({w: np.asarray(centers[w], float) for w in WHEELS})
+    x_hat, y_hat, z_hat = R[:, 0], R[:, 1], R[:, 2]
+
+    def along_x(w):  # the paper's Fig. 11 draws every w along +x_hat
+        v = _unit(np.asarray(axes[w], float))
+        return v if v @ x_hat >= 0 else -v
+
+    w1, w2, w3, w4 = along_x("FR"), along_x("FL"), along_x("RL"), along_x("RR")
+
+    def angle(a, b):
+        return float(np.degrees(np.arccos(np.clip(a @ b / (np.linalg.norm(a) * np.linalg.norm(b)), -1, 1))))
+
+    def proj(v, n):  # projection onto the plane with normal n
+        return v - n * (v @ n)
+
+    return {
+        "camber_1_deg": angle(proj(w1, y_hat), w4),   # eq 39: w_1xz vs w_4
+        "camber_2_deg": angle(proj(w2, y_hat), w3),   # eq 40: w_2xz vs w_3
+        "toe_1_deg": angle(proj(w1, z_hat), w4),      # eq 41: w_1xy vs w_4
+        "toe_2_deg": angle(proj(w2, z_hat), w3),      # eq 42: w_2xy vs w_3
+    }

@@ -1,0 +1,89 @@
+"""Signed alignment angles recover a simulated vehicle's toe and camber exactly."""
+
+import numpy as np
+import pytest
+
+from simulators.vehicle import WHEELS, Vehicle, random_vehicle
+from station.alignment import (ANGLE_NAMES, angle_covariance, angle_vector, compute_angles,
+                               paper_front_angles)
+
+
+def _wheels(vehicle):
+    frames = {w: vehicle.wheel_frame_station(w) for w in WHEELS}
+    return {w: f[0] for w, f in frames.items()}, {w: f[1][:, 2] for w, f in frames.items()}
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_signed_angles_recover_truth(seed):
+    vehicle = random_vehicle(np.random.default_rng(seed))
+    centers, axes = _wheels(vehicle)
+    angles = compute_angles(centers, axes)
+    for w in WHEELS:
+        assert angles["wheels"][w]["toe_deg"] == pytest.approx(vehicle.toe_deg[w], abs=1e-9)
+        assert angles["wheels"][w]["camber_deg"] == pytest.approx(vehicle.camber_deg[w], abs=1e-9)
+    t = vehicle.toe_deg
+    assert angles["axles"]["front"]["total_toe_deg"] == pytest.approx(t["FL"] + t["FR"], abs=1e-9)
+    assert angles["thrust_deg"] == pytest.approx((t["RL"] - t["RR"]) / 2, abs=1e-9)
+    assert angles["axles"]["front"]["track_m"] == pytest.approx(vehicle.track_front_m, abs=1e-9)
+    assert angles["wheelbase_m"]["left"] == pytest.approx(vehicle.wheelbase_m, abs=1e-9)
+
+
+def test_signs_as_technicians_read_them():
+    # Right front wheel turned front-inward and leaning out at the top.
+    v = Vehicle(toe_deg={"FL": 0, "FR": 0.5, "RL": 0, "RR": 0}, camber_deg={"FL": 0, "FR": 1.0, "RL": 0, "RR": 0})
+    c, R = v.wheel_frame_station("FR")
+    axis = R[:, 2]
+    forward_of_wheel = np.cross(np.array([0, 0, 1.0]), axis)  # rolling direction for a right wheel
+    assert forward_of_wheel[0] < 0, "toe-in: the front of the right wheel points toward the centreline (-x)"
+    top_of_wheel = np.cross(axis, forward_of_wheel)
+    assert top_of_wheel[0] > 0, "positive camber: the top leans away from the car (+x for a right wheel)"
+    assert compute_angles(*_wheels(v))["wheels"]["FR"]["toe_deg"] == pytest.approx(0.5)
+
+
+def test_thrust_line_and_front_toe_against_it():
+    v = Vehicle(toe_deg={"FL": 0.1, "FR": 0.1, "RL": 0.3, "RR": -0.1})
+    a = compute_angles(*_wheels(v))
+    assert a["thrust_deg"] == pytest.approx(0.2)
+    assert a["wheels"]["FR"]["toe_thrust_deg"] == pytest.approx(0.3)
+    assert a["wheels"]["FL"]["toe_thrust_deg"] == pytest.approx(-0.1)
+
+
+def test_setback_sign():
+    v = Vehicle()
+    centers, axes = _wheels(v)
+    centers["FR"] = centers["FR"] + np.array([0, 0.01, 0])
+    a = compute_angles(centers, axes)
+    assert a["axles"]["front"]["setback_m"] == pytest.approx(0.01, abs=1e-6)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_paper_equations_equal_signed_angles_in_magnitude_with_square_rear_axle(seed):
+    rng = np.random.default_rng(100 + seed)
+    front = {w: rng.uniform(-2, 2) for w in ("FL", "FR")}
+    camber = {w: rng.uniform(-3, 3) for w in ("FL", "FR")}
+    v = Vehicle(yaw_deg=rng.uniform(-1, 1), position_m=(0.02, -0.03),
+                toe_deg={**front, "RL": 0.0, "RR": 0.0}, camber_deg={**camber, "RL": 0.0, "RR": 0.0})
+    centers, axes = _wheels(v)
+    signed = compute_angles(centers, axes)["wheels"]
+    paper = paper_front_angles(centers, axes)
+    assert paper["toe_1_deg"] == pytest.approx(abs(signed["FR"]["toe_deg"]), abs=1e-6)
+    assert paper["toe_2_deg"] == pytest.approx(abs(signed["FL"]["toe_deg"]), abs=1e-6)
+    assert paper["camber_1_deg"] == pytest.approx(abs(signed["FR"]["camber_deg"]), abs=1e-6)
+    assert paper["camber_2_deg"] == pytest.approx(abs(signed["FL"]["camber_deg"]), abs=1e-6)
+
+
+def test_covariance_propagation_matches_monte_carlo():
+    rng = np.random.default_rng(5)
+    v = random_vehicle(rng)
+    centers, axes = _wheels(v)
+    s_axis, s_center = 1e-4, 2e-4
+    cov = angle_covariance(centers, axes, {w: np.eye(3) * s_center**2 for w in WHEELS},
+                           {w: np.eye(3) * s_axis**2 for w in WHEELS})
+    samples = []
+    for _ in range(800):
+        c = {w: centers[w] + rng.normal(0, s_center, 3) for w in WHEELS}
+        a = {w: axes[w] + rng.normal(0, s_axis, 3) for w in WHEELS}
+        samples.append(angle_vector(compute_angles(c, a)))
+    std_mc = np.std(samples, axis=0)
+    np.testing.assert_allclose(np.sqrt(np.diag(cov)), std_mc, rtol=0.15)
+    assert len(ANGLE_NAMES) == cov.shape[0]
