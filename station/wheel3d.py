@@ -1,0 +1,257 @@
+"""The 3-D wheel from one stereo pair: the paper's method (section 3.2) and a 3-D circle fit.
+
+Inputs are the rim-flange edge points each camera detected (distorted pixels) and the pair's
+calibrated CameraModels. Outputs are in the station frame (docs/conventions.md).
+
+* :func:`reconstruct_paper` - exactly section 3.2: the epipolar line of each left (precision)
+  rim point meets the right rim curve at two points, the one in the same order along the line
+  is chosen; the top and bottom 10 % of the diameter (where the lines graze the rim) are
+  pruned (Fig. 9d); points are triangulated by eq. 24; PCA of the 3-D rim gives the centre
+  and the spin axis w (oriented outward from the car).
+* :func:`refine_circle` - one 3-D circle (centre, normal, radius) fitted to both views' edge
+  points at once by minimising their distance to the circle's projection (exact conics in
+  normalised coordinates, Sampson distance scaled to pixels), robust loss; no point matching.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from calibration.camera_model import CameraModel
+from calibration.triangulation import homogeneous, triangulate_paper
+from station.errors import MeasurementError
+
+PRUNE_FRACTION = 0.10  # the paper's Fig. 9d: 10 % of the diameter at the top and the bottom
+
+
+@dataclass
+class WheelFit:
+    """One wheel in the station frame. Shapes: center (3,), axis (3,) unit outward."""
+
+    method: str
+    center_station: np.ndarray
+    axis_station: np.ndarray
+    radius_m: float
+    points_station: np.ndarray | None = None  # (N,3) triangulated rim (paper method)
+    cov_center: np.ndarray = field(default_factory=lambda: np.full((3, 3), np.nan))
+    cov_axis: np.ndarray = field(default_factory=lambda: np.full((3, 3), np.nan))
+    reprojection_rms_px: float = float("nan")
+    epipolar_rms_px: float = float("nan")
+    n_points: tuple[int, int] = (0, 0)
+
+
+# --- pair geometry ----------------------------------------------------------------------------
+def pair_relation(cam_l: CameraModel, cam_r: CameraModel) -> tuple[np.ndarray, np.ndarray]:
+    """The paper's stereo extrinsics (eqs 34-35): R = R_r R_l^T, t = t_l - R^T t_r."""
+    R = cam_r.R_cam_station @ cam_l.R_cam_station.T
+    t = cam_l.t_cam_station - R.T @ cam_r.t_cam_station
+    return R, t
+
+
+def fit_conic(xy: np.ndarray) -> np.ndarray:
+    """Direct least-squares ellipse (Fitzgibbon) through (N,2) points; returns the (3,3) conic.
+
+    Hartley-normalised for conditioning; x^T C x = 0 for homogeneous points on the ellipse.
+    """
+    m = xy.mean(axis=0)
+    s = np.sqrt(2) / np.mean(np.linalg.norm(xy - m, axis=1))
+    x, y = ((xy - m) * s).T
+    D1 = np.stack([x * x, x * y, y * y], axis=1)
+    D2 = np.stack([x, y, np.ones_like(x)], axis=1)
+    S1, S2, S3 = D1.T @ D1, D1.T @ D2, D2.T @ D2
+    T = -np.linalg.solve(S3, S2.T)
+    M = S1 + S2 @ T
+    M = np.array([M[2] / 2, -M[1], M[0] / 2])
+    evals, evecs = np.linalg.eig(M)
+    evecs = np.real(evecs)
+    cond = 4 * evecs[0] * evecs[2] - evecs[1] ** 2
+    a1 = evecs[:, np.argmax(cond)]
+    a, b, c, d, e, f = np.concatenate([a1, T @ a1])
+    C_n = np.array([[a, b / 2, d / 2], [b / 2, c, e / 2], [d / 2, e / 2, f]])
+    H = np.array([[s, 0, -s * m[0]], [0, s, -s * m[1]], [0, 0, 1]])  # x_n = H x
+    C = H.T @ C_n @ H
+    return C / np.linalg.norm(C)
+
+
+def line_conic_intersections(lines: np.ndarray, C: np.ndarray) -> np.ndarray:
+    """Where lines meet a conic, ordered along each line's direction (b, -a).
+
+    lines: (N,3) homogeneous lines (a, b, c); C: (3,3). Returns (N,2,2): two points per line
+    (NaN where the line misses the conic).
+    """
+    a, b, c = lines.T
+    nrm2 = a * a + b * b
+    x0 = np.stack([-a * c / nrm2, -b * c / nrm2, np.ones_like(a)], axis=1)
+    u = np.stack([b, -a, np.zeros_like(a)], axis=1) / np.sqrt(nrm2)[:, None]
+    A = np.einsum("ni,ij,nj->n", u, C, u)
+    B = 2 * np.einsum("ni,ij,nj->n", u, C, x0)
+    K = np.einsum("ni,ij,nj->n", x0, C, x0)
+    disc = B * B - 4 * A * K
+    with np.errstate(invalid="ignore"):
+        root = np.sqrt(disc)
+    s = np.stack([(-B - root) / (2 * A), (-B + root) / (2 * A)], axis=1)
+    s.sort(axis=1)
+    return x0[:, None, :2] + s[:, :, None] * u[:, None, :2]
+
+
+def outward_sign(center_station: np.ndarray) -> float:
+    """+1 for a right-hand wheel (x > 0), -1 for a left-hand one."""
+    return 1.0 if center_station[0] >= 0 else -1.0
+
+
+# --- the paper's method ---------------------------------------------------------------------------
+def match_rim_points(xy_l: np.ndarray, xy_r: np.ndarray, R: np.ndarray, t: np.ndarray,
+                     prune_fraction: float = PRUNE_FRACTION) -> tuple[np.ndarray, np.ndarray, float]:
+    """Section 3.2's matching: left points -> their epipolar lines' crossings of the right rim.
+
+    xy_l (N,2), xy_r (M,2): undistorted normalised rim points of the left and right cameras.
+    R, t: the paper's pair (eqs 34-35). Returns (p_l (K,3), p_r (K,3)) matched homogeneous
+    points after pruning, and the epipolar tangency residual (radians): the two epipolar planes
+    tangent to the rim must be the same from both cameras; their angle differences (RMS) grow
+    when a camera of the pair has moved since calibration.
+    """
+    C_l, C_r = fit_conic(xy_l), fit_conic(xy_r)
+    p_l = homogeneous(xy_l)
+    n_l = np.cross(t, p_l)                   # epipolar plane normals in the left frame (N,3)
+    n_l /= np.linalg.norm(n_l, axis=1, keepdims=True)
+    n_r = n_l @ R.T                          # the same planes in the right frame
+    # Order of the left point among its line's two crossings of the left rim, kept on the right.
+    cross_l = line_conic_intersections(n_l, C_l)
+    first = np.linalg.norm(cross_l[:, 0] - xy_l, axis=1) < np.linalg.norm(cross_l[:, 1] - xy_l, axis=1)
+    cross_r = line_conic_intersections(n_r, C_r)
+    chosen = np.where(first[:, None], cross_r[:, 0], cross_r[:, 1])
+    # Prune where the lines graze the rim: the top/bottom 10 % of the pencil of planes that cut it.
+    e1, e2 = _pencil_basis(t, p_l.mean(axis=0))
+    theta = np.arctan(np.einsum("ni,i->n", n_l, e2) / np.einsum("ni,i->n", n_l, e1))
+    lo_l, hi_l = _tangent_planes(C_l, e1, e2)
+    lo_r, hi_r = _tangent_planes(R.T @ C_r @ R, e1, e2)  # right conic as a cone in the left frame
+    span = hi_l - lo_l
+    keep = (theta > lo_l + prune_fraction * span) & (theta < hi_l - prune_fraction * span)
+    keep &= np.all(np.isfinite(chosen), axis=1)
+    tangency = float(np.sqrt(((lo_l - lo_r) ** 2 + (hi_l - hi_r) ** 2) / 2))
+    return p_l[keep], homogeneous(chosen[keep]), tangency
+
+
+def _pencil_basis(t: np.ndarray, toward: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit normals e1, e2 spanning the epipolar planes (all contain t); e1's plane contains
+    the direction ``toward`` (the rim), so the rim's planes have small angles."""
+    tu = t / np.linalg.norm(t)
+    e1 = np.cross(tu, toward)
+    e1 /= np.linalg.norm(e1)
+    return e1, np.cross(tu, e1)
+
+
+def _tangent_planes(C: np.ndarray, e1: np.ndarray, e2: np.ndarray) -> tuple[float, float]:
+    """Angles (rad) of the two epipolar planes n = cos a e1 + sin a e2 tangent to the cone x^T C x = 0.
+
+    A plane n^T x = 0 touches the cone when n^T C* n = 0 (C* the adjugate, the dual conic).
+    """
+    C_dual = np.linalg.inv(C) * np.linalg.det(C)
+    E = np.stack([e1, e2], axis=1)
+    M = E.T @ C_dual @ E
+    disc = M[0, 1] ** 2 - M[0, 0] * M[1, 1]
+    if disc <= 0:
+        raise MeasurementError("the epipolar planes miss the rim: the pair's calibration does not fit the images")
+    roots = np.arctan((-M[0, 1] + np.array([-1.0, 1.0]) * np.sqrt(disc)) / M[1, 1])
+    return float(roots.min()), float(roots.max())
+
+
+def reconstruct_paper(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: CameraModel,
+                      cam_r: CameraModel) -> WheelFit:
+    """The paper's 3-D wheel: match, prune, triangulate (eq. 24), PCA. Station frame."""
+    xy_l = cam_l.pixels_to_normalized(points_l_px)
+    xy_r = cam_r.pixels_to_normalized(points_r_px)
+    R, t = pair_relation(cam_l, cam_r)
+    p_l, p_r, tangency = match_rim_points(xy_l, xy_r, R, t)
+    if len(p_l) < 20:
+        raise MeasurementError(f"{cam_l.name}/{cam_r.name}: only {len(p_l)} rim points could be matched")
+    X_l = triangulate_paper(p_l, p_r, R, t)
+    X = (X_l - cam_l.t_cam_station) @ cam_l.R_cam_station  # left frame -> station, (N,3)
+    center = X.mean(axis=0)
+    _, sv, Vt = np.linalg.svd(X - center, full_matrices=False)
+    w = Vt[2]
+    if w[0] * outward_sign(center) < 0:
+        w = -w
+    radius = float(np.mean(np.linalg.norm((X - center) - np.outer((X - center) @ w, w), axis=1)))
+    f = 0.5 * (cam_l.K[0, 0] + cam_r.K[0, 0])
+    # A plane-angle error d moves a rim point across its epipolar line by about f * d pixels
+    # (the rays to the wheel are roughly perpendicular to the baseline).
+    return WheelFit("paper", center, w, radius, points_station=X, epipolar_rms_px=tangency * f,
+                    n_points=(len(points_l_px), len(points_r_px)))
+
+
+# --- the 3-D circle fit -------------------------------------------------------------------------
+def circle_conic(center_cam: np.ndarray, normal_cam: np.ndarray, radius: float) -> np.ndarray:
+    """(3,3) conic of a 3-D circle's image in normalised coordinates (camera frame inputs).
+
+    Points X = lambda x on the cone through the circle satisfy
+    (n.c)^2 x.x - 2 (n.c)(n.x)(c.x) + (c.c - r^2)(n.x)^2 = 0.
+    """
+    c, n = center_cam, normal_cam
+    nc = n @ c
+    return nc * nc * np.eye(3) - nc * (np.outer(n, c) + np.outer(c, n)) + (c @ c - radius * radius) * np.outer(n, n)
+
+
+def sampson_px(C: np.ndarray, xy: np.ndarray, focal_px: float) -> np.ndarray:
+    """(N,) first-order geometric distance (px) of normalised points (N,2) to the conic C."""
+    X = homogeneous(xy)
+    CX = X @ C
+    f = np.einsum("ni,ni->n", CX, X)
+    grad = 2 * np.hypot(CX[:, 0], CX[:, 1])
+    return focal_px * f / grad
+
+
+def _normal_from(params, n0, e1, e2):
+    n = n0 + params[0] * e1 + params[1] * e2
+    return n / np.linalg.norm(n)
+
+
+def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: CameraModel,
+                  cam_r: CameraModel, init: WheelFit, loss_scale_px: float = 0.3) -> WheelFit:
+    """Fit one 3-D circle to both views' rim points by minimising image distance (px)."""
+    views = []
+    for cam, pts in ((cam_l, points_l_px), (cam_r, points_r_px)):
+        xy = cam.pixels_to_normalized(pts)
+        views.append((cam, xy[np.all(np.isfinite(xy), axis=1)], 0.5 * (cam.K[0, 0] + cam.K[1, 1])))
+    n0 = init.axis_station / np.linalg.norm(init.axis_station)
+    e1 = np.cross(n0, [0.0, 0.0, 1.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(n0, e1)
+
+    def residuals(p):
+        c = p[2:5]
+        n = _normal_from(p[:2], n0, e1, e2)
+        out = []
+        for cam, xy, f in views:
+            C = circle_conic(cam.R_cam_station @ c + cam.t_cam_station, cam.R_cam_station @ n, p[5])
+            out.append(sampson_px(C, xy, f))
+        return np.concatenate(out)
+
+    x0 = np.concatenate([[0.0, 0.0], init.center_station, [init.radius_m]])
+    sol = least_squares(residuals, x0, loss="soft_l1", f_scale=loss_scale_px, x_scale="jac", method="trf")
+    r = sol.fun
+    n_res = len(r)
+    # Robust sigma of the residuals, and the parameter covariance from the Jacobian.
+    mad = 1.4826 * np.median(np.abs(r - np.median(r)))
+    inlier = np.abs(r) < max(3 * mad, 1e-6)
+    sigma2 = float(np.sum(r[inlier] ** 2) / max(inlier.sum() - 6, 1))
+    J = sol.jac
+    try:
+        cov_p = np.linalg.inv(J.T @ J) * sigma2
+    except np.linalg.LinAlgError:
+        cov_p = np.full((6, 6), np.nan)
+    n = _normal_from(sol.x[:2], n0, e1, e2)
+    if n[0] * outward_sign(sol.x[2:5]) < 0:
+        n = -n
+    # d n / d (a, b) = (I - n n^T) [e1 e2] / |n0 + a e1 + b e2| ~ the tangent basis at the solution.
+    B = np.stack([e1, e2], axis=1)
+    Jn = (np.eye(3) - np.outer(n, n)) @ B
+    cov_axis = Jn @ cov_p[:2, :2] @ Jn.T
+    return WheelFit("circle", sol.x[2:5].copy(), n, float(sol.x[5]),
+                    cov_center=cov_p[2:5, 2:5], cov_axis=cov_axis,
+                    reprojection_rms_px=float(np.sqrt(np.mean(r[inlier] ** 2))) if inlier.any() else float("nan"),
+                    epipolar_rms_px=init.epipolar_rms_px,
+                    n_points=(len(views[0][1]), len(views[1][1])))
