@@ -255,3 +255,73 @@ def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: Camer
                     reprojection_rms_px=float(np.sqrt(np.mean(r[inlier] ** 2))) if inlier.any() else float("nan"),
                     epipolar_rms_px=init.epipolar_rms_px,
                     n_points=(len(views[0][1]), len(views[1][1])))
+
+
+# --- calibration uncertainty -------------------------------------------------------------------
+CAMERA_PARAMS = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "rx", "ry", "rz", "tx", "ty", "tz")
+
+
+def perturb_camera(cam: CameraModel, delta: np.ndarray) -> CameraModel:
+    """A camera with its 15 parameters (CAMERA_PARAMS order) moved by ``delta`` (15,).
+
+    The rotation moves by the small rotation vector delta[9:12] applied in the camera frame
+    (R' = exp([d]x) R), the translation by delta[12:15] (m).
+    """
+    from calibration.camera_model import rodrigues_to_matrix
+
+    K = cam.K.copy()
+    K[0, 0] += delta[0]
+    K[1, 1] += delta[1]
+    K[0, 2] += delta[2]
+    K[1, 2] += delta[3]
+    return CameraModel(cam.name, cam.width, cam.height, K, cam.dist + delta[4:9],
+                       rodrigues_to_matrix(delta[9:12]) @ cam.R_cam_station, cam.t_cam_station + delta[12:15])
+
+
+def calibration_covariance(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: CameraModel,
+                           cam_r: CameraModel, fit: WheelFit, cov_params_l: np.ndarray,
+                           cov_params_r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """How the calibration's uncertainty moves a fitted circle: (cov_center (3,3), cov_axis (3,3)).
+
+    First order, by the implicit-function theorem at the solution x* of the circle fit:
+    dx/dp = -(J_x^T J_x)^-1 J_x^T J_p, with J_p the residuals' derivative with respect to the
+    30 camera parameters (numerical), and cov_params_* (15,15) each camera's parameter covariance.
+    """
+    views_pts = (points_l_px, points_r_px)
+    n = fit.axis_station
+    e1 = np.cross(n, [0.0, 0.0, 1.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(n, e1)
+
+    def residuals(x, cams):
+        c = x[2:5]
+        nn = _normal_from(x[:2], n, e1, e2)
+        out = []
+        for cam, pts in zip(cams, views_pts):
+            xy = cam.pixels_to_normalized(pts)
+            C = circle_conic(cam.R_cam_station @ c + cam.t_cam_station, cam.R_cam_station @ nn, x[5])
+            out.append(sampson_px(C, xy, 0.5 * (cam.K[0, 0] + cam.K[1, 1])))
+        return np.concatenate(out)
+
+    x0 = np.concatenate([[0.0, 0.0], fit.center_station, [fit.radius_m]])
+    cams = (cam_l, cam_r)
+    r0 = residuals(x0, cams)
+    steps_x = np.array([1e-6, 1e-6, 1e-6, 1e-6, 1e-6, 1e-6])
+    Jx = np.stack([(residuals(x0 + np.eye(6)[k] * steps_x[k], cams) - r0) / steps_x[k] for k in range(6)], axis=1)
+    steps_p = np.array([0.05, 0.05, 0.05, 0.05, 1e-5, 1e-5, 1e-6, 1e-6, 1e-5, 1e-6, 1e-6, 1e-6, 1e-6, 1e-6, 1e-6])
+    cov_p = np.zeros((30, 30))
+    cov_p[:15, :15] = cov_params_l
+    cov_p[15:, 15:] = cov_params_r
+    cols = []
+    for which in range(2):
+        for k in range(15):
+            delta = np.zeros(15)
+            delta[k] = steps_p[k]
+            moved = list(cams)
+            moved[which] = perturb_camera(cams[which], delta)
+            cols.append((residuals(x0, moved) - r0) / steps_p[k])
+    Jp = np.stack(cols, axis=1)
+    dx_dp = -np.linalg.solve(Jx.T @ Jx, Jx.T @ Jp)
+    cov_x = dx_dp @ cov_p @ dx_dp.T
+    B = np.stack([e1, e2], axis=1)
+    return cov_x[2:5, 2:5], B @ cov_x[:2, :2] @ B.T
