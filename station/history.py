@@ -1,0 +1,308 @@
+"""The station's history: every cycle in an embedded SQLite database (WAL journal).
+
+One row per cycle in ``cycles`` (time, job id / VIN, vehicle spec, pass/fail, calibration id,
+recording, software version, the full result JSON) and one row per angle in ``angles``; a cycle
+is written in ONE transaction, so a process killed mid-write leaves either the whole cycle or
+none of it, and SQLite's journal keeps the file consistent. Every failure (corrupt file, locked
+database, full disk, read-only folder) is a :class:`~station.errors.StorageError` that says what
+to do; the caller keeps its result.
+"""
+
+from __future__ import annotations
+
+import csv
+import datetime as dt
+import io
+import json
+import math
+import os
+import sqlite3
+import tempfile
+from pathlib import Path
+
+from station.errors import StorageError
+
+ANGLE_NAMES = ("FL.toe", "FL.camber", "FR.toe", "FR.camber", "RL.toe", "RL.camber",
+               "RR.toe", "RR.camber", "front.total_toe", "rear.total_toe", "thrust")
+SCHEMA_VERSION = 1
+_SCHEMA = """
+CREATE TABLE IF NOT EXISTS cycles (
+    id               INTEGER PRIMARY KEY,
+    cycle_id         TEXT NOT NULL UNIQUE,
+    time_utc         TEXT NOT NULL,          -- ISO 8601, UTC, 'YYYY-MM-DDTHH:MM:SS.fffZ' (sortable)
+    job_id           TEXT,
+    vehicle_spec     TEXT,
+    valid            INTEGER NOT NULL,
+    passed           INTEGER,                -- NULL: no vehicle spec
+    calibration_id   TEXT,
+    recording        TEXT,
+    software_version TEXT,
+    station          TEXT,
+    result_json      TEXT NOT NULL
+);
+CREATE INDEX IF NOT EXISTS cycles_time ON cycles(time_utc);
+CREATE INDEX IF NOT EXISTS cycles_job ON cycles(job_id, time_utc);
+CREATE INDEX IF NOT EXISTS cycles_vehicle ON cycles(vehicle_spec, time_utc);
+CREATE TABLE IF NOT EXISTS angles (
+    cycle     INTEGER NOT NULL REFERENCES cycles(id) ON DELETE CASCADE,
+    name      TEXT NOT NULL,                 -- FL.toe ... thrust (docs/result-schema.md)
+    value_deg REAL,
+    std_deg   REAL,
+    passed    INTEGER,                       -- NULL: no spec figure
+    PRIMARY KEY (cycle, name)
+) WITHOUT ROWID;
+"""
+_COLUMNS = ("id", "cycle_id", "time_utc", "job_id", "vehicle_spec", "valid", "passed",
+            "calibration_id", "recording", "software_version", "station")
+
+
+def normalize_time(text: str | dt.datetime) -> str:
+    """Any ISO 8601 time -> 'YYYY-MM-DDTHH:MM:SS.fffZ' in UTC (naive times are taken as UTC)."""
+    if isinstance(text, dt.datetime):
+        t = text
+    else:
+        t = dt.datetime.fromisoformat(str(text).strip().replace("Z", "+00:00"))
+    if t.tzinfo is None:
+        t = t.replace(tzinfo=dt.timezone.utc)
+    t = t.astimezone(dt.timezone.utc)
+    return t.strftime("%Y-%m-%dT%H:%M:%S.") + f"{t.microsecond // 1000:03d}Z"
+
+
+def time_bound(value, *, end: bool) -> str:
+    """A --since/--until value -> a normalised time. A bare date as ``until`` covers that whole day."""
+    if isinstance(value, dt.date) and not isinstance(value, dt.datetime):
+        day = value
+    else:
+        text = str(value).strip()
+        if len(text) == 10:
+            day = dt.date.fromisoformat(text)
+        else:
+            return normalize_time(value)
+    t = dt.datetime.combine(day, dt.time(0), tzinfo=dt.timezone.utc)
+    if end:
+        t += dt.timedelta(days=1) - dt.timedelta(milliseconds=1)
+    return normalize_time(t)
+
+
+def _angle_rows(result: dict) -> list[tuple[str, float | None, float | None, int | None]]:
+    wheels = result.get("wheels") or {}
+    axles = result.get("axles") or {}
+    passes = result.get("pass") or {}
+    rows = []
+    for name in ANGLE_NAMES:
+        if name == "thrust":
+            d, key = result, "thrust"
+        elif name.endswith(".total_toe"):
+            d, key = axles.get(name.split(".")[0]) or {}, "total_toe"
+        else:
+            wheel, key = name.split(".")
+            d = wheels.get(wheel) or {}
+        value, std = d.get(f"{key}_deg"), d.get(f"{key}_std_deg")
+        value = float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) else None
+        std = float(std) if isinstance(std, (int, float)) and not isinstance(std, bool) else None
+        p = passes.get(name)
+        rows.append((name, value, std, None if p is None else int(bool(p))))
+    return rows
+
+
+class History:
+    """The history database at ``path`` (created on first use). ``timeout_s``: wait for a lock."""
+
+    def __init__(self, path: str | os.PathLike, *, timeout_s: float = 5.0):
+        self.path = Path(path)
+        self.timeout_s = timeout_s
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._conn = sqlite3.connect(self.path, timeout=timeout_s, isolation_level=None)
+            self._conn.row_factory = sqlite3.Row
+            self._conn.execute("PRAGMA foreign_keys=ON")
+            mode = self._conn.execute("PRAGMA journal_mode=WAL").fetchone()[0]
+            if mode.lower() != "wal":
+                raise sqlite3.OperationalError(f"cannot switch the journal to WAL (got {mode})")
+            self._conn.execute("PRAGMA synchronous=FULL")
+            version = self._conn.execute("PRAGMA user_version").fetchone()[0]
+            if version > SCHEMA_VERSION:
+                raise StorageError(f"{self.path}: history written by a newer station (schema {version})",
+                                   hint="update the station software, or point data_dir elsewhere")
+            if version < SCHEMA_VERSION:
+                self._conn.executescript(f"BEGIN IMMEDIATE;{_SCHEMA}PRAGMA user_version={SCHEMA_VERSION};COMMIT;")
+        except (sqlite3.Error, OSError) as e:
+            raise self._error(e, "cannot open the history") from e
+
+    # -- errors ------------------------------------------------------------------------------------
+    def _error(self, e: Exception, doing: str) -> StorageError:
+        text = str(e)
+        if isinstance(e, sqlite3.DatabaseError) and ("not a database" in text or "malformed" in text
+                                                     or "corrupt" in text):
+            return StorageError(f"{self.path}: {doing}: the history database is corrupt ({text})",
+                                hint="move the file aside (keep it for recovery with `sqlite3 FILE .recover`); "
+                                     "the station starts a new one")
+        if "locked" in text or "busy" in text:
+            return StorageError(f"{self.path}: {doing}: the history database is locked by another program "
+                                f"for more than {self.timeout_s:g} s ({text})",
+                                hint="close the program holding it (an open sqlite3 shell, a backup tool) and retry")
+        if isinstance(e, OSError) or "readonly" in text or "read-only" in text or "disk" in text \
+                or "unable to open" in text or "full" in text:
+            reason = getattr(e, "strerror", None) or text
+            return StorageError(f"{self.path}: {doing}: {reason}",
+                                hint="check that the data folder exists, is writable and has free space")
+        return StorageError(f"{self.path}: {doing}: {text}")
+
+    # -- writing -----------------------------------------------------------------------------------
+    def store(self, result: dict) -> int:
+        """Store one cycle and its angles in one transaction. Returns the row id."""
+        try:
+            cycle_id = str(result["cycle_id"])
+            time_utc = normalize_time(result["time_utc"])
+        except (KeyError, TypeError, ValueError) as e:
+            raise StorageError(f"cannot store a result without a valid cycle_id and time_utc ({e})") from None
+        passed = (result.get("pass") or {}).get("overall")
+        row = (cycle_id, time_utc, result.get("job_id"), result.get("vehicle_spec"),
+               int(bool(result.get("valid", False))), None if passed is None else int(bool(passed)),
+               result.get("calibration_id"), result.get("recording"), result.get("software_version"),
+               result.get("station"), json.dumps(result, default=str, allow_nan=False))
+        try:
+            c = self._conn
+            c.execute("BEGIN IMMEDIATE")
+            try:
+                cur = c.execute(
+                    "INSERT INTO cycles (cycle_id, time_utc, job_id, vehicle_spec, valid, passed, "
+                    "calibration_id, recording, software_version, station, result_json) "
+                    "VALUES (?,?,?,?,?,?,?,?,?,?,?)", row)
+                rowid = cur.lastrowid
+                c.executemany("INSERT INTO angles (cycle, name, value_deg, std_deg, passed) VALUES (?,?,?,?,?)",
+                              [(rowid, *a) for a in _angle_rows(result)])
+                c.execute("COMMIT")
+            except BaseException:
+                if c.in_transaction:
+                    c.execute("ROLLBACK")
+                raise
+        except sqlite3.IntegrityError as e:
+            raise StorageError(f"{self.path}: cycle {cycle_id} is already in the history ({e})",
+                               hint="every cycle needs a unique cycle_id") from None
+        except ValueError as e:  # json: NaN/inf
+            raise StorageError(f"cannot store cycle {cycle_id}: {e}") from None
+        except (sqlite3.Error, OSError) as e:
+            raise self._error(e, f"cannot store cycle {cycle_id}") from e
+        return int(rowid)
+
+    # -- reading -----------------------------------------------------------------------------------
+    def query(self, job: str | None = None, since=None, until=None, vehicle: str | None = None,
+              passed: bool | None = None, limit: int | None = None) -> list[dict]:
+        """Cycles in time order, filtered. ``since``/``until``: ISO date or time (a bare ``until``
+        date includes that day). Each row: the columns, ``angles`` {name: deg} and ``result``."""
+        where, args = [], []
+        if job is not None:
+            where.append("job_id = ?"); args.append(job)
+        if vehicle is not None:
+            where.append("vehicle_spec = ?"); args.append(vehicle)
+        if since is not None:
+            where.append("time_utc >= ?"); args.append(time_bound(since, end=False))
+        if until is not None:
+            where.append("time_utc <= ?"); args.append(time_bound(until, end=True))
+        if passed is not None:
+            where.append("passed = ?"); args.append(int(bool(passed)))
+        sql = ("SELECT " + ", ".join(_COLUMNS) + ", result_json FROM cycles"
+               + (" WHERE " + " AND ".join(where) if where else "") + " ORDER BY time_utc DESC, id DESC")
+        if limit is not None:
+            sql += f" LIMIT {int(limit)}"
+        try:
+            rows = self._conn.execute(sql, args).fetchall()[::-1]
+            ids = [r["id"] for r in rows]
+            angles: dict[int, dict] = {i: {} for i in ids}
+            for start in range(0, len(ids), 500):
+                part = ids[start:start + 500]
+                for a in self._conn.execute(
+                        f"SELECT cycle, name, value_deg FROM angles WHERE cycle IN ({','.join('?' * len(part))})", part):
+                    angles[a["cycle"]][a["name"]] = a["value_deg"]
+        except sqlite3.Error as e:
+            raise self._error(e, "cannot read the history") from e
+        out = []
+        for r in rows:
+            d = {k: r[k] for k in _COLUMNS}
+            d["valid"] = bool(d["valid"])
+            d["passed"] = None if d["passed"] is None else bool(d["passed"])
+            d["angles"] = {n: angles[r["id"]].get(n) for n in ANGLE_NAMES}
+            d["result"] = json.loads(r["result_json"])
+            out.append(d)
+        return out
+
+    def jobs(self, job_id: str) -> list[dict]:
+        """The results (full dicts) of one job, in time order."""
+        return [r["result"] for r in self.query(job=job_id)]
+
+    def job_ids(self) -> list[tuple[str, int, str]]:
+        """(job id, number of cycles, last time) of every job, newest first."""
+        try:
+            return [tuple(r) for r in self._conn.execute(
+                "SELECT job_id, COUNT(*), MAX(time_utc) FROM cycles WHERE job_id IS NOT NULL "
+                "GROUP BY job_id ORDER BY MAX(time_utc) DESC")]
+        except sqlite3.Error as e:
+            raise self._error(e, "cannot read the history") from e
+
+    def check(self) -> str:
+        """SQLite's integrity check: 'ok' or the problems found."""
+        try:
+            return "\n".join(r[0] for r in self._conn.execute("PRAGMA integrity_check"))
+        except sqlite3.Error as e:
+            raise self._error(e, "cannot check the history") from e
+
+    def close(self) -> None:
+        self._conn.close()
+
+    def __enter__(self) -> "History":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+# --- CSV --------------------------------------------------------------------------------------------
+CSV_COLUMNS = ("cycle_id", "time_utc", "job_id", "vehicle_spec", "valid", "passed", *ANGLE_NAMES,
+               "calibration_id", "software_version", "recording")
+
+
+def _cell(v):
+    """A CSV cell; text that a spreadsheet would run as a formula is quoted with a leading '."""
+    if v is None:
+        return ""
+    if isinstance(v, bool):
+        return "1" if v else "0"
+    if isinstance(v, float):
+        return f"{v:.4f}"
+    v = str(v)
+    return "'" + v if v[:1] in ("=", "+", "-", "@", "\t", "\r") else v
+
+
+def export_csv(rows: list[dict], path_or_file) -> int:
+    """Write rows from :meth:`History.query` as CSV (one line per cycle). Returns the row count.
+
+    A path is written to a temporary file and renamed, so a failed export leaves no half file.
+    """
+    def write(f):
+        w = csv.writer(f, lineterminator="\n")
+        w.writerow(CSV_COLUMNS)
+        for r in rows:
+            w.writerow([_cell(r["angles"].get(c) if c in ANGLE_NAMES else r.get(c)) for c in CSV_COLUMNS])
+
+    if isinstance(path_or_file, io.IOBase) or hasattr(path_or_file, "write"):
+        write(path_or_file)
+        return len(rows)
+    path = Path(path_or_file)
+    tmp = None
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
+        with os.fdopen(fd, "w", newline="") as f:
+            write(f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except OSError as e:
+        if tmp:
+            try:
+                os.unlink(tmp)
+            except OSError:
+                pass
+        raise StorageError(f"{path}: cannot write the CSV export: {e.strerror or e}",
+                           hint="choose a writable folder with free space") from e
+    return len(rows)

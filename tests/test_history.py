@@ -1,0 +1,205 @@
+"""SQLite history: store/query/filter/CSV, and the faults (corrupt, locked, read-only, killed)."""
+
+import csv
+import io
+import json
+import os
+import signal
+import sqlite3
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+
+from result_builder import make_result
+from station.errors import StorageError
+from station.history import ANGLE_NAMES, History, export_csv
+
+TESTS = Path(__file__).resolve().parent
+
+
+@pytest.fixture
+def hist(tmp_path):
+    h = History(tmp_path / "history.sqlite")
+    yield h
+    h.close()
+
+
+def _fill(h):
+    h.store(make_result(1, cycle=1, job_id="JOB-A", time_utc="2026-11-20T08:00:00Z") | {"pass": {"overall": False}})
+    h.store(make_result(2, cycle=2, job_id="JOB-A", time_utc="2026-11-20T08:05:00Z") | {"pass": {"overall": True}})
+    h.store(make_result(3, cycle=3, job_id="JOB-B", vehicle_spec="toyota-echo-2003",
+                        time_utc="2026-11-21T23:59:59.5Z") | {"pass": {"overall": True}})
+    h.store(make_result(4, cycle=4, job_id=None, vehicle_spec=None, time_utc="2026-11-22T00:00:00Z"))
+    h.store(make_result(5, cycle=5, job_id="JOB-A", valid=False, time_utc="2026-11-20T07:00:00+01:00"))
+
+
+def test_store_and_read_back_every_field(hist):
+    r = make_result(7, cycle=7, recording="/var/recordings/x.rrd") | {"pass": {"overall": True, "FL.toe": True}}
+    rowid = hist.store(r)
+    rows = hist.query()
+    assert len(rows) == 1 and rows[0]["id"] == rowid
+    row = rows[0]
+    assert row["result"] == json.loads(json.dumps(r))
+    assert row["passed"] is True and row["valid"] is True
+    assert row["calibration_id"] == r["calibration_id"] and row["software_version"] == "0.1.0"
+    assert row["recording"] == "/var/recordings/x.rrd"
+    assert row["angles"]["FL.toe"] == pytest.approx(r["wheels"]["FL"]["toe_deg"])
+    assert row["angles"]["thrust"] == pytest.approx(r["thrust_deg"])
+    assert row["angles"]["rear.total_toe"] == pytest.approx(r["axles"]["rear"]["total_toe_deg"])
+    # the raw tables: 11 angle rows, pass stored per angle where present
+    con = sqlite3.connect(hist.path)
+    assert con.execute("SELECT COUNT(*) FROM angles").fetchone()[0] == len(ANGLE_NAMES)
+    assert con.execute("SELECT passed FROM angles WHERE name='FL.toe'").fetchone()[0] == 1
+    assert con.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
+
+
+def test_filters_and_time_order(hist):
+    _fill(hist)
+    assert [r["cycle_id"][-4:] for r in hist.query()] == ["0005", "0001", "0002", "0003", "0004"]
+    assert [r["cycle_id"][-1] for r in hist.query(job="JOB-A")] == ["5", "1", "2"]
+    assert [r["cycle_id"][-1] for r in hist.query(since="2026-11-21")] == ["3", "4"]
+    # a bare date as --until includes that whole day (23:59:59.5 is in)
+    assert [r["cycle_id"][-1] for r in hist.query(until="2026-11-21", since="2026-11-21")] == ["3"]
+    assert [r["cycle_id"][-1] for r in hist.query(vehicle="toyota-echo-2003")] == ["3"]
+    assert [r["cycle_id"][-1] for r in hist.query(passed=False)] == ["1"]
+    assert [r["cycle_id"][-1] for r in hist.query(passed=True, job="JOB-A")] == ["2"]
+    assert [r["cycle_id"][-1] for r in hist.query(limit=2)] == ["3", "4"]
+    # the +01:00 time was normalised to UTC (06:00Z), so it sorts first
+    assert hist.query(job="JOB-A")[0]["time_utc"] == "2026-11-20T06:00:00.000Z"
+    assert [r["cycle_id"][-1] for r in hist.jobs("JOB-A") and hist.query(job="JOB-A")] == ["5", "1", "2"]
+    assert [r["cycle_id"] for r in hist.jobs("JOB-A")][-1].endswith("0002")
+    assert hist.jobs("nobody") == []
+    invalid = hist.query(job="JOB-A")[0]
+    assert invalid["valid"] is False and all(v is None for v in invalid["angles"].values())
+
+
+def test_duplicate_cycle_is_a_clear_error_and_stores_nothing(hist):
+    hist.store(make_result(1, cycle=1))
+    with pytest.raises(StorageError, match="already in the history"):
+        hist.store(make_result(2, cycle=1))
+    assert len(hist.query()) == 1
+    assert sqlite3.connect(hist.path).execute("SELECT COUNT(*) FROM angles").fetchone()[0] == len(ANGLE_NAMES)
+
+
+def test_csv_export_and_formula_injection(hist, tmp_path):
+    hist.store(make_result(1, cycle=1, job_id='=HYPERLINK("http://x")'))
+    hist.store(make_result(2, cycle=2, job_id='VIN,with "quotes"\nand newline'))
+    rows = hist.query()
+    out = tmp_path / "h.csv"
+    assert export_csv(rows, out) == 2
+    parsed = list(csv.DictReader(out.open()))
+    assert parsed[0]["job_id"] == "'=HYPERLINK(\"http://x\")"
+    assert parsed[1]["job_id"] == 'VIN,with "quotes"\nand newline'
+    assert float(parsed[0]["FL.toe"]) == pytest.approx(rows[0]["angles"]["FL.toe"], abs=1e-4)
+    assert list(parsed[0]) [:6] == ["cycle_id", "time_utc", "job_id", "vehicle_spec", "valid", "passed"]
+    buf = io.StringIO()
+    export_csv(rows, buf)
+    assert buf.getvalue() == out.read_text()
+    with pytest.raises(StorageError, match="cannot write the CSV"):
+        export_csv(rows, tmp_path / "no" / "such" / "dir.csv")
+
+
+def test_corrupt_database_is_a_clear_error(tmp_path):
+    p = tmp_path / "history.sqlite"
+    p.write_bytes(b"this is not a database" * 200)
+    with pytest.raises(StorageError, match="corrupt") as e:
+        History(p)
+    assert "move the file aside" in e.value.hint
+    assert p.read_bytes().startswith(b"this is not")  # untouched
+
+
+def test_damaged_pages_are_reported_not_crashed(tmp_path):
+    p = tmp_path / "history.sqlite"
+    with History(p) as h:
+        for i in range(40):
+            h.store(make_result(i, cycle=i + 1))
+    con = sqlite3.connect(p)
+    con.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+    con.close()
+    data = bytearray(p.read_bytes())
+    page = 4096
+    data[3 * page:6 * page] = os.urandom(3 * page)  # smash b-tree pages (not the header)
+    p.write_bytes(bytes(data))
+    with pytest.raises(StorageError) as e:
+        with History(p) as h:
+            h.query()
+            assert h.check() == "ok"
+    assert e.value.code == 600
+
+
+def test_locked_database_is_a_clear_error(tmp_path):
+    p = tmp_path / "history.sqlite"
+    History(p).close()
+    holder = sqlite3.connect(p, isolation_level=None)
+    holder.execute("BEGIN EXCLUSIVE")  # another program holds the write lock
+    h = History(p, timeout_s=0.2)
+    t0 = time.monotonic()
+    with pytest.raises(StorageError, match="locked by another program") as e:
+        h.store(make_result(1))
+    assert time.monotonic() - t0 < 3
+    assert "close the program" in e.value.hint
+    holder.execute("ROLLBACK")
+    h.store(make_result(1))  # the lock gone, the same result stores
+    assert len(h.query()) == 1
+
+
+def test_read_only_folder(tmp_path):
+    if os.geteuid() == 0:
+        ro = tmp_path / "file-not-dir"
+        ro.write_text("x")
+        p = ro / "history.sqlite"  # a folder that cannot exist: the same failure for root
+    else:
+        ro = tmp_path / "ro"
+        ro.mkdir()
+        ro.chmod(0o555)
+        p = ro / "history.sqlite"
+    with pytest.raises(StorageError, match="cannot open the history"):
+        History(p)
+
+
+KILLER = textwrap.dedent("""
+    import sys, time
+    sys.path.insert(0, {tests!r})
+    from result_builder import make_result
+    from station.history import History
+    h = History(sys.argv[1])
+    # slow SQLite down inside each transaction so the kill lands mid-write
+    h._conn.set_progress_handler(lambda: time.sleep(0.0005) or 0, 50)
+    i = int(sys.argv[2])
+    print("ready", flush=True)
+    while True:
+        i += 1
+        print("begin", i, flush=True)
+        h.store(make_result(i, cycle=i, time_utc=None))
+        print("done", i, flush=True)
+""")
+
+
+def test_killed_mid_write_leaves_whole_cycles_only(tmp_path):
+    p = tmp_path / "history.sqlite"
+    History(p).close()
+    script = tmp_path / "writer.py"
+    script.write_text(KILLER.format(tests=str(TESTS)))
+    start, stored, mid_write = 0, 0, 0
+    for delay in (0.35, 0.6, 0.85):
+        proc = subprocess.Popen([sys.executable, str(script), str(p), str(start)], stdout=subprocess.PIPE)
+        assert proc.stdout.readline().strip() == b"ready"
+        time.sleep(delay)
+        os.kill(proc.pid, signal.SIGKILL)
+        out = proc.communicate()[0].decode().split()
+        mid_write += out[-2] == "begin"  # killed inside store()
+        with History(p) as h:
+            assert h.check() == "ok"
+            rows = h.query()
+        con = sqlite3.connect(p)
+        counts = dict(con.execute("SELECT cycle, COUNT(*) FROM angles GROUP BY cycle").fetchall())
+        con.close()
+        assert len(rows) > stored  # the writer got somewhere
+        assert all(counts.get(r["id"]) == len(ANGLE_NAMES) for r in rows), "a cycle was half-stored"
+        assert set(counts) == {r["id"] for r in rows}
+        stored, start = len(rows), start + 1000  # fresh cycle ids for the next writer
+    assert mid_write >= 1, "no kill landed inside a transaction: the test proved nothing"
