@@ -31,6 +31,7 @@ import os
 import re
 import time
 import uuid
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -307,7 +308,7 @@ class CycleRecorder:
         if self.error is None:
             self._write_out()
         else:
-            self._rec.disconnect()
+            self._drop_buffer()
         if self.error is None:
             try:
                 self._file.flush()
@@ -324,8 +325,12 @@ class CycleRecorder:
     def abort(self) -> None:
         """Drop the recording (no file left)."""
         self._closed = True
-        self._rec.disconnect()
+        self._drop_buffer()
         self._discard()
+
+    def _drop_buffer(self) -> None:
+        self._rec.disconnect()
+        self._stream.read(flush=False)
 
     def __enter__(self) -> "CycleRecorder":
         return self
@@ -362,7 +367,9 @@ def read_recording_summary(path: str | os.PathLike) -> dict:
     if not path.is_file():
         raise StorageError(f"{path}: no such recording", hint="`station history` lists the cycles and their recordings")
     try:
-        reader = rr.chunk.RrdReader(str(path))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # "no footer": a truncated file, reported below if unreadable
+            reader = rr.chunk.RrdReader(str(path))
         stores = list(reader.recordings())
         entities: dict[str, int] = {}
         scalars: dict[str, list[float]] = {}
