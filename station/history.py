@@ -231,6 +231,16 @@ class History:
         """The results (full dicts) of one job, in time order."""
         return [r["result"] for r in self.query(job=job_id)]
 
+    def get(self, cycle_id: str) -> dict | None:
+        """One cycle's row (as :meth:`query` returns), or None."""
+        try:
+            row = self._conn.execute("SELECT time_utc FROM cycles WHERE cycle_id = ?", (cycle_id,)).fetchone()
+        except sqlite3.Error as e:
+            raise self._error(e, "cannot read the history") from e
+        if row is None:
+            return None
+        return next((r for r in self.query(since=row[0], until=row[0]) if r["cycle_id"] == cycle_id), None)
+
     def job_ids(self) -> list[tuple[str, int, str]]:
         """(job id, number of cycles, last time) of every job, newest first."""
         try:

@@ -203,3 +203,41 @@ def test_killed_mid_write_leaves_whole_cycles_only(tmp_path):
         assert set(counts) == {r["id"] for r in rows}
         stored, start = len(rows), start + 1000  # fresh cycle ids for the next writer
     assert mid_write >= 1, "no kill landed inside a transaction: the test proved nothing"
+
+
+# --- the `station history` command ----------------------------------------------------------------
+def _cli(args, monkeypatch, tmp_path):
+    from station.cli import main
+    monkeypatch.setenv("STATION_DATA_DIR", str(tmp_path))
+    return main(args)
+
+
+def test_cli_lists_filters_and_exports(tmp_path, monkeypatch, capsys):
+    with History(tmp_path / "history.sqlite") as h:
+        _fill(h)
+    assert _cli(["history"], monkeypatch, tmp_path) == 0
+    out = capsys.readouterr().out
+    assert "5 cycle(s)" in out and "FAIL*" in out and "JOB-B" in out
+    assert _cli(["history", "--job", "JOB-A", "--passed"], monkeypatch, tmp_path) == 0
+    out = capsys.readouterr().out
+    assert "1 cycle(s)" in out and "-0002" in out
+    assert _cli(["history", "--failed"], monkeypatch, tmp_path) == 0
+    assert "-0001" in capsys.readouterr().out
+    assert _cli(["history", "--since", "2026-11-23"], monkeypatch, tmp_path) == 0
+    assert "no cycles match" in capsys.readouterr().out
+    csv_path = tmp_path / "out.csv"
+    assert _cli(["history", "--vehicle", "toyota-echo-2003", "--csv", str(csv_path)], monkeypatch, tmp_path) == 0
+    rows = list(csv.DictReader(csv_path.open()))
+    assert [r["job_id"] for r in rows] == ["JOB-B"]
+    assert _cli(["history", "--jobs"], monkeypatch, tmp_path) == 0
+    assert "JOB-A" in capsys.readouterr().out
+
+
+def test_cli_bad_input_and_corrupt_db(tmp_path, monkeypatch, capsys):
+    with pytest.raises(SystemExit) as e:
+        _cli(["history", "--since", "yesterday"], monkeypatch, tmp_path)
+    assert e.value.code == 2 and "not a date" in capsys.readouterr().err
+    (tmp_path / "history.sqlite").write_bytes(b"garbage" * 1000)
+    assert _cli(["history"], monkeypatch, tmp_path) == 2
+    err = capsys.readouterr().err
+    assert "error 600" in err and "corrupt" in err and "Traceback" not in err

@@ -236,3 +236,29 @@ def test_read_only_folder_leaves_no_file_and_keeps_the_result(tmp_path):
     assert out["result_kept"]
     assert out["error"] and "Read-only file system" in out["error"]
     assert out["left"] == []
+
+
+# --- the `station review` command -----------------------------------------------------------------
+def test_review_without_display_prints_contents_and_how(tmp_path, monkeypatch, capsys, recorded):
+    from station.cli import main
+    from station.history import History
+    src, result, _ = recorded
+    rec_dir = tmp_path / "recordings"
+    rec_dir.mkdir()
+    path = rec_dir / src.name
+    path.write_bytes(src.read_bytes())
+    with History(tmp_path / "history.sqlite") as h:
+        h.store(result | {"recording": str(path)})
+    monkeypatch.setenv("STATION_DATA_DIR", str(tmp_path))
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    assert main(["review", result["cycle_id"]]) == 0
+    out = capsys.readouterr().out
+    assert "8 image(s)" in out and "no display here" in out and f"rerun {path}" in out
+    assert f"{result['wheels']['FL']['toe_deg']:+.3f}" in out
+    assert main(["review"]) == 0  # the newest recording
+    assert str(path) in capsys.readouterr().out
+    assert main(["review", "--job", result["job_id"], "--summary"]) == 0
+    assert "no display" not in capsys.readouterr().out
+    assert main(["review", "no-such-cycle"]) == 2
+    assert "no recording found" in capsys.readouterr().err

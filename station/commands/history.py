@@ -1,0 +1,75 @@
+"""`station history`: list, filter and export the stored cycles."""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import sys
+
+from station.config import load_config
+from station.history import History, export_csv
+
+HELP = "list the stored measurement cycles (filter by job, date, vehicle, pass/fail; export CSV)"
+
+
+def _when(text: str) -> str:
+    try:
+        dt.datetime.fromisoformat(text.replace("Z", "+00:00"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a date or time; use YYYY-MM-DD or "
+                                         "YYYY-MM-DDTHH:MM[:SS][Z]") from None
+    return text
+
+
+def add_arguments(parser):
+    parser.add_argument("--job", metavar="J", help="only this job id / VIN")
+    parser.add_argument("--since", metavar="DATE", type=_when, help="from this date or time (UTC)")
+    parser.add_argument("--until", metavar="DATE", type=_when, help="up to this date (whole day) or time (UTC)")
+    parser.add_argument("--vehicle", metavar="V", help="only this vehicle spec (e.g. dodge-caravan-2007)")
+    g = parser.add_mutually_exclusive_group()
+    g.add_argument("--passed", dest="passed", action="store_const", const=True, help="only cycles that passed")
+    g.add_argument("--failed", dest="passed", action="store_const", const=False, help="only cycles that failed")
+    parser.add_argument("--limit", type=int, metavar="N", help="only the newest N cycles")
+    parser.add_argument("--csv", metavar="PATH", help="write the rows as CSV ('-' for standard output)")
+    parser.add_argument("--jobs", action="store_true", help="list the jobs instead of the cycles")
+
+
+def _fmt(v) -> str:
+    return "      -" if v is None else f"{v:+7.2f}"
+
+
+def run(args) -> int:
+    config = load_config(args.config)
+    with History(config.data_path("history.sqlite")) as history:
+        if args.jobs:
+            print(f"{'job':<24} {'cycles':>6}  last (UTC)")
+            for job, n, last in history.job_ids():
+                print(f"{job[:24]:<24} {n:>6}  {last}")
+            return 0
+        rows = history.query(job=args.job, since=args.since, until=args.until, vehicle=args.vehicle,
+                             passed=args.passed, limit=args.limit)
+    if args.csv:
+        if args.csv == "-":
+            export_csv(rows, sys.stdout)
+        else:
+            n = export_csv(rows, args.csv)
+            print(f"{n} cycle(s) written to {args.csv}")
+        return 0
+    if not rows:
+        print("no cycles match")
+        return 0
+    head = ["time (UTC)", "cycle", "job", "vehicle", "result",
+            "FL toe", "FR toe", "RL toe", "RR toe", "FL cmb", "FR cmb", "RL cmb", "RR cmb", "thrust"]
+    print(f"{head[0]:<20} {head[1]:<22} {head[2]:<18} {head[3]:<20} {head[4]:<6} " + " ".join(f"{h:>7}" for h in head[5:]))
+    for r in rows:
+        a = r["angles"]
+        verdict = "FAIL*" if not r["valid"] else {True: "pass", False: "FAIL", None: "-"}[r["passed"]]
+        vals = [a["FL.toe"], a["FR.toe"], a["RL.toe"], a["RR.toe"],
+                a["FL.camber"], a["FR.camber"], a["RL.camber"], a["RR.camber"], a["thrust"]]
+        job = (r["job_id"] or "-").replace("\n", " ")[:18]
+        print(f"{r['time_utc'][:19]:<20} {r['cycle_id'][:22]:<22} {job:<18} {(r['vehicle_spec'] or '-')[:20]:<20} "
+              f"{verdict:<6} " + " ".join(_fmt(v) for v in vals))
+    if any(not r["valid"] for r in rows):
+        print("FAIL*: the cycle itself failed (no angles); see `station review CYCLE`")
+    print(f"{len(rows)} cycle(s); angles in degrees")
+    return 0

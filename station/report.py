@@ -1,0 +1,199 @@
+"""The printable before/after report of a job (self-contained HTML: inline CSS and SVG).
+
+"Before" is the first valid cycle of the job in the history, "after" the last (the technician
+measures, adjusts, measures again). Each angle is shown against the vehicle's spec with colours;
+a top-view drawing (station/report_svg.py) shows the four wheels' toe and camber. Everything
+that comes from a user (job id, VIN, names, warnings) is HTML-escaped. ``render_with_chromium``
+prints the HTML to PDF or PNG with a headless Chromium (Debian's ``chromium``).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import re
+import shutil
+import subprocess
+import tempfile
+from html import escape
+from pathlib import Path
+
+from station.errors import StorageError
+from station.report_svg import COLORS, FILL, top_view_svg
+from station.vehicle_specs import ANGLE_NAMES, VehicleSpec, angle_value, evaluate
+
+_LABELS = {"toe": "toe", "camber": "camber", "total_toe": "total toe"}
+_CSS = """
+@page { size: A4; margin: 14mm; }
+body { font-family: "DejaVu Sans", Arial, sans-serif; font-size: 10.5pt; color: #222; margin: 0; }
+h1 { font-size: 16pt; margin: 0 0 4pt 0; } h2 { font-size: 12pt; margin: 12pt 0 4pt 0; }
+table { border-collapse: collapse; width: 100%; } td, th { border: 1px solid #bbb; padding: 3pt 5pt; }
+th { background: #f0f0f0; text-align: left; } td.num { text-align: right; font-variant-numeric: tabular-nums; }
+.meta td { border: none; padding: 1pt 8pt 1pt 0; } .meta td:first-child { color: #666; }
+.pass { background: #d7f0dd; color: #1b8a3a; } .fail { background: #fbd9d9; color: #c62828; font-weight: bold; }
+.none { background: #eee; color: #666; }
+.verdict { font-size: 14pt; font-weight: bold; padding: 4pt 8pt; display: inline-block; border-radius: 4pt; }
+.drawings { display: flex; gap: 12pt; justify-content: center; page-break-inside: avoid; }
+.topview text { font-family: "DejaVu Sans", Arial, sans-serif; font-size: 11px; }
+.topview .small { font-size: 9px; fill: #555; } .topview .svg-title { font-size: 13px; font-weight: bold; }
+.topview .wheel { font-weight: bold; }
+@media screen { body { margin: 14px; } }
+.warn { color: #8a5a00; } .foot { color: #777; font-size: 8.5pt; margin-top: 10pt; }
+"""
+
+
+def safe_filename(job_id: str) -> str:
+    """A file name for a job id with any characters: readable part + a short hash (no collisions)."""
+    readable = re.sub(r"[^A-Za-z0-9-]+", "_", job_id).strip("_-")[:60] or "job"
+    return f"{readable}-{hashlib.sha1(job_id.encode()).hexdigest()[:8]}"
+
+
+def _status(v: bool | None) -> tuple[str, str]:
+    return {True: ("pass", "in tolerance"), False: ("fail", "OUT"), None: ("none", "no spec")}[v]
+
+
+def _values(result: dict) -> dict:
+    return {name: angle_value(result, name) for name in ANGLE_NAMES}
+
+
+def _verdicts(result: dict, spec: VehicleSpec | None) -> dict:
+    if spec is not None:
+        return evaluate(result, spec)
+    stored = result.get("pass") or {}
+    return {name: stored.get(name) for name in (*ANGLE_NAMES, "overall")} | {"overall": stored.get("overall")}
+
+
+def _cell(v: float | None, ok: bool | None) -> str:
+    if v is None:
+        return '<td class="num none">&mdash;</td>'
+    cls = _status(ok)[0]
+    return f'<td class="num {cls}">{v:+.2f}&deg;</td>'
+
+
+def build_report(job_id: str, results: list[dict], spec: VehicleSpec | None = None) -> str:
+    """The HTML report of a job from its results in time order (at least one)."""
+    if not results:
+        raise StorageError(f"job {job_id!r}: no cycles in the history", hint="`station history` lists the jobs")
+    valid = [r for r in results if r.get("valid")]
+    before = valid[0] if valid else results[0]
+    after = valid[-1] if valid else results[-1]
+    same = before is after
+    vb, va = _verdicts(before, spec), _verdicts(after, spec)
+    xb, xa = _values(before), _values(after)
+    e = escape
+    vehicle = spec.name if spec else (after.get("vehicle_spec") or "no vehicle spec")
+    overall = va.get("overall")
+    vcls, vtext = {True: ("pass", "PASS"), False: ("fail", "FAIL"), None: ("none", "NOT CHECKED")}[overall]
+
+    rows = []
+    for name in ANGLE_NAMES:
+        where, kind = name.split(".") if "." in name else ("", name)
+        label = f"{where} {_LABELS.get(kind, kind)}".strip()
+        s = spec.angles.get(name) if spec else None
+        limits = (f"{s.nominal_deg:+.2f}&deg; &plusmn; {s.tolerance_deg:.2f}&deg; "
+                  f"({s.low_deg:+.2f} &hellip; {s.high_deg:+.2f})") if s else "&mdash;"
+        cls, word = _status(va.get(name))
+        rows.append(f"<tr><td>{e(label)}</td><td>{limits}</td>"
+                    + ("" if same else _cell(xb[name], vb.get(name)))
+                    + f'{_cell(xa[name], va.get(name))}<td class="{cls}">{word}</td></tr>')
+
+    def meta(r: dict) -> str:
+        return (f"{e(str(r.get('time_utc', '')))} &middot; cycle {e(str(r.get('cycle_id', '')))}")
+
+    warnings = [w for r in (before, after) for w in (r.get("warnings") or [])]
+    failed = [r for r in results if not r.get("valid")]
+    drawings = ("" if same else top_view_svg(xb, vb, "Before")) + top_view_svg(xa, va, "After" if not same else "Measured")
+    cycles = "".join(
+        f"<tr><td>{e(str(r.get('cycle_id')))}</td><td>{e(str(r.get('time_utc')))}</td>"
+        f"<td>{'valid' if r.get('valid') else 'failed: ' + e(str((r.get('failure') or {}).get('message', '')))}</td></tr>"
+        for r in results)
+    html = f"""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8">
+<meta http-equiv="Content-Security-Policy" content="default-src 'none'; style-src 'unsafe-inline'; img-src data:">
+<title>Wheel alignment report &ndash; {e(job_id)}</title><style>{_CSS}</style></head>
+<body>
+<h1>Wheel alignment report</h1>
+<table class="meta">
+<tr><td>Job / VIN</td><td><b>{e(job_id)}</b></td></tr>
+<tr><td>Vehicle</td><td>{e(vehicle)}</td></tr>
+<tr><td>{'Measured' if same else 'Before'}</td><td>{meta(before)}</td></tr>
+{'' if same else f'<tr><td>After</td><td>{meta(after)}</td></tr>'}
+<tr><td>Station</td><td>{e(str(after.get('station', '')))} &middot; calibration {e(str(after.get('calibration_id', '')))}
+ &middot; software {e(str(after.get('software_version', '')))}</td></tr>
+</table>
+<p>Result{'' if same else ' after adjustment'}: <span class="verdict {vcls}">{vtext}</span></p>
+<h2>Angles (degrees)</h2>
+<table class="angles"><tr><th>angle</th><th>specification</th>{'' if same else '<th>before</th>'}
+<th>{'measured' if same else 'after'}</th><th>status</th></tr>
+{''.join(rows)}</table>
+<p class="foot">Toe: + is toe-in. Camber: + is the top of the wheel leaning out. Thrust: + is the thrust
+line to the right. Front toe is measured against the geometric centreline. Colours:
+<span class="pass">&nbsp;in tolerance&nbsp;</span> <span class="fail">&nbsp;out of tolerance&nbsp;</span>
+<span class="none">&nbsp;no figure in the spec&nbsp;</span>.</p>
+<h2>Top view</h2>
+<div class="drawings">{drawings}</div>
+{'<h2>Warnings</h2><ul>' + ''.join(f'<li class="warn">{e(str(w))}</li>' for w in warnings) + '</ul>' if warnings else ''}
+<h2>Cycles of this job</h2>
+<table><tr><th>cycle</th><th>time (UTC)</th><th>state</th></tr>{cycles}</table>
+{f'<p class="warn">{len(failed)} cycle(s) of this job failed and are not used above.</p>' if failed else ''}
+<p class="foot">{e(spec.source) if spec else ''}</p>
+</body></html>
+"""
+    return html
+
+
+def write_report(html: str, path: str | os.PathLike) -> Path:
+    """Write atomically (temp file + rename). OSError -> StorageError."""
+    path = Path(path)
+    tmp = None
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(html)
+        os.replace(tmp, path)
+    except OSError as err:
+        if tmp:
+            try:
+                os.unlink(tmp)
+            except OSError:
+                pass
+        raise StorageError(f"{path}: cannot write the report: {err.strerror or err}",
+                           hint="choose a writable folder with --out") from err
+    return path
+
+
+def find_chromium() -> str | None:
+    for name in ("chromium", "chromium-browser", "google-chrome", "chrome"):
+        exe = shutil.which(name)
+        if exe:
+            return exe
+    return "/usr/bin/chromium" if os.path.exists("/usr/bin/chromium") else None
+
+
+def render_with_chromium(html_path: str | os.PathLike, out_path: str | os.PathLike, *, kind: str = "pdf",
+                         timeout_s: float = 90.0, window: tuple[int, int] = (1000, 1400)) -> Path:
+    """Print an HTML file to PDF (``kind="pdf"``) or a PNG screenshot with headless Chromium."""
+    exe = find_chromium()
+    if exe is None:
+        raise StorageError("cannot make a PDF: Chromium is not installed",
+                           hint="apt-get install chromium, or print the HTML report from any browser")
+    html_path, out_path = Path(html_path).resolve(), Path(out_path).resolve()
+    with tempfile.TemporaryDirectory(prefix="station-chromium-") as profile:
+        args = [exe, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                "--disable-background-networking", "--disable-component-update", "--disable-sync",
+                "--disable-dev-shm-usage", f"--user-data-dir={profile}"]
+        if kind == "pdf":
+            args += ["--no-pdf-header-footer", f"--print-to-pdf={out_path}"]
+        elif kind == "png":
+            args += [f"--window-size={window[0]},{window[1]}", f"--screenshot={out_path}"]
+        else:
+            raise ValueError(f"kind must be 'pdf' or 'png', not {kind!r}")
+        try:
+            proc = subprocess.run(args + [html_path.as_uri()], capture_output=True, text=True, timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            raise StorageError(f"Chromium did not finish the {kind.upper()} within {timeout_s:g} s") from None
+    if proc.returncode != 0 or not out_path.exists() or out_path.stat().st_size == 0:
+        raise StorageError(f"Chromium could not render {html_path} to {kind.upper()} "
+                           f"(exit {proc.returncode}): {proc.stderr.strip()[-300:]}")
+    return out_path

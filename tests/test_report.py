@@ -1,0 +1,108 @@
+"""Before/after report: content, escaping, colours, and a real headless Chromium render."""
+
+import re
+import struct
+from pathlib import Path
+
+import pytest
+
+from result_builder import make_result, with_spec
+from station.history import History
+from station.report import build_report, find_chromium, render_with_chromium, safe_filename, write_report
+from station.report_svg import top_view_svg
+from station.vehicle_specs import load_vehicle_specs
+
+SPECS = load_vehicle_specs(Path(__file__).resolve().parent.parent / "config" / "vehicles.yaml")
+CARAVAN = SPECS["dodge-caravan-2007"]
+ODD_JOB = 'VIN <script>alert("x")</script> & Co/../\u00e9\u00df "1"'
+
+
+def job_results(job_id=ODD_JOB):
+    before = with_spec(make_result(1, cycle=1, job_id=job_id,
+                                   toe={"FL": 0.40, "FR": -0.20, "RL": 0.02, "RR": 0.0},
+                                   camber={"FL": 0.9, "FR": 0.1, "RL": 0.0, "RR": 0.05}), CARAVAN)
+    failed = make_result(2, cycle=2, job_id=job_id, valid=False)
+    after = with_spec(make_result(3, cycle=3, job_id=job_id,
+                                  toe={"FL": 0.05, "FR": 0.06, "RL": 0.01, "RR": 0.0},
+                                  camber={"FL": 0.12, "FR": 0.1, "RL": 0.0, "RR": 0.05}), CARAVAN)
+    return [before, failed, after]
+
+
+def test_report_content_and_escaping():
+    results = job_results()
+    html = build_report(ODD_JOB, results, CARAVAN)
+    assert "<script>" not in html and "&lt;script&gt;" in html
+    assert "Dodge Caravan 2007" in html
+    # before had FL camber 0.90 (out: window -0.30..0.50), after 0.12 (in)
+    fl_camber = re.search(r"<tr><td>FL camber</td>(.*?)</tr>", html).group(1)
+    assert '<td class="num fail">+0.90&deg;</td>' in fl_camber
+    assert '<td class="num pass">+0.12&deg;</td>' in fl_camber
+    assert "+0.10&deg; &plusmn; 0.40&deg;" in fl_camber
+    assert 'class="verdict pass">PASS' in html
+    assert html.count("<svg") == 2 and "Before" in html and "After" in html
+    assert "1 cycle(s) of this job failed" in html and "no closed rim contour" in html
+    # nothing is fetched from outside: self-contained
+    assert not re.search(r"""(src|href)=["']?(https?:)?//""", html)
+
+
+def test_single_cycle_and_no_spec():
+    r = make_result(4, cycle=1, job_id="J1", vehicle_spec=None)
+    html = build_report("J1", [r], None)
+    assert html.count("<svg") == 1 and "Measured" in html and "NOT CHECKED" in html
+    assert "no spec" in html
+
+
+def test_top_view_rotations_follow_the_sign_conventions():
+    values = {"FL.toe": 0.5, "FR.toe": 0.5, "FL.camber": 1.0, "FR.camber": 1.0, "thrust": 0.2}
+    svg = top_view_svg(values, {}, "t")
+    rots = [float(x) for x in re.findall(r"rotate\(([-0-9.]+)\)", svg)]
+    # toe-in: the left wheel turns clockwise (+), the right counter-clockwise (-), 10x exaggerated
+    assert rots[0] == pytest.approx(5.0) and rots[2] == pytest.approx(-5.0)
+    # camber +: the left glyph's top leans left (-), the right's leans right (+)
+    assert rots[1] == pytest.approx(-10.0) and rots[3] == pytest.approx(10.0)
+    assert rots[-1] == pytest.approx(2.0)  # thrust to the right: clockwise
+
+
+def test_safe_filename():
+    a, b = safe_filename(ODD_JOB), safe_filename(ODD_JOB + "x")
+    assert a != b and "/" not in a and ".." not in a and re.fullmatch(r"[A-Za-z0-9._-]+", a)
+    assert safe_filename("WVWZZZ1KZAW000001").startswith("WVWZZZ1KZAW000001-")
+
+
+def test_report_from_history_via_cli(tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("STATION_DATA_DIR", str(tmp_path))
+    with History(tmp_path / "history.sqlite") as h:
+        for r in job_results():
+            h.store(r)
+    from station.cli import main
+    out = tmp_path / "r.html"
+    assert main(["report", ODD_JOB, "--out", str(out)]) == 0
+    html = out.read_text()
+    assert "+0.90&deg;" in html and "+0.12&deg;" in html
+    assert main(["report", "no-such-job"]) == 2
+    assert "no cycles" in capsys.readouterr().err
+
+
+def _png_size(path):
+    data = Path(path).read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    return struct.unpack(">II", data[16:24])
+
+
+@pytest.mark.skipif(find_chromium() is None, reason="Chromium is not installed (apt-get install chromium)")
+def test_chromium_renders_pdf_and_png(tmp_path):
+    html_path = write_report(build_report(ODD_JOB, job_results(), CARAVAN), tmp_path / "report.html")
+    pdf = render_with_chromium(html_path, tmp_path / "report.pdf", kind="pdf")
+    data = pdf.read_bytes()
+    assert data.startswith(b"%PDF-") and len(data) > 20_000
+    assert 1 <= len(re.findall(rb"/Type\s*/Page[^s]", data)) <= 3  # an A4 sheet or two, not zero
+    png = render_with_chromium(html_path, tmp_path / "report.png", kind="png")
+    w, h = _png_size(png)
+    assert (w, h) == (1000, 1400) and png.stat().st_size > 30_000
+    # the page is not blank: the PNG holds many distinct colours (green/red cells, drawings)
+    import cv2
+    img = cv2.imread(str(png))
+    assert img is not None
+    reds = ((img[:, :, 2] > 180) & (img[:, :, 1] < 120) & (img[:, :, 0] < 120)).sum()
+    greens = ((img[:, :, 1] > 110) & (img[:, :, 2] < 80) & (img[:, :, 0] < 100)).sum()
+    assert reds > 200 and greens > 200
