@@ -1,0 +1,110 @@
+"""`station detect IMAGE`: find the rim ellipse in one photograph of a wheel."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from station.errors import ImageError, StorageError
+
+HELP = "find the rim ellipse in one photograph of a wheel (PNG or JPEG, colour or grey, any size)"
+
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+JPEG_MAGIC = b"\xff\xd8"
+
+
+def add_arguments(parser):
+    parser.add_argument("image", metavar="IMAGE", help="the photograph (PNG, JPEG, BMP, TIFF)")
+    parser.add_argument("--json", metavar="PATH", help="write the detection as JSON to PATH ('-': stdout)")
+    parser.add_argument("--draw", metavar="OUT.png", help="draw the rim ellipse and its edge points on the image")
+    parser.add_argument("--equalization", choices=("clahe", "global", "none"), default="clahe",
+                        help="equalisation before Canny: clahe (default), global (the paper's), none")
+
+
+def read_image(path: str | Path) -> np.ndarray:
+    """Read an image file as it is stored (grey, BGR or 16-bit); ImageError for anything unusable,
+    including a truncated PNG or JPEG (which decoders otherwise half-decode silently)."""
+    import cv2
+
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        raise ImageError(f"{path}: no such file", hint="check the path") from None
+    except IsADirectoryError:
+        raise ImageError(f"{path}: is a directory, not an image") from None
+    except OSError as e:
+        raise ImageError(f"{path}: cannot be read ({e.strerror})") from e
+    if not data:
+        raise ImageError(f"{path}: the file is empty")
+    if data.startswith(PNG_MAGIC) and b"IEND" not in data[-64:]:
+        raise ImageError(f"{path}: the PNG file is truncated (no end chunk)",
+                         hint="copy the image again; the file was cut short")
+    if data.startswith(JPEG_MAGIC) and b"\xff\xd9" not in data[data.rfind(b"\xff\xda"):]:
+        raise ImageError(f"{path}: the JPEG file is truncated (no end marker)",
+                         hint="copy the image again; the file was cut short")
+    try:
+        image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    except cv2.error as e:
+        raise ImageError(f"{path}: cannot be decoded as an image ({e.err})") from e
+    if image is None:
+        raise ImageError(f"{path}: not a readable image (PNG, JPEG, BMP or TIFF expected)",
+                         hint="check that the file is an image and not damaged")
+    if image.ndim == 3 and image.shape[2] == 4:
+        image = image[:, :, :3]
+    return image
+
+
+def draw(image: np.ndarray, det, path: str | Path) -> None:
+    import cv2
+
+    if image.dtype != np.uint8:
+        image = (image / 257).astype(np.uint8) if image.dtype == np.uint16 else np.clip(image, 0, 255).astype(np.uint8)
+    out = cv2.cvtColor(image, cv2.COLOR_GRAY2BGR) if image.ndim == 2 else image.copy()
+    thick = max(1, round(max(out.shape[:2]) / 600))
+    e = det.ellipse
+    pts = e.points(720)
+    if det.ellipse_frame != "pixels":  # drawn where the rim is in the (distorted) image: the points
+        pts = det.points_px
+    for p in det.points_px[:: max(1, len(det.points_px) // 120)]:  # edge points under the curve
+        cv2.circle(out, (int(round(p[0])), int(round(p[1]))), 2 * thick, (0, 255, 0), -1)
+    shift = 4
+    poly = np.round(pts * (1 << shift)).astype(np.int32).reshape(-1, 1, 2)
+    cv2.polylines(out, [poly], True, (0, 0, 255), thick, cv2.LINE_AA, shift)
+    c = np.round(e.center_px * (1 << shift)).astype(np.int32)
+    cv2.drawMarker(out, tuple(int(x) >> shift for x in c), (0, 255, 255), cv2.MARKER_CROSS, 10 * thick, thick)
+    label = f"rim a={e.axes_px[0]:.1f} b={e.axes_px[1]:.1f} px  score {det.score:.2f}"
+    cv2.putText(out, label, (10, 10 + 20 * thick), cv2.FONT_HERSHEY_SIMPLEX, 0.6 * thick, (0, 0, 255), thick, cv2.LINE_AA)
+    if not cv2.imwrite(str(path), out):
+        raise ImageError(f"{path}: cannot write the drawing (is the directory there, is the suffix .png/.jpg?)")
+
+
+def run(args) -> int:
+    from station.rim import detect_rim
+
+    image = read_image(args.image)
+    det = detect_rim(image, camera_id=Path(args.image).name, equalization=args.equalization)
+    e = det.ellipse
+    std = np.sqrt(np.maximum(np.diag(det.ellipse_cov), 0))
+    print(f"rim ellipse in {args.image} ({image.shape[1]}x{image.shape[0]} px)")
+    print(f"  centre      u = {e.center_px[0]:9.3f} px   v = {e.center_px[1]:9.3f} px   (+/- {std[0]:.3f}, {std[1]:.3f})")
+    print(f"  semi-axes   a = {e.axes_px[0]:9.3f} px   b = {e.axes_px[1]:9.3f} px   (+/- {std[2]:.3f}, {std[3]:.3f})")
+    print(f"  angle         {np.degrees(e.angle_rad):9.3f} deg  (b/a = {e.axes_px[1] / e.axes_px[0]:.4f})")
+    print(f"  score         {det.score:9.3f}      edge points {len(det.points_px)}, "
+          f"rms {det.point_sigma_px:.3f} px, coverage {det.coverage:.0%}")
+    print(f"  time          {sum(det.timing_s.values()) * 1e3:9.1f} ms")
+    if args.json:
+        doc = {"image": str(args.image), "width": int(image.shape[1]), "height": int(image.shape[0]), **det.to_dict()}
+        text = json.dumps(doc, indent=1)
+        if args.json == "-":
+            print(text)
+        else:
+            try:
+                Path(args.json).write_text(text)
+            except OSError as ex:
+                raise StorageError(f"{args.json}: cannot write the JSON ({ex.strerror})") from ex
+    if args.draw:
+        draw(image, det, args.draw)
+    return 0

@@ -1,0 +1,306 @@
+"""The rim detector: the whole pipeline, candidate scoring and the choice of "the rim".
+
+Stages (paper section 3.1, made industrial; docs/rim-detection.md):
+
+1. grey by eq. 36 (``preprocess.to_grey``), sanity checks (black / saturated / flat image);
+2. a coarse image (larger side <= 720 px), CLAHE equalisation, Canny with thresholds from the
+   image's own gradient distribution (``edges``);
+3. lens-distortion correction of the edge points when a camera model is given (``PixelMap``);
+4. the three-stage ellipse Hough vote (``hough``): centres from polarity-consistent chord
+   midpoints, the shape from one linear solve, the sizes from a 1-D histogram;
+5. the choice of the rim among the candidates: closure (coverage of the perimeter by
+   bright-inside edges), a dark tyre band just outside, a concentric tyre outline further out;
+6. sub-pixel edge points along the normals of the chosen ellipse in the full-resolution
+   original image (``subpixel``), twice, each followed by the robust geometric fit
+   (``ellipse_fit``) that gives the ellipse, its covariance and the inliers.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from station.errors import RimNotFound
+from station.rim import edges as edges_mod
+from station.rim import hough
+from station.rim.ellipse import Ellipse
+from station.rim.ellipse_fit import fit_geometric
+from station.rim.preprocess import PixelMap, detection_scale, downscale, equalize, to_grey
+from station.rim.subpixel import edge_points
+
+MIN_COVERAGE = 0.5         # below: "no closed rim contour"
+MIN_SCORE = 0.35
+AMBIGUITY_RATIO = 0.85     # a second wheel-like ellipse scoring within this of the best: refuse
+MIN_POINTS = 32
+
+
+@dataclass
+class RimDetection:
+    """The rim flange edge found in one image.
+
+    ellipse: the rim ellipse, in image pixels; when a camera model with distortion was given,
+        in *ideal pinhole pixels* of that camera (same K, distortion removed), where the rim
+        is an exact ellipse (``ellipse_frame`` says which).
+    points_px: (N,2) sub-pixel inlier edge points on the flange edge, ORIGINAL (distorted) pixels.
+    points_norm: (N,2) the same points in undistorted normalised coordinates (camera given), else None.
+    score: 0..1; ellipse_cov: (5,5) covariance of (cx, cy, a, b, angle) in px^2 / rad^2;
+    point_sigma_px: robust rms distance of the inliers to the fit; timing_s: seconds per stage.
+    """
+
+    ellipse: Ellipse
+    points_px: np.ndarray
+    score: float
+    ellipse_cov: np.ndarray
+    point_sigma_px: float
+    timing_s: dict
+    camera_id: str = ""
+    points_norm: np.ndarray | None = None
+    ellipse_frame: str = "pixels"
+    coverage: float = 0.0
+    contrast: float = 0.0
+    details: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return {
+            "camera_id": self.camera_id,
+            "ellipse": {**self.ellipse.to_dict(), "frame": self.ellipse_frame},
+            "score": round(float(self.score), 4),
+            "coverage": round(float(self.coverage), 4),
+            "contrast_grey": round(float(self.contrast), 2),
+            "n_points": int(len(self.points_px)),
+            "point_sigma_px": float(self.point_sigma_px),
+            "ellipse_std": dict(zip(("cx_px", "cy_px", "a_px", "b_px", "angle_deg"),
+                                    [float(x) for x in np.sqrt(np.maximum(np.diag(self.ellipse_cov), 0))
+                                     * np.array([1, 1, 1, 1, 180 / np.pi])])),
+            "timing_ms": {k: round(v * 1e3, 2) for k, v in self.timing_s.items()},
+        }
+
+
+class _Clock:
+    def __init__(self):
+        self.t = time.perf_counter()
+        self.stages: dict[str, float] = {}
+
+    def lap(self, name: str):
+        now = time.perf_counter()
+        self.stages[name] = self.stages.get(name, 0.0) + now - self.t
+        self.t = now
+
+
+def _check_exposure(grey: np.ndarray, tag: str) -> None:
+    sample = grey[::4, ::4]
+    lo, hi = np.percentile(sample, [1.0, 99.5])
+    if hi < 12:
+        raise RimNotFound(f"{tag}: image is black (brightest grey level {hi:.0f} of 255)",
+                          hint="check the lighting, the exposure time and that the lens is uncovered")
+    if lo > 243:
+        raise RimNotFound(f"{tag}: image is saturated (darkest grey level {lo:.0f} of 255)",
+                          hint="reduce the exposure time or gain")
+    if hi - lo < 8:
+        raise RimNotFound(f"{tag}: image has no contrast (grey levels {lo:.0f}..{hi:.0f})",
+                          hint="check that the camera sees the wheel and is in focus")
+
+
+class _Scene:
+    """The coarse image, its edges and the mapping between coarse, full and ideal pixels."""
+
+    def __init__(self, grey: np.ndarray, pmap: PixelMap, equalization: str):
+        self.grey = grey
+        self.pmap = pmap
+        self.s = detection_scale(grey.shape)
+        self.coarse = downscale(grey, self.s)
+        u8 = np.clip(self.coarse + 0.5, 0, 255).astype(np.uint8)
+        self.edges = edges_mod.detect_edges(equalize(u8, equalization))
+        if not pmap.identity:  # move the edge points to ideal pixels (coarse scale)
+            full = self.to_full(self.edges.points)
+            ideal = self.to_coarse(pmap.undistort(full))
+            good = np.isfinite(ideal).all(axis=1)
+            self.edges = self.edges.subset(good)
+            self.edges.points = ideal[good]
+
+    def to_full(self, p):
+        return (p + 0.5) * self.s - 0.5
+
+    def to_coarse(self, p):
+        return (p + 0.5) / self.s - 0.5
+
+    def sample_coarse(self, pts_ideal_coarse: np.ndarray) -> np.ndarray:
+        """Bilinear coarse-image grey at ideal coarse points (N,2) (NaN outside)."""
+        p = self.pmap.distort(self.to_full(pts_ideal_coarse))
+        p = self.to_coarse(p)
+        h, w = self.coarse.shape
+        ok = np.isfinite(p).all(axis=1) & (p[:, 0] >= 0) & (p[:, 0] <= w - 1.001) & (p[:, 1] >= 0) & (p[:, 1] <= h - 1.001)
+        out = np.full(len(p), np.nan)
+        u, v = p[ok, 0], p[ok, 1]
+        u0, v0 = np.floor(u).astype(int), np.floor(v).astype(int)
+        fu, fv = u - u0, v - v0
+        c = self.coarse
+        out[ok] = ((1 - fu) * (1 - fv) * c[v0, u0] + fu * (1 - fv) * c[v0, u0 + 1]
+                   + (1 - fu) * fv * c[v0 + 1, u0] + fu * fv * c[v0 + 1, u0 + 1])
+        return out
+
+
+def _ring_darkness(sc: _Scene, e: Ellipse, n_angles: int = 96) -> float:
+    """Fraction of the visible angles where the band just outside ``e`` is clearly darker than
+    the band just inside: a tyre all round (1.0) versus a disc seen between spokes (< 0.8)."""
+    t = (np.arange(n_angles) + 0.5) * (2 * np.pi / n_angles)
+    inner = np.stack([sc.sample_coarse(Ellipse(e.center_px, e.axes_px * f, e.angle_rad).point_at(t))
+                      for f in (0.95, 0.975)]).mean(axis=0)
+    outer = np.stack([sc.sample_coarse(Ellipse(e.center_px, e.axes_px * f, e.angle_rad).point_at(t))
+                      for f in (1.03, 1.06, 1.10)])
+    outer = np.nanmax(outer, axis=0) if np.isfinite(outer).any() else outer[0]
+    contrast = inner - outer
+    vis = np.isfinite(contrast)
+    if vis.sum() < n_angles // 4:
+        return 0.0
+    c = contrast[vis]
+    ref = np.percentile(c, 80)
+    if ref <= 4:
+        return 0.0
+    return float(np.mean(c > 0.5 * ref))
+
+
+def _outer_contour(sc: _Scene, e: Ellipse) -> float:
+    """Evidence (0..1) of a concentric contour 1.15-2.0 times larger (the tyre outline), any polarity."""
+    E = sc.edges
+    rr = e.radius_ratio(E.points)
+    sel = (rr > 1.15) & (rr < 2.0)
+    if sel.sum() < 10:
+        return 0.0
+    le = e.to_local(E.points[sel])
+    a, b = e.axes_px
+    n = np.stack([le[:, 0] / a**2, le[:, 1] / b**2], axis=1)
+    c, s = np.cos(e.angle_rad), np.sin(e.angle_rad)
+    n = np.stack([c * n[:, 0] - s * n[:, 1], s * n[:, 0] + c * n[:, 1]], axis=1)
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    aligned = np.abs(np.einsum("ij,ij->i", n, E.grad[sel])) > hough.NORMAL_COS
+    r = rr[sel][aligned] * a  # semi-major of the concentric ellipse through each point (coarse px)
+    if len(r) < 10:
+        return 0.0
+    hist = np.bincount(np.round(r).astype(int))
+    hist = np.convolve(hist, np.ones(5), mode="same")
+    rad = np.arange(len(hist))
+    frac = hist / np.maximum(np.pi * rad * (1 + b / a), 1)  # support relative to the perimeter
+    return float(np.clip(frac.max() / 0.4, 0, 1))
+
+
+def _choose(sc: _Scene, cands: list[hough.Candidate], tag: str) -> tuple[hough.Candidate, dict]:
+    rows = []
+    for cd in cands:
+        ring = _ring_darkness(sc, cd.ellipse)
+        outer = _outer_contour(sc, cd.ellipse)
+        score = cd.coverage * (0.6 + 0.4 * ring) * (0.8 + 0.2 * outer)
+        rows.append({"cand": cd, "ring": ring, "outer": outer, "score": score})
+    # a contour with a closed, tyre-bordered concentric ellipse well inside it is a tyre outline
+    for r in rows:
+        e = r["cand"].ellipse
+        for o in rows:
+            eo = o["cand"].ellipse
+            ratio = eo.axes_px[0] / e.axes_px[0]
+            if (o is not r and 0.5 < ratio < 0.87 and np.linalg.norm(eo.center_px - e.center_px) < 0.08 * e.axes_px[0]
+                    and o["cand"].coverage > 0.7 and o["ring"] > 0.9):
+                r["score"] *= 0.5
+                break
+    rows.sort(key=lambda r: -r["score"])
+    if not rows or rows[0]["cand"].coverage < MIN_COVERAGE or rows[0]["score"] < MIN_SCORE:
+        best = f" (best candidate: {rows[0]['cand'].coverage:.0%} of its perimeter)" if rows else ""
+        raise RimNotFound(f"{tag}: no closed rim contour{best}",
+                          hint="check that the wheel is in view, lit, and in focus")
+    best = rows[0]
+    for r in rows[1:]:  # another wheel: a non-concentric, similarly good ellipse
+        e, eb = r["cand"].ellipse, best["cand"].ellipse
+        if np.linalg.norm(e.center_px - eb.center_px) > 0.5 * eb.axes_px[1] and r["score"] >= AMBIGUITY_RATIO * best["score"] \
+                and r["cand"].coverage >= MIN_COVERAGE:
+            raise RimNotFound(f"{tag}: two wheel-like ellipses of similar score "
+                              f"({best['score']:.2f} at ({eb.center_px[0] * sc.s:.0f}, {eb.center_px[1] * sc.s:.0f}) px and "
+                              f"{r['score']:.2f} at ({e.center_px[0] * sc.s:.0f}, {e.center_px[1] * sc.s:.0f}) px)",
+                              hint="only one wheel may be in the camera's view")
+    info = {"candidates": [{"ellipse": r["cand"].ellipse.scaled(sc.s).to_dict(), "coverage": r["cand"].coverage,
+                            "ring": r["ring"], "outer": r["outer"], "score": r["score"]} for r in rows[:6]],
+            "ring": best["ring"], "outer": best["outer"]}
+    return best["cand"], info
+
+
+def _refine(grey: np.ndarray, e_full: Ellipse, pmap: PixelMap, passes=((6.0, "peak"), (3.5, "erf"))):
+    """Sub-pixel points and geometric fit, once per (half-width, method) pass.
+    Returns (fit, samples, inlier mask)."""
+    fit = samples = None
+    e = e_full
+    for hw, method in passes:
+        samples = edge_points(grey, e, pmap, half_width_px=hw, method=method)
+        ok = samples.ok
+        if ok.sum() < MIN_POINTS:
+            return None, samples, ok
+        ideal = pmap.undistort(samples.points_px[ok])
+        try:
+            fit = fit_geometric(ideal, init=e)
+        except (ValueError, np.linalg.LinAlgError):
+            return None, samples, ok
+        e = fit.ellipse
+    mask = samples.ok.copy()
+    mask[np.nonzero(samples.ok)[0][~fit.inliers]] = False
+    return fit, samples, mask
+
+
+def detect_rim(image: np.ndarray, *, camera=None, prior: Ellipse | None = None, camera_id: str = "",
+               equalization: str = "clahe") -> RimDetection:
+    """Find the rim-flange ellipse in one image. See :class:`RimDetection`; raises
+    :class:`station.errors.RimNotFound` (or ImageError for an unusable array) with a reason."""
+    tag = camera_id or "image"
+    clock = _Clock()
+    grey = to_grey(image, camera_id)
+    _check_exposure(grey, tag)
+    pmap = PixelMap(camera)
+    clock.lap("grey")
+    fit = None
+    info: dict = {}
+    if prior is not None:  # fast path: refine straight from the prior, fall back to the search
+        fit, samples, mask = _refine(grey, prior, pmap, passes=((10.0, "peak"), (5.0, "peak"), (3.5, "erf")))
+        if fit is not None and (np.linalg.norm(fit.ellipse.center_px - prior.center_px) > 0.15 * prior.axes_px[0]
+                                or abs(fit.ellipse.axes_px[0] / prior.axes_px[0] - 1) > 0.15
+                                or _coverage(samples, mask) < 0.8):
+            fit = None
+        if fit is not None:
+            info["path"] = "prior"
+            clock.lap("refine")
+    if fit is None:
+        sc = _Scene(grey, pmap, equalization)
+        clock.lap("edges")
+        hd, wd = sc.coarse.shape
+        r_min = max(12.0, 0.05 * min(hd, wd))
+        r_max = 0.7 * max(hd, wd)
+        cands = hough.find_candidates(sc.edges, r_min, r_max)
+        clock.lap("hough")
+        best, info = _choose(sc, cands, tag)
+        info["path"] = "search"
+        clock.lap("choose")
+        fit, samples, mask = _refine(grey, best.ellipse.scaled(sc.s), pmap)
+        clock.lap("refine")
+        if fit is None:
+            raise RimNotFound(f"{tag}: no closed rim contour (the sub-pixel edge was found at only "
+                              f"{int(mask.sum())} points of the candidate ellipse)",
+                              hint="check focus and lighting of the rim flange")
+    coverage = _coverage(samples, mask)
+    if coverage < MIN_COVERAGE:
+        raise RimNotFound(f"{tag}: no closed rim contour (sub-pixel edge on {coverage:.0%} of the perimeter)",
+                          hint="check that the whole rim is in view and evenly lit")
+    pts = samples.points_px[mask]
+    ring = info.get("ring", 1.0)
+    outer = info.get("outer", 1.0)
+    sharp = float(np.exp(-max(fit.sigma_px - 0.1, 0.0) / 0.5))
+    score = float(np.clip(coverage * (0.6 + 0.4 * ring) * (0.8 + 0.2 * outer) * (0.7 + 0.3 * sharp), 0, 1))
+    clock.lap("score")
+    return RimDetection(
+        ellipse=fit.ellipse, points_px=pts, score=score, ellipse_cov=fit.cov, point_sigma_px=fit.sigma_px,
+        timing_s=dict(clock.stages), camera_id=camera_id,
+        points_norm=pmap.normalized(pts) if camera is not None else None,
+        ellipse_frame="pixels" if pmap.identity else "ideal_pixels",
+        coverage=coverage, contrast=float(np.median(samples.contrast[mask])), details=info)
+
+
+def _coverage(samples, mask) -> float:
+    """Fraction of the in-image samples that gave an inlier edge point."""
+    visible = samples.rms < np.inf  # the profile lay inside the image
+    return float(mask.sum() / max(visible.sum(), 1))

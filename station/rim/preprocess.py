@@ -1,0 +1,121 @@
+"""Image preparation for rim detection (paper section 3.1).
+
+* :func:`to_grey` - grey by eq. 36, ``Y = 0.299 R + 0.587 G + 0.114 B`` (float32, 0..255);
+* :func:`equalize` - the paper's global histogram equalisation, or CLAHE (the default: local
+  equalisation copes with the uneven workshop lighting a global one cannot);
+* :func:`detection_scale` / :func:`downscale` - the coarse image the Hough search runs on;
+* :class:`PixelMap` - lens-distortion correction. The paper resamples the whole image; we
+  correct the *points* instead (exact, and no resampling blur of the edges we measure): edge
+  points are moved to ideal pinhole pixels, where the rim is an exact ellipse, and profiles are
+  still sampled in the original image.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from station.errors import ImageError
+
+# eq. 36 weights in OpenCV's B, G, R channel order
+EQ36_BGR = np.array([[0.114, 0.587, 0.299]], dtype=np.float32)
+MIN_SIDE_PX = 48
+DETECT_MAX_SIDE_PX = 720  # the Hough search runs at most on this size
+
+
+def to_grey(image: np.ndarray, camera_id: str = "") -> np.ndarray:
+    """(H,W) uint8/uint16/float grey or (H,W,3|4) BGR(A) -> (H,W) float32 grey on 0..255 (eq. 36)."""
+    tag = f"{camera_id}: " if camera_id else ""
+    if not isinstance(image, np.ndarray):
+        raise ImageError(f"{tag}expected an image array, got {type(image).__name__}")
+    if image.ndim == 3 and image.shape[2] == 1:
+        image = image[:, :, 0]
+    if image.ndim not in (2, 3) or (image.ndim == 3 and image.shape[2] not in (3, 4)):
+        raise ImageError(f"{tag}expected a grey (H,W) or colour (H,W,3) image, got shape {image.shape}",
+                         hint="pass a single grey or BGR colour image")
+    h, w = image.shape[:2]
+    if min(h, w) < MIN_SIDE_PX:
+        raise ImageError(f"{tag}image is too small ({w}x{h} px); a wheel needs at least "
+                         f"{MIN_SIDE_PX}x{MIN_SIDE_PX} px, in practice a rim of 100 px or more",
+                         hint="use the camera's full-resolution image")
+    if image.dtype == np.uint8:
+        scale = 1.0
+    elif image.dtype == np.uint16:
+        scale = 255.0 / 65535.0
+    elif image.dtype in (np.float32, np.float64):
+        if not np.all(np.isfinite(image)):
+            raise ImageError(f"{tag}image contains NaN or infinity")
+        scale = 1.0
+    else:
+        raise ImageError(f"{tag}unsupported pixel type {image.dtype}; expected uint8 or uint16")
+    img = image.astype(np.float32, copy=False)
+    if img.ndim == 3:
+        grey = cv2.transform(img[:, :, :3], EQ36_BGR)  # eq. 36
+        grey = grey.reshape(h, w)
+    else:
+        grey = img.copy() if img is image else img
+    if scale != 1.0:
+        grey = grey * np.float32(scale)
+    return np.ascontiguousarray(grey, dtype=np.float32)
+
+
+def equalize(grey_u8: np.ndarray, method: str = "clahe") -> np.ndarray:
+    """(H,W) uint8 -> (H,W) uint8. method: "clahe" (default), "global" (the paper), "none"."""
+    if method == "none":
+        return grey_u8
+    if method == "global":
+        return cv2.equalizeHist(grey_u8)
+    if method == "clahe":
+        h, w = grey_u8.shape
+        tiles = (max(2, round(w / 160)), max(2, round(h / 160)))
+        return cv2.createCLAHE(clipLimit=3.0, tileGridSize=tiles).apply(grey_u8)
+    raise ValueError(f"unknown equalisation {method!r}")
+
+
+def detection_scale(shape: tuple[int, int]) -> int:
+    """Integer downscale factor so that the larger side is <= DETECT_MAX_SIDE_PX."""
+    s = 1
+    while max(shape) / s > DETECT_MAX_SIDE_PX:
+        s *= 2
+    return s
+
+
+def downscale(grey: np.ndarray, s: int) -> np.ndarray:
+    """(H,W) float32 -> (H//s, W//s) by area averaging (pixel centres map as (u+0.5)/s-0.5)."""
+    if s == 1:
+        return grey
+    h, w = grey.shape
+    g = grey[: h - h % s, : w - w % s]
+    return cv2.resize(g, (g.shape[1] // s, g.shape[0] // s), interpolation=cv2.INTER_AREA)
+
+
+class PixelMap:
+    """Distorted image pixels <-> ideal pinhole pixels of a camera (same K, no distortion).
+
+    With ``camera=None`` both are the same (identity). Arrays are (N,2) (u, v).
+    """
+
+    def __init__(self, camera=None):
+        self.camera = camera
+        self.identity = camera is None or not np.any(camera.dist)
+
+    def undistort(self, uv: np.ndarray) -> np.ndarray:
+        if self.identity:
+            return np.asarray(uv, float)
+        xy = self.camera.pixels_to_normalized(uv)
+        K = self.camera.K
+        return np.stack([K[0, 0] * xy[:, 0] + K[0, 2], K[1, 1] * xy[:, 1] + K[1, 2]], axis=1)
+
+    def distort(self, uv_ideal: np.ndarray) -> np.ndarray:
+        if self.identity:
+            return np.asarray(uv_ideal, float)
+        K = self.camera.K
+        uv_ideal = np.asarray(uv_ideal, float)
+        xy = np.stack([(uv_ideal[:, 0] - K[0, 2]) / K[0, 0], (uv_ideal[:, 1] - K[1, 2]) / K[1, 1]], axis=1)
+        return self.camera.normalized_to_pixels(xy)
+
+    def normalized(self, uv: np.ndarray) -> np.ndarray:
+        """(N,2) distorted pixels -> (N,2) undistorted normalised coordinates (needs a camera)."""
+        if self.camera is None:
+            raise ValueError("normalised coordinates need a camera model")
+        return self.camera.pixels_to_normalized(uv)

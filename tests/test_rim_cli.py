@@ -1,0 +1,82 @@
+"""`station detect`: a photograph in, the rim ellipse out; every bad file a clear message and
+a non-zero exit, never a traceback."""
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from station.cli import main
+from station.rim.synthetic import WheelSpec, render_wheel
+
+
+@pytest.fixture(scope="module")
+def wheel(tmp_path_factory):
+    d = tmp_path_factory.mktemp("detect")
+    img, truth = render_wheel(WheelSpec(axis_ratio=0.88, rim_a_px=200, center_px=(400.2, 300.6)),
+                              shape=(640, 800), seed=21)
+    colour = cv2.merge([img, (img * 0.9).astype(np.uint8), img])
+    cv2.imwrite(str(d / "wheel.png"), img)
+    cv2.imwrite(str(d / "wheel.jpg"), colour, [cv2.IMWRITE_JPEG_QUALITY, 95])
+    return d, truth
+
+
+def test_detect_png_prints_and_writes_json_and_drawing(wheel, capsys):
+    d, truth = wheel
+    code = main(["detect", str(d / "wheel.png"), "--json", str(d / "out.json"), "--draw", str(d / "out.png")])
+    out = capsys.readouterr().out
+    assert code == 0
+    assert "centre" in out and "semi-axes" in out and "score" in out
+    doc = json.loads((d / "out.json").read_text())
+    np.testing.assert_allclose(doc["ellipse"]["center_px"], truth.center_px, atol=0.05)
+    np.testing.assert_allclose(doc["ellipse"]["axes_px"], truth.axes_px, atol=0.05)
+    assert 0.8 < doc["score"] <= 1.0 and doc["n_points"] > 300
+    drawn = cv2.imread(str(d / "out.png"))
+    assert drawn.shape == (640, 800, 3)
+    # the drawn curve is red on the rim
+    p = np.round(truth.points(50)).astype(int)
+    assert (drawn[p[:, 1], p[:, 0], 2].astype(int) - drawn[p[:, 1], p[:, 0], 1]).mean() > 50
+
+
+def test_detect_colour_jpeg(wheel, capsys):
+    d, truth = wheel
+    assert main(["detect", str(d / "wheel.jpg"), "--json", "-"]) == 0
+    text = capsys.readouterr().out
+    doc = json.loads(text[text.index("{"):])
+    np.testing.assert_allclose(doc["ellipse"]["center_px"], truth.center_px, atol=0.1)
+
+
+@pytest.mark.parametrize("case,expect", [
+    ("truncated.png", "PNG file is truncated"),
+    ("truncated.jpg", "JPEG file is truncated"),
+    ("garbage.png", "not a readable image"),
+    ("empty.png", "file is empty"),
+    ("missing.png", "no such file"),
+    ("black.png", "image is black"),
+    ("tiny.png", "too small"),
+    ("nowheel.png", "no closed rim contour"),
+])
+def test_bad_input_gives_a_message_and_nonzero_exit(wheel, capsys, case, expect):
+    d, _ = wheel
+    path = d / case
+    if case.startswith("truncated"):
+        data = (d / ("wheel" + path.suffix)).read_bytes()
+        path.write_bytes(data[: len(data) // 2])
+    elif case == "garbage.png":
+        path.write_bytes(b"\x89PNG\r\n\x1a\n this is not a png IEND")
+    elif case == "empty.png":
+        path.write_bytes(b"")
+    elif case == "black.png":
+        cv2.imwrite(str(path), np.zeros((480, 640), np.uint8))
+    elif case == "tiny.png":
+        cv2.imwrite(str(path), np.full((16, 16), 90, np.uint8))
+    elif case == "nowheel.png":
+        rng = np.random.default_rng(0)
+        img = np.clip(120 + 30 * np.sin(np.arange(640) / 40)[None, :] + rng.normal(0, 2, (480, 640)), 0, 255)
+        cv2.imwrite(str(path), img.astype(np.uint8))
+    code = main(["detect", str(path)])
+    err = capsys.readouterr().err
+    assert code != 0
+    assert expect in err
+    assert "Traceback" not in err and "internal error" not in err

@@ -1,0 +1,140 @@
+"""detect_rim on synthetic wheels with a known rim ellipse: accuracy, the choice of the rim
+among tyre outline / disc / hub, distortion, the prior, and every refusal."""
+
+import cv2
+import numpy as np
+import pytest
+
+from calibration.camera_model import CameraModel
+from station.errors import ImageError, RimNotFound
+from station.rim import Ellipse, RimDetection, detect_rim
+from station.rim.synthetic import WheelSpec, random_spec, render_wheel
+
+
+def _errors(det: RimDetection, truth: Ellipse):
+    dc = np.linalg.norm(det.ellipse.center_px - truth.center_px)
+    dax = np.abs(det.ellipse.axes_px - truth.axes_px).max()
+    d, _ = truth.distance(det.points_px)
+    return dc, dax, float(np.sqrt(np.mean(d**2)))
+
+
+@pytest.mark.parametrize("seed", [11, 12, 13, 14])
+def test_random_wheels_subpixel_accuracy(seed):
+    img, truth = render_wheel(random_spec(np.random.default_rng(seed)), seed=seed)
+    det = detect_rim(img, camera_id="cam1")
+    dc, dax, rms = _errors(det, truth)
+    assert dc < 0.05 and dax < 0.05, (dc, dax)
+    assert rms < 0.1
+    assert det.score > 0.8 and det.coverage > 0.9
+    assert len(det.points_px) > 500
+    assert det.ellipse_cov.shape == (5, 5) and np.all(np.linalg.eigvalsh(det.ellipse_cov) >= -1e-15)
+    assert set(det.timing_s) >= {"grey", "edges", "hough", "refine"}
+
+
+def test_oblique_reference_view_and_face_on_view():
+    for ratio in (0.87, 1.0):
+        img, truth = render_wheel(WheelSpec(axis_ratio=ratio, angle_rad=1.2), seed=3)
+        det = detect_rim(img)
+        dc, dax, rms = _errors(det, truth)
+        assert dc < 0.05 and dax < 0.05 and rms < 0.1
+        assert det.ellipse.axes_px[1] / det.ellipse.axes_px[0] == pytest.approx(ratio, abs=1e-3)
+
+
+def test_rim_not_tyre_outline_on_a_dark_background():
+    # background darker than the tyre: the tyre outline is bright-inside too, like the rim
+    spec = WheelSpec(background_level=8, tyre_level=60, clutter=0, tyre_scale=1.4, rim_a_px=260)
+    img, truth = render_wheel(spec, seed=5)
+    det = detect_rim(img)
+    assert np.abs(det.ellipse.axes_px - truth.axes_px).max() < 0.05
+    tyre_cands = [c for c in det.details["candidates"] if c["ellipse"]["axes_px"][0] > 1.3 * 260]
+    assert tyre_cands, "the tyre outline should have been a candidate"
+
+
+def test_colour_and_16_bit_inputs_give_the_same_rim():
+    img, truth = render_wheel(WheelSpec(clutter=4), seed=8)
+    grey = detect_rim(img)
+    bgr = detect_rim(cv2.merge([img, img, img]))  # eq. 36 of equal channels is the grey itself
+    deep = detect_rim(img.astype(np.uint16) * 257)
+    # (compare the curves: the angle of a near-circle is ill-defined)
+    assert np.abs(bgr.ellipse.distance(grey.ellipse.points(64))[0]).max() < 1e-5
+    assert np.abs(deep.ellipse.distance(grey.ellipse.points(64))[0]).max() < 1e-3
+
+
+def test_prior_takes_the_fast_path_and_agrees():
+    img, truth = render_wheel(WheelSpec(axis_ratio=0.9), seed=9)
+    full = detect_rim(img)
+    prior = Ellipse(truth.center_px + (3.0, -2.0), truth.axes_px * 1.02, truth.angle_rad + 0.05)
+    fast = detect_rim(img, prior=prior)
+    assert fast.details["path"] == "prior" and full.details["path"] == "search"
+    np.testing.assert_allclose(fast.ellipse.params, full.ellipse.params, atol=2e-3)
+    far = Ellipse((200, 200), (80, 80), 0.0)  # a wrong prior must not be required to be right
+    assert np.linalg.norm(detect_rim(img, prior=far).ellipse.center_px - truth.center_px) < 0.05
+
+
+def test_lens_distortion_is_corrected_on_the_points():
+    cam = CameraModel("cam3", 1280, 1024, K=np.array([[1500.0, 0, 641.0], [0, 1500.0, 510.0], [0, 0, 1]]),
+                      dist=np.array([-0.25, 0.12, 0.001, -0.0008, 0.0]))
+    ideal, truth = render_wheel(WheelSpec(center_px=(700.4, 480.6), rim_a_px=330, axis_ratio=0.88, clutter=3), seed=4)
+    # the distorted photograph: each distorted pixel shows the ideal image at its undistorted place
+    vv, uu = np.mgrid[0:1024, 0:1280].astype(float)
+    uv = np.stack([uu.ravel(), vv.ravel()], axis=1)
+    from station.rim.preprocess import PixelMap
+    src = PixelMap(cam).undistort(uv).reshape(1024, 1280, 2).astype(np.float32)
+    photo = cv2.remap(ideal, src[..., 0], src[..., 1], cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
+    det = detect_rim(photo, camera=cam, camera_id="cam3")
+    assert det.ellipse_frame == "ideal_pixels"
+    assert np.linalg.norm(det.ellipse.center_px - truth.center_px) < 0.1
+    assert np.abs(det.ellipse.axes_px - truth.axes_px).max() < 0.1
+    # points are in distorted pixels; their normalised coordinates lie on the true ellipse
+    K = cam.K
+    ideal_pts = det.points_norm * [K[0, 0], K[1, 1]] + [K[0, 2], K[1, 2]]
+    d, _ = truth.distance(ideal_pts)
+    assert np.sqrt(np.mean(d**2)) < 0.15
+    d_dist, _ = truth.distance(det.points_px)
+    assert np.abs(d_dist).max() > 1.0  # the raw points really are distorted
+    # without the camera the ellipse fitted to the distorted rim is off the ideal one
+    raw = detect_rim(photo)
+    assert np.linalg.norm(raw.ellipse.center_px - truth.center_px) > 1.0
+    assert raw.point_sigma_px > det.point_sigma_px
+
+
+def test_black_image_names_the_camera():
+    with pytest.raises(RimNotFound, match="cam5: image is black"):
+        detect_rim(np.zeros((1024, 1280), np.uint8), camera_id="cam5")
+
+
+def test_flat_and_saturated_images():
+    with pytest.raises(RimNotFound, match="no contrast"):
+        detect_rim(np.full((600, 800), 128, np.uint8), camera_id="cam2")
+    with pytest.raises(RimNotFound, match="saturated"):
+        detect_rim(np.full((600, 800), 255, np.uint8), camera_id="cam2")
+
+
+def test_image_without_a_wheel():
+    rng = np.random.default_rng(2)
+    img = np.full((1024, 1280), 110, np.float32)
+    for _ in range(30):
+        p = rng.uniform([0, 0], [1280, 1024]).astype(int)
+        q = p + rng.integers(-300, 300, 2)
+        cv2.rectangle(img, tuple(map(int, p)), tuple(map(int, q)), float(rng.uniform(20, 230)), -1)
+    cv2.circle(img, (300, 300), 40, 200, -1)  # a small bright disc: closed, but no tyre
+    img = np.clip(img + rng.normal(0, 2, img.shape), 0, 255).astype(np.uint8)
+    with pytest.raises(RimNotFound, match="cam6: no closed rim contour"):
+        detect_rim(img, camera_id="cam6")
+
+
+def test_two_wheels_are_refused():
+    a = WheelSpec(center_px=(330, 512), rim_a_px=190, tyre_scale=1.45, clutter=0)
+    b = WheelSpec(center_px=(960, 500), rim_a_px=185, tyre_scale=1.45, clutter=0, angle_rad=0.1)
+    img, _ = render_wheel(a, seed=6, extra=[b])
+    with pytest.raises(RimNotFound, match="cam7: two wheel-like ellipses"):
+        detect_rim(img, camera_id="cam7")
+
+
+def test_bad_arrays():
+    with pytest.raises(ImageError, match="too small"):
+        detect_rim(np.zeros((20, 30), np.uint8), camera_id="cam1")
+    with pytest.raises(ImageError, match="shape"):
+        detect_rim(np.zeros((100, 100, 5), np.uint8))
+    with pytest.raises(ImageError, match="pixel type"):
+        detect_rim(np.zeros((100, 100), np.int32))

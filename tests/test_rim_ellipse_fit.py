@@ -1,0 +1,99 @@
+"""Ellipse parametrisation (eqs 1-3), conic form, distances, the direct and geometric fits,
+and the blurred-step profile fit behind the sub-pixel edge points."""
+
+import cv2
+import numpy as np
+import pytest
+from scipy.special import erf
+
+from station.rim.ellipse import Ellipse
+from station.rim.ellipse_fit import fit_direct, fit_geometric
+from station.rim.subpixel import fit_steps
+
+E = Ellipse((412.25, 300.5), (250.0, 217.5), 0.4)
+
+
+def test_points_satisfy_eqs_1_to_3_and_the_conic():
+    pts = E.points(200)
+    u_e = (pts[:, 0] - 412.25) * np.cos(0.4) + (pts[:, 1] - 300.5) * np.sin(0.4)
+    v_e = -(pts[:, 0] - 412.25) * np.sin(0.4) + (pts[:, 1] - 300.5) * np.cos(0.4)
+    np.testing.assert_allclose(u_e**2 / 250**2 + v_e**2 / 217.5**2, 1.0, atol=1e-12)
+    A, B, C, D, F_, G = E.to_conic()
+    u, v = pts.T
+    np.testing.assert_allclose(A * u * u + B * u * v + C * v * v + D * u + F_ * v + G, 0, atol=1e-12)
+    back = Ellipse.from_conic(E.to_conic())
+    np.testing.assert_allclose(back.params, E.params, atol=1e-9)
+
+
+def test_axes_are_ordered_and_angle_wrapped():
+    e = Ellipse((0, 0), (100, 150), 0.2)  # b > a: swapped, turned by 90 degrees
+    assert e.axes_px[0] == 150 and e.axes_px[1] == 100
+    assert e.angle_rad == pytest.approx(0.2 + np.pi / 2 - np.pi)
+    np.testing.assert_allclose(Ellipse.from_conic(e.to_conic()).to_conic(), e.to_conic(), atol=1e-12)
+
+
+def test_orthogonal_distance_matches_brute_force():
+    rng = np.random.default_rng(1)
+    t = rng.uniform(0, 2 * np.pi, 300)
+    off = rng.uniform(-5, 5, 300)
+    pts = E.point_at(t) + off[:, None] * E.normal_at(t)
+    d, _ = E.distance(pts)
+    dense = E.points(100000)
+
+    # brute force by chunks
+    mins = np.empty(len(pts))
+    for i in range(0, len(pts), 20):
+        dd = ((pts[i:i + 20, None, :] - dense[None]) ** 2).sum(-1)
+        mins[i:i + 20] = np.sqrt(dd.min(1))
+    np.testing.assert_allclose(np.abs(d), mins, atol=2e-4)
+    np.testing.assert_allclose(d, off, atol=1e-9)  # offset along the normal is the distance
+
+
+def test_scaling_keeps_pixel_centre_convention():
+    e2 = E.scaled(2.0)
+    np.testing.assert_allclose(e2.center_px, (E.center_px + 0.5) * 2 - 0.5)
+    np.testing.assert_allclose(e2.scaled(0.5).params, E.params, atol=1e-12)
+
+
+def test_direct_fit_exact_on_clean_points_and_agrees_with_opencv_convention():
+    pts = E.points(50)
+    np.testing.assert_allclose(fit_direct(pts).params, E.params, atol=1e-6)
+    (cx, cy), (d1, d2), ang = cv2.fitEllipseDirect(pts.astype(np.float32))
+    ocv = Ellipse((cx, cy), (d1 / 2, d2 / 2), np.radians(ang))
+    np.testing.assert_allclose(ocv.params, E.params, atol=2e-3)
+
+
+def test_geometric_fit_rejects_outliers_and_its_covariance_matches_the_spread():
+    rng = np.random.default_rng(7)
+    errs, sds = [], []
+    for trial in range(30):
+        t = rng.uniform(0, 2 * np.pi, 600)
+        pts = E.point_at(t) + rng.normal(0, 0.1, (600, 1)) * E.normal_at(t)
+        bad = rng.choice(600, 40, replace=False)
+        pts[bad] += rng.normal(0, 6, (40, 2))  # 7 % gross outliers
+        fit = fit_geometric(pts, init=Ellipse(E.center_px + 2, E.axes_px * 1.01, E.angle_rad + 0.02))
+        errs.append(fit.ellipse.params - E.params)
+        sds.append(np.sqrt(np.diag(fit.cov)))
+        assert fit.sigma_px == pytest.approx(0.1, rel=0.2)
+        assert (~fit.inliers[bad]).mean() > 0.8
+    errs, sds = np.array(errs), np.array(sds)
+    assert np.abs(errs[:, :4]).max() < 0.05
+    ratio = errs.std(axis=0) / sds.mean(axis=0)
+    assert np.all((ratio > 0.6) & (ratio < 1.5)), ratio
+
+
+def test_step_fit_finds_the_50_percent_crossing_without_bias():
+    rng = np.random.default_rng(3)
+    n = 4000
+    s = np.arange(-4, 4.01, 0.5)
+    s0 = rng.uniform(-1.0, 1.0, n)
+    w = rng.uniform(0.6, 1.5, n)
+    prof = 100 - 30 * s[None, :] * 0.1 - 60 * erf((s[None, :] - s0[:, None]) / (np.sqrt(2) * w[:, None]))
+    p, rms, ok = fit_steps(prof, s)
+    assert ok.all()
+    np.testing.assert_allclose(p[:, 3], s0, atol=2e-4)
+    noisy = prof + rng.normal(0, 2.0, prof.shape)
+    p, rms, ok = fit_steps(noisy, s)
+    err = p[ok, 3] - s0[ok]
+    assert abs(err.mean()) < 0.005 and err.std() < 0.06
+    assert rms[ok].mean() == pytest.approx(2.0, rel=0.25)
