@@ -94,10 +94,14 @@ def stereo_frame(left_img: np.ndarray, right_img: np.ndarray, left: CameraModel,
 
 def stereo_match(det_l: tuple[np.ndarray, np.ndarray], det_r: tuple[np.ndarray, np.ndarray],
                  left: CameraModel, right: CameraModel,
-                 settings: MatchSettings = MatchSettings()) -> StereoFrame:
-    """Stereo-match detections ``(uv, desc)`` of the left and right images of one frame."""
+                 settings: MatchSettings = MatchSettings(),
+                 pairs: tuple[np.ndarray, np.ndarray] | None = None) -> StereoFrame:
+    """Stereo-match detections ``(uv, desc)`` of the left and right images of one frame.
+
+    pairs: the result of ``ratio_matches`` on these descriptors if already computed.
+    """
     (uv_l, d_l), (uv_r, d_r) = det_l, det_r
-    i, j = ratio_matches(d_l, d_r, settings.ratio)
+    i, j = ratio_matches(d_l, d_r, settings.ratio) if pairs is None else pairs
     p_l = homogeneous(left.pixels_to_normalized(uv_l[i])) if len(i) else np.zeros((0, 3))
     p_r = homogeneous(right.pixels_to_normalized(uv_r[j])) if len(j) else np.zeros((0, 3))
     keep = np.all(np.isfinite(p_l), axis=1) & np.all(np.isfinite(p_r), axis=1)

@@ -15,7 +15,8 @@ import numpy as np
 
 from station.errors import OdometryError
 from station.odometry.features import (PAPER_MATCHING, MatchSettings, StereoFrame,
-                                       common_keypoints, detect, stereo_match)
+                                       common_keypoints, detect, ratio_matches,
+                                       stereo_match)
 from station.odometry.paper_vo import StepEstimate, paper_step
 from station.odometry.robust_vo import RobustSettings, robust_step
 from station.odometry.sequence_io import StereoSequence
@@ -96,8 +97,12 @@ def run_odometry(seq: StereoSequence, methods: tuple[str, ...] = ("robust",),
         last_left = left_img
         det_l = detect(left_img)
         det_r = detect(right_img)
+        pairs: dict[float, tuple] = {}             # left-right matches, shared by the methods
         for m in active:
-            cur = stereo_match(det_l, det_r, seq.left, seq.right, _settings(m))
+            ratio = _settings(m).ratio
+            if ratio not in pairs:
+                pairs[ratio] = ratio_matches(det_l[1], det_r[1], ratio)
+            cur = stereo_match(det_l, det_r, seq.left, seq.right, _settings(m), pairs[ratio])
             if i > 0:
                 prev = frames[m]
                 a, b = common_keypoints(prev, cur, _settings(m))

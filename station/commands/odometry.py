@@ -1,0 +1,119 @@
+"""`station odometry DIR`: stereo visual odometry of a sequence (the paper's section 3.3).
+
+Reads our simulated layout or KITTI's (docs/odometry.md), runs the paper's method and/or the
+robust variant, prints the trajectory and, when ``poses.txt`` gives the truth, the error per
+step (eq. 49) with its mean and standard deviation and the drift in % of the distance
+travelled. Writes each trajectory as a KITTI pose file and, with ``--rerun``, a recording.
+``--simulate short|long`` first renders a simulated sequence into DIR.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from station.errors import OdometryError
+
+HELP = "stereo visual odometry of an image sequence (paper section 3.3)"
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("directory", metavar="DIR", help="sequence folder (left/ right/ stereo.json, "
+                        "or KITTI's image_0/ image_1/ calib.txt); poses.txt there is the truth")
+    parser.add_argument("--method", choices=("paper", "robust", "both"), default="both",
+                        help="the paper's method, the robust variant, or both (default)")
+    parser.add_argument("--out", metavar="FILE", help="trajectory file (KITTI poses; .csv for "
+                        "step,x,y,z); with both methods, _paper/_robust is added to the name "
+                        "(default: DIR/trajectory_<method>.txt)")
+    parser.add_argument("--rerun", metavar="FILE.rrd", help="also write a Rerun recording")
+    parser.add_argument("--poses", metavar="FILE", help="ground-truth poses (KITTI format) if not DIR/poses.txt")
+    parser.add_argument("--max-steps", type=int, metavar="N", help="stop after N steps")
+    parser.add_argument("--simulate", choices=("short", "long"), help="first render a simulated "
+                        "sequence into DIR: 'short' (11 steps, like the paper's) or 'long' (243 steps)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the simulated scene (default 0)")
+    parser.add_argument("--quiet", action="store_true", help="print the summary only")
+
+
+def _out_paths(args, methods) -> dict[str, Path]:
+    if args.out:
+        out = Path(args.out)
+        if len(methods) == 1:
+            return {methods[0]: out}
+        return {m: out.with_name(f"{out.stem}_{m}{out.suffix or '.txt'}") for m in methods}
+    return {m: Path(args.directory) / f"trajectory_{m}.txt" for m in methods}
+
+
+def _simulate(directory: Path, kind: str, seed: int) -> None:
+    # A development aid: the simulator is imported only when asked for.
+    from simulators.odometry_scene import write_sequence
+
+    if directory.exists() and any(directory.iterdir()):
+        raise OdometryError(f"{directory}: not empty; --simulate writes a new sequence",
+                            hint="give a new folder")
+    print(f"rendering the {kind} simulated sequence into {directory} ...", file=sys.stderr)
+    write_sequence(directory, kind, seed=seed)
+
+
+def run(args) -> int:
+    from station.odometry.pipeline import run_odometry
+    from station.odometry.sequence_io import open_sequence
+    from station.odometry.trajectory import summarize
+
+    if args.max_steps is not None and args.max_steps < 1:
+        raise OdometryError(f"--max-steps must be at least 1, got {args.max_steps}")
+    directory = Path(args.directory)
+    if args.simulate:
+        _simulate(directory, args.simulate, args.seed)
+    seq = open_sequence(directory, args.poses)
+    methods = ("paper", "robust") if args.method == "both" else (args.method,)
+    print(f"{directory}: {len(seq)} stereo images ({seq.layout} layout), "
+          f"{seq.left.width}x{seq.left.height}, baseline {abs(seq.right.t_cam_station[0]):.3f} m")
+    runs = run_odometry(seq, methods, max_steps=args.max_steps)
+
+    B_true = None if seq.truth is None else seq.truth[:, :3, 3]
+    if not args.quiet:
+        _print_table(runs, B_true)
+    for m, r in runs.items():
+        B = r.trajectory.positions
+        line = f"{m:>7}: {len(B) - 1} steps"
+        if B_true is not None and len(B) > 1:
+            s = summarize(B, B_true)
+            line += (f", error (eq. 49) mean {s.mean_m:.4f} m, std {s.std_m:.4f} m, max {s.max_m:.4f} m;"
+                     f" drift {s.drift_pct:.2f} % of {s.distance_m:.2f} m (max {s.max_drift_pct:.2f} %)")
+        print(line)
+
+    for m, path in _out_paths(args, methods).items():
+        print(f"trajectory ({m}) -> {runs[m].trajectory.write(path)}")
+    if args.rerun:
+        from station.odometry.recording import write_recording
+        print(f"recording -> {write_recording(args.rerun, seq, runs)}")
+    errors = [r.error for r in runs.values() if r.error is not None]
+    if errors:
+        kept = ", ".join(f"{m}: {len(r.trajectory) - 1} steps" for m, r in runs.items())
+        first = errors[0]
+        raise OdometryError(f"{first} (trajectory kept up to the last good step: {kept})",
+                            hint=first.hint)
+    return 0
+
+
+def _print_table(runs, B_true) -> None:
+    head = f"{'step':>4}"
+    if B_true is not None:
+        head += f" {'true x':>8} {'y':>8} {'z':>8}"
+    for m in runs:
+        head += f" | {m + ' x':>9} {'y':>8} {'z':>8}" + (f" {'e (m)':>7}" if B_true is not None else "")
+    print(head)
+    n = max(len(r.trajectory) for r in runs.values())
+    for i in range(n):
+        row = f"{i:>4}"
+        if B_true is not None:
+            row += " ".join(f" {v:8.4f}" for v in B_true[i]) if i < len(B_true) else " " * 27
+        for r in runs.values():
+            B = r.trajectory.positions
+            if i < len(B):
+                row += " | " + " ".join(f"{v:9.4f}" if k == 0 else f"{v:8.4f}" for k, v in enumerate(B[i]))
+                if B_true is not None and i < len(B_true):
+                    row += f" {float(((B[i] - B_true[i]) ** 2).sum() ** 0.5):7.4f}"
+            else:
+                row += " | " + " " * 35
+        print(row)
