@@ -19,6 +19,11 @@ from station.errors import CameraTimeout, DriverError, FrameError
 log = logging.getLogger("station.drivers")
 
 TRIGGER_MODES = ("free-run", "software", "hardware")
+# Pixel formats a driver may be configured for (GenICam PFNC names) and the array each gives:
+# Mono8 -> (H, W) uint8, Mono16 -> (H, W) uint16, Bayer??8 -> (H, W) uint8 grey (demosaiced by
+# the driver: the station measures grey levels only).
+PIXEL_FORMATS = ("Mono8", "Mono16", "BayerRG8", "BayerGR8", "BayerGB8", "BayerBG8")
+FRAME_DTYPE = {"Mono16": np.uint16}  # every other format gives uint8
 
 
 @dataclass(frozen=True)
@@ -43,7 +48,11 @@ class CameraIdentity:
 
 @dataclass
 class Frame:
-    """One image from one camera. image: (H, W) uint8 or uint16, or (H, W, 3) uint8."""
+    """One image from one camera. image: (H, W) uint8, or (H, W) uint16 for Mono16.
+
+    timestamp_ns is the host's monotonic clock when the frame was exposed or arrived (comparable
+    across cameras); a camera's own clock, if any, is in metadata["camera_timestamp_ns"].
+    """
 
     camera_id: str
     image: np.ndarray
@@ -70,17 +79,20 @@ class Camera:
     # --- public API -------------------------------------------------------------------------
     def open(self) -> "Camera":
         if not self.is_open:
+            self._validate(self.settings)
             self._wrap("open", self._open)
             self.is_open = True
-            self._wrap("configure", self._configure, self.settings)
+            try:
+                self._wrap("configure", self._configure, self.settings)
+            except BaseException:
+                self.close()  # release the device: a half-open camera would lock out the next open
+                raise
             log.info("%s: opened %s", self.camera_id, self.uri)
         return self
 
     def configure(self, **changes) -> None:
         settings = replace(self.settings, **changes)
-        if settings.trigger not in TRIGGER_MODES:
-            raise DriverError(f"{self.camera_id}: unknown trigger mode {settings.trigger!r}; "
-                              f"expected one of {', '.join(TRIGGER_MODES)}")
+        self._validate(settings)
         if self.is_open:
             self._wrap("configure", self._configure, settings)
         self.settings = settings
@@ -115,6 +127,15 @@ class Camera:
         self.trigger()
         return self.grab(timeout_s)
 
+    def fault(self, reason: str) -> None:
+        """Tell the driver its last cycle failed (e.g. a capture deadline passed while it was
+        still busy); the next ``arm()`` re-establishes the connection. Never raises."""
+        log.warning("%s: fault: %s", self.camera_id, reason)
+        try:
+            self._on_fault(reason)
+        except Exception as e:  # noqa: BLE001 - reporting a fault must not fail
+            log.warning("%s: error while marking a fault: %s", self.camera_id, e)
+
     def identity(self) -> CameraIdentity:
         self._require_open()
         return self._wrap("identity", self._identity)
@@ -127,6 +148,21 @@ class Camera:
                 log.warning("%s: error while closing: %s", self.camera_id, e)
             self.is_open = False
             self._armed = False
+
+    def state(self) -> dict:
+        """What ``station cameras`` shows: open?, identity, last frame (never raises)."""
+        out: dict[str, Any] = {"id": self.camera_id, "uri": self.uri, "open": self.is_open,
+                               "driver": type(self).__name__}
+        if self.is_open:
+            try:
+                out["identity"] = self.identity()
+            except DriverError as e:
+                out["error"] = str(e)
+        if self.last_frame is not None:
+            f = self.last_frame
+            out["last_frame"] = {"frame_id": f.frame_id, "timestamp_ns": f.timestamp_ns,
+                                 "shape": tuple(f.image.shape), "mean": float(f.image.mean())}
+        return out
 
     def __enter__(self):
         return self.open()
@@ -157,10 +193,28 @@ class Camera:
     def _close(self) -> None:
         pass
 
+    def _on_fault(self, reason: str) -> None:
+        pass
+
     # --- helpers ----------------------------------------------------------------------------
     def _require_open(self):
         if not self.is_open:
             raise DriverError(f"{self.camera_id}: camera is not open ({self.uri})")
+
+    def _validate(self, s: CameraSettings) -> None:
+        if s.trigger not in TRIGGER_MODES:
+            raise DriverError(f"{self.camera_id}: unknown trigger mode {s.trigger!r}; "
+                              f"expected one of {', '.join(TRIGGER_MODES)}")
+        if s.pixel_format not in PIXEL_FORMATS:
+            raise DriverError(f"{self.camera_id}: unsupported pixel format {s.pixel_format!r}; "
+                              f"expected one of {', '.join(PIXEL_FORMATS)}",
+                              hint="fix pixel_format in the station configuration")
+        if s.width <= 0 or s.height <= 0:
+            raise DriverError(f"{self.camera_id}: resolution {s.width}x{s.height} is not positive")
+        if s.roi is not None:
+            x, y, w, h = s.roi
+            if x < 0 or y < 0 or w <= 0 or h <= 0 or x + w > s.width or y + h > s.height:
+                raise DriverError(f"{self.camera_id}: ROI {s.roi} does not fit the {s.width}x{s.height} sensor")
 
     def _wrap(self, what, fn, *args):
         try:
@@ -174,7 +228,12 @@ class Camera:
         img = frame.image
         s = self.settings
         if not isinstance(img, np.ndarray) or img.dtype not in (np.uint8, np.uint16):
-            raise FrameError(f"{self.camera_id}: frame is not an 8/16-bit image")
+            raise FrameError(f"{self.camera_id}: frame is not an 8/16-bit image ({self.uri})")
+        want = np.dtype(FRAME_DTYPE.get(s.pixel_format, np.uint8))
+        if img.ndim != 2 or img.dtype != want:
+            raise FrameError(f"{self.camera_id}: frame is {img.dtype} with shape {img.shape}, but "
+                             f"{s.pixel_format} gives (H, W) {want} ({self.uri})",
+                             hint="check the camera's pixel format")
         w, h = (s.roi[2], s.roi[3]) if s.roi else (s.width, s.height)
         if img.shape[:2] != (h, w):
             raise FrameError(f"{self.camera_id}: frame is {img.shape[1]}x{img.shape[0]}, "

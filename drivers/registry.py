@@ -7,6 +7,7 @@ typelib, PyGObject, ...) is reported only when a camera with that scheme is open
 from __future__ import annotations
 
 import importlib
+import os
 from urllib.parse import urlparse
 
 from drivers.base import Camera, CameraSettings
@@ -22,7 +23,7 @@ DRIVERS = {
 
 def driver_class(uri: str) -> type[Camera]:
     scheme = urlparse(uri).scheme
-    if scheme not in DRIVERS:
+    if scheme not in DRIVERS or "://" not in uri:
         raise DriverError(f"unknown camera URI scheme in {uri!r}; expected one of "
                           + ", ".join(f"{s}://" for s in DRIVERS))
     module_name, cls_name = DRIVERS[scheme].split(":")
@@ -37,3 +38,26 @@ def create_camera(camera_id: str, uri: str, settings: CameraSettings | None = No
                   context: dict | None = None) -> Camera:
     """Instantiate (not open) the driver for ``uri``."""
     return driver_class(uri)(camera_id, uri, settings, context)
+
+
+def uri_address(uri: str, camera_id: str | None = None) -> str:
+    """The physical thing a URI names, normalised, so two spellings of one camera compare equal.
+
+    ``aravis://127.0.0.2`` and ``aravis://127.0.0.2/`` -> ``aravis://127.0.0.2``;
+    ``v4l2:///dev/video0`` -> ``v4l2:///dev/video0`` (symlinks resolved);
+    ``replay://DIR?camera=cam3`` keeps the camera (by default the camera's own ``camera_id``,
+    since eight replay cameras share one directory); query options that do not change the device
+    (timeouts, ...) are dropped.
+    """
+    scheme, _, rest = uri.partition("://")
+    rest, _, query = rest.partition("?")
+    rest = rest.rstrip("/") or rest
+    if scheme == "v4l2":
+        rest = os.path.realpath(rest)
+    elif scheme == "aravis":
+        rest = rest.lower()
+    elif scheme == "replay":
+        cam = [kv for kv in query.split("&") if kv.startswith("camera=")]
+        cam = cam[0].split("=", 1)[1] if cam else camera_id
+        rest = os.path.realpath(rest) + (f"?camera={cam}" if cam else "")
+    return f"{scheme}://{rest}"
