@@ -1,0 +1,273 @@
+"""A PLC simulator: a Modbus master that runs measurement cycles through the station's handshake,
+checks every step and prints the results.
+
+    station serve --dry-run &                      # or the real station: station serve
+    python -m simulators.plc_sim --cycles 3 --dry-run-check
+    python -m simulators.plc_sim --rtu /dev/ttyUSB0 --cycles 3
+
+Per cycle it writes job id, vehicle spec and the trigger in one request, polls the state, reads
+the whole result block in one request, acknowledges, and checks: the station leaves idle at
+once; no result is visible while busy; the cycle counter moves by exactly one; a finished result
+is valid, belongs to this job and its float32 and int16 copies agree; a fault carries a code and
+a reason; acknowledge returns to idle with no fault. With ``--dry-run-check`` the angles are
+also compared with the dry-run runner's expected values, so a result of another job is caught.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from dataclasses import dataclass, field
+
+from pymodbus.client import ModbusSerialClient, ModbusTcpClient
+from pymodbus.exceptions import ModbusException
+
+from station.errors import StationError
+from station.plc import register_map as rm
+from station.plc.runner import CycleRequest, synthetic_result
+
+
+@dataclass
+class CycleReport:
+    job_id: str
+    spec: str | None = None
+    command: int = 1
+    state: str = ""  # done | fault
+    fault_code: int = 0
+    reason: str = ""
+    angles: dict = field(default_factory=dict)  # float32 copy, degrees or None
+    pass_bits: int = 0
+    judged_bits: int = 0
+    measure_s: float = 0.0  # the station's own measurement time
+    total_s: float = 0.0  # trigger sent -> idle after acknowledge, at the PLC
+    problems: list = field(default_factory=list)
+
+    @property
+    def handshake_s(self) -> float:
+        """PLC-side cycle time minus the measurement: the cost of the handshake itself."""
+        return self.total_s - self.measure_s
+
+
+class ModbusFailure(Exception):
+    pass
+
+
+class PlcSimulator:
+    """Drives the handshake over a connected pymodbus sync client."""
+
+    def __init__(self, client, *, device_id: int = 1, timeout_s: float = 60.0, poll_s: float = 0.0):
+        self.client = client
+        self.device_id = device_id
+        self.timeout_s = timeout_s
+        self.poll_s = poll_s
+
+    # --- Modbus primitives ----------------------------------------------------------------------
+    def read_block(self) -> dict:
+        lo, hi = rm.RESULT_BLOCK
+        r = self.client.read_holding_registers(lo, count=hi - lo, device_id=self.device_id)
+        if r.isError():
+            raise ModbusFailure(f"reading registers {lo}..{hi - 1} failed: {r}")
+        return rm.decode_block(r.registers, lo)
+
+    def write(self, address: int, values: list[int]):
+        """Write registers; returns the response (check ``isError()``)."""
+        if len(values) == 1:
+            return self.client.write_register(address, values[0], device_id=self.device_id)
+        return self.client.write_registers(address, values, device_id=self.device_id)
+
+    # --- one cycle ------------------------------------------------------------------------------
+    def run_cycle(self, job_id: str, spec: str | None = None, command: int = 1,
+                  expect=None) -> CycleReport:
+        """One full handshake. ``expect(job_id, spec, command)`` -> ("done", result dict) or
+        ("fault", code), to check the values too."""
+        rep = CycleReport(job_id, spec, command)
+        before = self.read_block()
+        if before["state"] in (rm.STATE_CODES["done"], rm.STATE_CODES["fault"]):
+            rep.problems.append(f"station was {rm.STATES[before['state']]} before the trigger; acknowledged it")
+            self.acknowledge(rep)
+            before = self.read_block()
+        counter0 = before["cycle_counter"]
+        f_job, f_spec = rm.FIELDS["job_id"], rm.FIELDS["vehicle_spec"]
+        payload = [command] + rm.ascii_to_regs(job_id, f_job.count) + rm.ascii_to_regs(spec, f_spec.count)
+        t0 = time.perf_counter()
+        r = self.write(rm.COMMAND, payload)
+        if r.isError():
+            rep.problems.append(f"trigger refused: {r}")
+            return rep
+        deadline = t0 + self.timeout_s
+        while True:
+            b = self.read_block()
+            state = rm.STATES.get(b["state"], str(b["state"]))
+            if state == "idle":
+                rep.problems.append("station idle after the trigger")
+            elif b["active_command"] != command:
+                rep.problems.append(f"active_command {b['active_command']} != {command}")
+            if state == "busy":
+                if b["result_valid"] or b["cycle_counter"] != counter0:
+                    rep.problems.append("a result is visible while busy")
+            if state in ("done", "fault", "idle") or time.perf_counter() > deadline:
+                break
+            if self.poll_s:
+                time.sleep(self.poll_s)
+        rep.state = state
+        if state not in ("done", "fault"):
+            rep.problems.append(f"no result within {self.timeout_s:g} s (state {state})")
+            return rep
+        if (b["cycle_counter"] - counter0) % 65536 != 1:
+            rep.problems.append(f"cycle counter moved from {counter0} to {b['cycle_counter']}")
+        rep.measure_s = b["cycle_time_us"] / 1e6
+        rep.fault_code, rep.reason = b["fault_code"], b["fault_reason"] or ""
+        rep.angles = rm.angles_from_block(b, "f32")
+        rep.pass_bits, rep.judged_bits = b["pass_bits"], b["judged_bits"]
+        self._check(rep, b, expect)
+        self.acknowledge(rep)
+        rep.total_s = time.perf_counter() - t0
+        return rep
+
+    def _check(self, rep: CycleReport, b: dict, expect) -> None:
+        p = rep.problems
+        if rep.state == "done":
+            if b["result_valid"] != 1 or b["fault_code"]:
+                p.append(f"done with result_valid {b['result_valid']}, fault_code {b['fault_code']}")
+            if b["result_job_id"] != rep.job_id:
+                p.append(f"result belongs to job {b['result_job_id']!r}, not {rep.job_id!r}")
+            ints = rm.angles_from_block(b, "i16")
+            for name, v in rep.angles.items():
+                if v is None or ints[name] is None:
+                    if (v is None) != (ints[name] is None):
+                        p.append(f"{name}: float32 {v} but int16 {ints[name]}")
+                elif abs(v - ints[name]) > 0.0051:
+                    p.append(f"{name}: float32 {v:.4f} and int16 {ints[name]:.2f} disagree")
+        else:
+            if b["result_valid"] or not b["fault_code"] or not b["fault_reason"]:
+                p.append(f"fault with result_valid {b['result_valid']}, code {b['fault_code']}, "
+                         f"reason {b['fault_reason']!r}")
+        if expect is None:
+            return
+        kind, want = expect(rep.job_id, rep.spec, rep.command)
+        if kind != rep.state:
+            p.append(f"expected {kind}, got {rep.state}")
+        elif kind == "fault" and want != rep.fault_code:
+            p.append(f"expected fault code {want}, got {rep.fault_code}")
+        elif kind == "done":
+            for name, v in rep.angles.items():
+                w = _angle(want, name)
+                if v is None or not math.isclose(v, w, rel_tol=1e-6, abs_tol=1e-6):
+                    p.append(f"{name}: got {v}, expected {w:.6f}")
+
+    def acknowledge(self, rep: CycleReport | None = None) -> None:
+        r = self.write(rm.COMMAND, [rm.COMMAND_CODES["acknowledge"]])
+        b = self.read_block()
+        problems = rep.problems if rep else []
+        if r.isError():
+            problems.append(f"acknowledge refused: {r}")
+        if b["state"] != rm.STATE_CODES["idle"] or b["fault_code"]:
+            problems.append(f"after acknowledge: state {rm.STATES.get(b['state'])}, fault {b['fault_code']}")
+
+
+def _angle(result: dict, name: str) -> float:
+    if "." not in name:
+        return result[f"{name}_deg"]
+    where, what = name.split(".")
+    if where in ("front", "rear"):
+        return result["axles"][where][f"{what}_deg"]
+    return result["wheels"][where][f"{what}_deg"]
+
+
+def dry_run_expectation(fail_every: int = 10):
+    """``expect`` callable matching ``station serve --dry-run``."""
+    def expect(job_id, spec, command):
+        name = "measure" if command == 1 else "calibration_check"
+        try:
+            return "done", synthetic_result(CycleRequest(name, job_id, spec, 0), fail_every)
+        except StationError as e:
+            return "fault", e.code
+    return expect
+
+
+# --- command line -------------------------------------------------------------------------------
+def connect(args):
+    if args.rtu:
+        client = ModbusSerialClient(args.rtu, baudrate=args.baudrate, parity=args.parity,
+                                    timeout=args.timeout, retries=3)
+        where = f"Modbus RTU on {args.rtu}"
+    else:
+        client = ModbusTcpClient(args.host, port=args.port, timeout=args.timeout, retries=3)
+        where = f"Modbus TCP {args.host}:{args.port}"
+    if not client.connect():
+        raise ModbusFailure(f"cannot connect to {where}: is `station serve` running there?")
+    return client, where
+
+
+def format_row(i: int, rep: CycleReport) -> str:
+    vals = " ".join("     -" if rep.angles.get(a) is None else f"{rep.angles[a]:+6.2f}" for a in rm.ANGLES)
+    verdict = "-"
+    if rep.judged_bits >> rm.OVERALL_BIT & 1:
+        verdict = "pass" if rep.pass_bits >> rm.OVERALL_BIT & 1 else "FAIL"
+    status = rep.state if rep.state != "fault" else f"fault {rep.fault_code}"
+    line = f"{i:>4} {rep.job_id:<12} {status:<9} {vals} {verdict:>4} {rep.handshake_s * 1e3:6.1f}"
+    if rep.state == "fault":
+        line += f"  {rep.reason}"
+    return line
+
+
+def header() -> str:
+    names = " ".join(f"{a.replace('.total_toe', '.tt').replace('.camber', '.cb'):>6}" for a in rm.ANGLES)
+    return f"{'#':>4} {'job':<12} {'state':<9} {names} {'spec':>4} {'hs ms':>6}"
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m simulators.plc_sim", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--host", default="127.0.0.1")
+    ap.add_argument("--port", type=int, default=5020)
+    ap.add_argument("--rtu", metavar="DEVICE", help="Modbus RTU on this serial device instead of TCP")
+    ap.add_argument("--baudrate", type=int, default=19200)
+    ap.add_argument("--parity", default="E", choices=("N", "E", "O"))
+    ap.add_argument("--device-id", type=int, default=1)
+    ap.add_argument("--cycles", type=int, default=3)
+    ap.add_argument("--job-prefix", default="JOB-")
+    ap.add_argument("--first-job", type=int, default=1)
+    ap.add_argument("--spec", default=None, help="vehicle spec id sent with every trigger")
+    ap.add_argument("--timeout", type=float, default=3.0, help="Modbus response timeout (s)")
+    ap.add_argument("--dry-run-check", action="store_true",
+                    help="also check the angles against `station serve --dry-run`'s synthetic results")
+    ap.add_argument("--fail-every", type=int, default=10, help="the dry run's --fail-every")
+    ap.add_argument("--quiet", action="store_true", help="print only the summary")
+    args = ap.parse_args(argv)
+    try:
+        client, where = connect(args)
+    except ModbusFailure as e:
+        print(f"plc_sim: {e}", file=sys.stderr)
+        return 2
+    sim = PlcSimulator(client, device_id=args.device_id)
+    expect = dry_run_expectation(args.fail_every) if args.dry_run_check else None
+    print(f"PLC simulator: {args.cycles} cycles on {where}, device id {args.device_id}")
+    if not args.quiet:
+        print(header())
+    bad = 0
+    try:
+        hb0 = sim.read_block()["heartbeat"]
+        t_start = time.perf_counter()
+        for i in range(args.cycles):
+            rep = sim.run_cycle(f"{args.job_prefix}{args.first_job + i:06d}", args.spec, expect=expect)
+            bad += bool(rep.problems)
+            if not args.quiet:
+                print(format_row(i + 1, rep))
+                for p in rep.problems:
+                    print(f"       problem: {p}")
+        hb1 = sim.read_block()["heartbeat"]
+    except (ModbusFailure, ModbusException) as e:
+        print(f"plc_sim: the station stopped answering: {e}", file=sys.stderr)
+        return 2
+    finally:
+        client.close()
+    elapsed = time.perf_counter() - t_start
+    beat = "advancing" if hb1 != hb0 or elapsed < 0.5 else "STOPPED"
+    print(f"{args.cycles} cycles, {bad} with problems; heartbeat {beat} ({hb0} -> {hb1})")
+    return 1 if bad or beat == "STOPPED" else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,99 @@
+"""`station serve`: the station as a Modbus device for the shop PLC (docs/plc.md)."""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import signal
+import sys
+
+from station.config import load_config
+from station.errors import ConfigError
+
+HELP = "serve the station to the shop PLC over Modbus TCP or RTU (register map: docs/plc.md)"
+
+
+def add_arguments(parser):
+    parser.add_argument("--host", help="address to listen on (default: plc.host, 127.0.0.1)")
+    parser.add_argument("--port", type=int, help="TCP port (default: plc.port, 5020)")
+    parser.add_argument("--rtu", metavar="DEVICE", help="serve Modbus RTU on this serial device instead of TCP")
+    parser.add_argument("--baudrate", type=int, help="RTU baud rate (default: plc.baudrate)")
+    parser.add_argument("--parity", choices=("N", "E", "O"), help="RTU parity (default: plc.parity)")
+    parser.add_argument("--device-id", type=int, help="Modbus device id (default: plc.device_id)")
+    parser.add_argument("--dry-run", action="store_true",
+                        help="no cameras: answer every trigger with a synthetic result computed from "
+                             "the job id (for commissioning the PLC program)")
+    parser.add_argument("--fail-every", type=int, default=10, metavar="N",
+                        help="with --dry-run: jobs whose number is a multiple of N fail with fault "
+                             "401, so the PLC's fault branch is exercised (0: never; default 10)")
+    parser.add_argument("--cycles", type=int, metavar="N",
+                        help="stop after N cycles have been acknowledged (tests, demos)")
+    parser.add_argument("--heartbeat-s", type=float, default=0.1, help="heartbeat period (s)")
+    parser.add_argument("--cycle-timeout-s", type=float, default=300.0,
+                        help="a cycle longer than this ends in fault 505")
+    parser.add_argument("--log-level", default="info", choices=("debug", "info", "warning", "error"))
+
+
+def _transport(args, plc) -> tuple[str, dict]:
+    rtu = args.rtu or (plc.serial_port if plc.transport == "rtu" and not (args.host or args.port) else None)
+    if plc.transport == "rtu" and not rtu and not (args.host or args.port):
+        raise ConfigError("plc.transport is rtu but plc.serial_port is null",
+                          hint="set plc.serial_port in config/station.yaml or pass --rtu DEVICE")
+    if rtu:
+        return "rtu", {"port": rtu, "baudrate": args.baudrate or plc.baudrate, "parity": args.parity or plc.parity}
+    port = plc.port if args.port is None else args.port
+    if not 0 <= port <= 65535:
+        raise ConfigError(f"--port {port}: expected 0..65535")
+    return "tcp", {"host": args.host or plc.host, "port": port}
+
+
+async def _serve(args, runner, transport, where, device_id, allowed) -> int:
+    from station.plc.device import PlcDevice
+    from station.plc.server import PlcServer, wait_until
+
+    device = PlcDevice(runner, device_id=device_id, heartbeat_s=args.heartbeat_s,
+                       cycle_timeout_s=args.cycle_timeout_s)
+    server = PlcServer(device, allowed_clients=allowed)
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, stop.set)
+    if transport == "rtu":
+        await server.start_rtu(**where)
+    else:
+        where["port"] = await server.start_tcp(**where)
+        server.address = f"Modbus TCP {where['host']}:{where['port']}"
+    mode = "dry run: synthetic results" if args.dry_run else "measuring"
+    print(f"station serving {server.address}, device id {device_id} ({mode}); Ctrl-C to stop", flush=True)
+    try:
+        if args.cycles:
+            waiter = asyncio.create_task(wait_until(
+                lambda: device.stats["acknowledged"] >= args.cycles or stop.is_set(), 1e9, 0.02))
+            await waiter
+            await asyncio.sleep(0.5)  # let the PLC finish its last reads before the line closes
+        else:
+            await stop.wait()
+    finally:
+        await server.stop()
+    s = device.stats
+    print(f"served {s['started']} cycles ({s['done']} done, {s['fault']} fault), "
+          f"{s['refused']} commands refused, {server.refused_clients} clients refused", flush=True)
+    return 0
+
+
+def run(args) -> int:
+    config = load_config(args.config)
+    plc = config.plc
+    device_id = plc.device_id if args.device_id is None else args.device_id
+    if not 1 <= device_id <= 247:
+        raise ConfigError(f"--device-id {device_id}: a Modbus device id is 1..247")
+    transport, where = _transport(args, plc)
+    from station.plc.runner import dry_run_runner, measurement_runner
+    from station.plc.server import parse_allowed
+
+    parse_allowed(plc.allowed_clients)  # a bad entry fails before anything opens
+    runner = dry_run_runner(args.fail_every) if args.dry_run else measurement_runner(config)
+    logging.basicConfig(level=getattr(logging, args.log_level.upper()), stream=sys.stderr,
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    logging.getLogger("pymodbus").setLevel(logging.CRITICAL)  # its errors are ours, reported above
+    return asyncio.run(_serve(args, runner, transport, where, device_id, plc.allowed_clients))

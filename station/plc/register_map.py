@@ -1,0 +1,239 @@
+"""The PLC register map: the one source of truth for addresses, types, scaling and word order.
+
+Everything lives in **holding registers** (read with function 3, written with 6 or 16; the same
+addresses also answer function 4). Addresses here are the 0-based addresses on the wire; the
+PLC programmer's "4xxxx" numbers are ``40001 + address``. docs/plc.md is generated from this
+module (:func:`markdown_tables`), never edited by hand.
+
+Two areas:
+
+* **PLC -> station** (``0 .. 99``, writable): the command mailbox, the job id / VIN and the
+  vehicle spec id (ASCII). Only :data:`PLC_FIELDS` are writable; a write anywhere else gets
+  Modbus exception 2 (illegal data address).
+* **Station -> PLC** (``100 .. 299``, read-only): state, fault code, heartbeat, counters, the
+  result-valid flag, every angle as float32 and as scaled int16, pass/fail bits.
+
+Encoding (docs/conventions.md, "Modbus"):
+
+* ``f32``: IEEE 754 single in two registers, **big-endian word order** (high word first),
+  big-endian bytes in a word (ABCD). A missing angle is NaN.
+* ``i16``: two's complement, **0.01 degree** per count, saturated to +-327.66 degree;
+  ``-32768`` (0x8000) means "no value".
+* ``ascii``: two characters per register, the first in the high byte, padded with NUL (0).
+* ``u32``: two registers, high word first.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from dataclasses import dataclass
+
+# --- angles, in the order of docs/result-schema.md ----------------------------------------------
+ANGLES = ("FL.toe", "FL.camber", "FR.toe", "FR.camber", "RL.toe", "RL.camber", "RR.toe",
+          "RR.camber", "front.total_toe", "rear.total_toe", "thrust")
+OVERALL_BIT = 15  # bit of pass_bits / judged_bits that holds the overall verdict
+INT16_SCALE = 100  # counts per degree
+INT16_MISSING = -32768
+INT16_LIMIT = 32766
+
+# --- values of the command, state and active-command registers ----------------------------------
+COMMANDS = {0: "none", 1: "measure", 2: "calibration_check", 3: "reset_fault", 4: "acknowledge"}
+COMMAND_CODES = {name: code for code, name in COMMANDS.items()}
+STATES = {0: "idle", 1: "busy", 2: "done", 3: "fault"}
+STATE_CODES = {name: code for code, name in STATES.items()}
+MAP_VERSION = 1
+
+
+@dataclass(frozen=True)
+class Field:
+    """One value in the map. ``count`` is the number of registers it occupies."""
+
+    name: str
+    address: int
+    type: str  # u16 | i16 | u32 | f32 | ascii | bits
+    count: int
+    doc: str
+    writable: bool = False
+    unit: str = ""
+
+    @property
+    def end(self) -> int:
+        """One past the last register."""
+        return self.address + self.count
+
+
+def _angle_fields() -> list[Field]:
+    out = []
+    for i, name in enumerate(ANGLES):
+        key = name.replace(".", "_")
+        out.append(Field(f"{key}_f32", 120 + 2 * i, "f32", 2, f"{name} (NaN: no value)", unit="deg"))
+    for i, name in enumerate(ANGLES):
+        key = name.replace(".", "_")
+        out.append(Field(f"{key}_i16", 142 + i, "i16", 1, f"{name} x 100 (-32768: no value)",
+                         unit="0.01 deg"))
+    return out
+
+
+PLC_FIELDS = [
+    Field("command", 0, "u16", 1, "command mailbox: 1 measure, 2 calibration check, 3 reset fault, "
+          "4 acknowledge; consumed on receipt (reads back 0)", writable=True),
+    Field("job_id", 1, "ascii", 16, "job id / VIN for the next cycle, up to 32 ASCII characters",
+          writable=True),
+    Field("vehicle_spec", 17, "ascii", 16, "vehicle spec id for the next cycle (e.g. "
+          "dodge-caravan-2007), up to 32 ASCII characters; empty: no pass/fail", writable=True),
+]
+STATION_FIELDS = [
+    Field("state", 100, "u16", 1, "0 idle, 1 busy, 2 done, 3 fault"),
+    Field("fault_code", 101, "u16", 1, "station error code of the failed cycle (`station errors`); "
+          "0 unless state is fault"),
+    Field("heartbeat", 102, "u16", 1, "increments every heartbeat period, wraps at 65535"),
+    Field("cycle_counter", 103, "u16", 1, "cycles finished (done or fault), wraps at 65535"),
+    Field("result_valid", 104, "u16", 1, "1: the angles below belong to the last finished cycle "
+          "and may be used; 0 while busy and after a failed cycle"),
+    Field("active_command", 105, "u16", 1, "command of the running or last cycle"),
+    Field("reject_code", 106, "u16", 1, "error code of the last refused command (501..507)"),
+    Field("reject_count", 107, "u16", 1, "refused commands so far, wraps at 65535"),
+    Field("pass_bits", 108, "bits", 1, "bit i: angle i within the spec; bit 15: overall pass"),
+    Field("judged_bits", 109, "bits", 1, "bit i: angle i was judged against a spec; bit 15: overall"),
+    Field("cycle_time_us", 110, "u32", 2, "time the measurement itself took", unit="us"),
+    Field("map_version", 112, "u16", 1, f"version of this register map ({MAP_VERSION})"),
+    *_angle_fields(),
+    Field("result_job_id", 160, "ascii", 16, "job id of the cycle the result belongs to"),
+    Field("fault_reason", 176, "ascii", 32, "readable reason of the fault, up to 64 characters"),
+]
+FIELDS = {f.name: f for f in PLC_FIELDS + STATION_FIELDS}
+
+PLC_AREA = (0, 100)  # [start, end) of the PLC -> station area
+STATION_AREA = (100, 300)  # [start, end) of the station -> PLC area
+RESULT_BLOCK = (100, 208)  # one read (<= 125 registers) that returns the whole station output
+COMMAND = FIELDS["command"].address
+
+
+def _check_map() -> None:
+    """Fields must not overlap and must sit in their area (checked at import)."""
+    taken: dict[int, str] = {}
+    for f in FIELDS.values():
+        lo, hi = PLC_AREA if f.writable else STATION_AREA
+        if not (lo <= f.address and f.end <= hi):
+            raise AssertionError(f"{f.name} outside its area")
+        for a in range(f.address, f.end):
+            if a in taken:
+                raise AssertionError(f"{f.name} overlaps {taken[a]} at {a}")
+            taken[a] = f.name
+    assert RESULT_BLOCK[1] - RESULT_BLOCK[0] <= 125
+    assert all(RESULT_BLOCK[0] <= f.address and f.end <= RESULT_BLOCK[1] for f in STATION_FIELDS)
+
+
+_check_map()
+
+
+# --- encoding -----------------------------------------------------------------------------------
+def f32_to_regs(x: float | None) -> list[int]:
+    """float -> [high word, low word] (ABCD). None -> NaN."""
+    hi, lo = struct.unpack(">HH", struct.pack(">f", math.nan if x is None else float(x)))
+    return [hi, lo]
+
+
+def regs_to_f32(regs) -> float:
+    return struct.unpack(">f", struct.pack(">HH", int(regs[0]), int(regs[1])))[0]
+
+
+def u32_to_regs(x: int) -> list[int]:
+    x = max(0, min(int(x), 0xFFFFFFFF))
+    return [x >> 16, x & 0xFFFF]
+
+
+def regs_to_u32(regs) -> int:
+    return (int(regs[0]) << 16) | int(regs[1])
+
+
+def deg_to_i16(x: float | None) -> int:
+    """Degrees -> 0.01 degree counts as an unsigned register value (two's complement)."""
+    if x is None or not math.isfinite(x):
+        return INT16_MISSING & 0xFFFF
+    n = max(-INT16_LIMIT, min(INT16_LIMIT, round(float(x) * INT16_SCALE)))
+    return n & 0xFFFF
+
+
+def i16_to_deg(reg: int) -> float | None:
+    n = reg - 0x10000 if reg & 0x8000 else reg
+    return None if n == INT16_MISSING else n / INT16_SCALE
+
+
+def ascii_to_regs(text: str | None, count: int) -> list[int]:
+    """Text -> ``count`` registers, two characters each, high byte first, NUL padded.
+    Longer text is cut; characters outside ASCII become '?'."""
+    raw = (text or "").encode("ascii", "replace")[: 2 * count].ljust(2 * count, b"\0")
+    return [(raw[2 * i] << 8) | raw[2 * i + 1] for i in range(count)]
+
+
+def regs_to_ascii(regs) -> str:
+    """Registers -> text up to the first NUL, surrounding spaces stripped. Raises ValueError
+    if a byte is not printable ASCII."""
+    raw = b"".join(struct.pack(">H", int(r)) for r in regs).split(b"\0", 1)[0]
+    if any(b < 0x20 or b > 0x7E for b in raw):
+        raise ValueError(f"not printable ASCII: {raw!r}")
+    return raw.decode("ascii").strip()
+
+
+def decode_block(regs, start: int = RESULT_BLOCK[0]) -> dict:
+    """A block of registers read from ``start`` -> {field name: decoded value} for every field
+    wholly inside it (the PLC side of the map; used by the simulator, tests and mbpoll checks)."""
+    out: dict = {}
+    for f in FIELDS.values():
+        if f.address < start or f.end > start + len(regs):
+            continue
+        r = regs[f.address - start: f.end - start]
+        if f.type in ("u16", "bits"):
+            out[f.name] = int(r[0])
+        elif f.type == "i16":
+            out[f.name] = i16_to_deg(int(r[0]))
+        elif f.type == "u32":
+            out[f.name] = regs_to_u32(r)
+        elif f.type == "f32":
+            out[f.name] = regs_to_f32(r)
+        else:
+            try:
+                out[f.name] = regs_to_ascii(r)
+            except ValueError:
+                out[f.name] = None
+    return out
+
+
+def angles_from_block(block: dict, kind: str = "f32") -> dict[str, float | None]:
+    """Decoded block -> {angle name: degrees or None} from the float32 or the int16 copy."""
+    out = {}
+    for name in ANGLES:
+        v = block[f"{name.replace('.', '_')}_{kind}"]
+        out[name] = None if v is None or (isinstance(v, float) and math.isnan(v)) else v
+    return out
+
+
+# --- documentation ------------------------------------------------------------------------------
+def _table(fields: list[Field]) -> list[str]:
+    rows = ["| address | 4xxxx | registers | name | type | unit | meaning |",
+            "|---:|---:|---:|---|---|---|---|"]
+    for f in fields:
+        rows.append(f"| {f.address} | {40001 + f.address} | {f.count} | `{f.name}` | {f.type} | "
+                    f"{f.unit} | {f.doc} |")
+    return rows
+
+
+def markdown_tables() -> str:
+    """The register tables of docs/plc.md, generated from this module."""
+    lines = ["### PLC -> station (writable)", ""] + _table(PLC_FIELDS)
+    lines += ["", "### Station -> PLC (read-only)", ""] + _table(STATION_FIELDS)
+    lines += ["", "### Angle index (bit i of `pass_bits` / `judged_bits`)", "",
+              "| bit | angle |", "|---:|---|"]
+    lines += [f"| {i} | `{name}` |" for i, name in enumerate(ANGLES)]
+    lines += [f"| {OVERALL_BIT} | overall |"]
+    lines += ["", "### Command and state values", "", "| command | meaning |", "|---:|---|"]
+    lines += [f"| {c} | {n} |" for c, n in COMMANDS.items()]
+    lines += ["", "| state | meaning |", "|---:|---|"]
+    lines += [f"| {c} | {n} |" for c, n in STATES.items()]
+    return "\n".join(lines) + "\n"
+
+
+if __name__ == "__main__":
+    print(markdown_tables(), end="")

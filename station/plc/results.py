@@ -1,0 +1,90 @@
+"""A measurement result (docs/result-schema.md) -> the values of the result registers.
+
+The server writes what :func:`result_registers` returns in one step on the event loop, so a
+PLC never reads a half-written result.
+"""
+
+from __future__ import annotations
+
+import math
+
+from station.errors import MeasurementError
+from station.plc import register_map as rm
+
+
+def result_angles(result: dict) -> dict[str, float | None]:
+    """{angle name: degrees or None} in :data:`register_map.ANGLES` order. Raises
+    MeasurementError naming the key when a valid result lacks an angle or holds a non-number."""
+    def get(path: tuple[str, ...]):
+        node = result
+        for key in path:
+            if not isinstance(node, dict) or key not in node:
+                raise MeasurementError(f"the measurement result lacks {'.'.join(path)}; "
+                                       "it does not follow docs/result-schema.md")
+            node = node[key]
+        if node is None:
+            return None
+        if isinstance(node, bool) or not isinstance(node, (int, float)) or not math.isfinite(node):
+            raise MeasurementError(f"the measurement result has {'.'.join(path)} = {node!r}, "
+                                   "not a finite number of degrees")
+        return float(node)
+
+    out = {}
+    for name in rm.ANGLES:
+        where, what = name.split(".") if "." in name else (None, name)
+        if where in ("FL", "FR", "RL", "RR"):
+            out[name] = get(("wheels", where, f"{what}_deg"))
+        elif where in ("front", "rear"):
+            out[name] = get(("axles", where, f"{what}_deg"))
+        else:
+            out[name] = get((f"{what}_deg",))
+    return out
+
+
+def result_verdicts(result: dict) -> tuple[int, int]:
+    """(pass_bits, judged_bits): bit i for angle i, bit 15 overall. An angle is judged when
+    the result holds a pass/fail for it (only with a vehicle spec)."""
+    verdict = result.get("pass") or {}
+    wheels = result.get("wheels") or {}
+    passed = judged = 0
+    for i, name in enumerate(rm.ANGLES):
+        v = verdict.get(name)
+        if v is None and name.split(".")[0] in wheels:
+            w, what = name.split(".")
+            v = ((wheels.get(w) or {}).get("pass") or {}).get(what)
+        if isinstance(v, bool):
+            judged |= 1 << i
+            passed |= int(v) << i
+    if isinstance(verdict.get("overall"), bool):
+        judged |= 1 << rm.OVERALL_BIT
+        passed |= int(verdict["overall"]) << rm.OVERALL_BIT
+    return passed, judged
+
+
+def result_registers(result: dict, job_id: str | None) -> dict[int, list[int]]:
+    """{address: register values} for a finished, valid result."""
+    angles = result_angles(result)
+    passed, judged = result_verdicts(result)
+    out: dict[int, list[int]] = {}
+    for name, value in angles.items():
+        key = name.replace(".", "_")
+        out[rm.FIELDS[f"{key}_f32"].address] = rm.f32_to_regs(value)
+        out[rm.FIELDS[f"{key}_i16"].address] = [rm.deg_to_i16(value)]
+    out[rm.FIELDS["pass_bits"].address] = [passed]
+    out[rm.FIELDS["judged_bits"].address] = [judged]
+    f = rm.FIELDS["result_job_id"]
+    out[f.address] = rm.ascii_to_regs(job_id, f.count)
+    return out
+
+
+def cleared_registers() -> dict[int, list[int]]:
+    """{address: values} of an empty result: NaN, no-value int16, no verdicts, no job."""
+    out: dict[int, list[int]] = {}
+    for name in rm.ANGLES:
+        key = name.replace(".", "_")
+        out[rm.FIELDS[f"{key}_f32"].address] = rm.f32_to_regs(None)
+        out[rm.FIELDS[f"{key}_i16"].address] = [rm.deg_to_i16(None)]
+    out[rm.FIELDS["pass_bits"].address] = [0]
+    out[rm.FIELDS["judged_bits"].address] = [0]
+    out[rm.FIELDS["result_job_id"].address] = [0] * rm.FIELDS["result_job_id"].count
+    return out

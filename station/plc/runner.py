@@ -1,0 +1,120 @@
+"""How a PLC command runs a cycle: an injected callable, chosen once where the station is built.
+
+``CycleRunner = Callable[[CycleRequest], dict]`` returns a result in the schema of
+docs/result-schema.md or raises :class:`station.errors.StationError` (its ``code`` becomes the
+PLC's fault code, its sentence the fault reason). The server runs it in a worker thread, so
+the heartbeat and Modbus serving go on during a cycle.
+
+Two runners:
+
+* :func:`measurement_runner` - the real station (``station.measure.run_measurement``), imported
+  only when built, with a clear error when the pipeline is not installed;
+* :func:`dry_run_runner` - synthetic, deterministic results computed from the job id, for
+  commissioning the PLC program without cameras (``station serve --dry-run``), for the tests
+  and the benchmark. Every ``fail_every``-th job fails on purpose (code 401) so the PLC's fault
+  branch gets exercised too.
+"""
+
+from __future__ import annotations
+
+import random
+import re
+import zlib
+from dataclasses import dataclass
+from typing import Callable
+
+from station.errors import CalibrationError, PlcError, RimNotFound
+
+WHEELS = ("FL", "FR", "RL", "RR")
+
+
+@dataclass(frozen=True)
+class CycleRequest:
+    command: str  # "measure" | "calibration_check"
+    job_id: str | None  # None when the PLC left the job id empty
+    vehicle_spec: str | None
+    cycle: int  # the station's running cycle number (1, 2, ...), also the simulation seed
+
+
+CycleRunner = Callable[[CycleRequest], dict]
+
+
+# --- the real station ---------------------------------------------------------------------------
+def measurement_runner(config) -> CycleRunner:
+    """The runner for ``station serve``: the measurement pipeline on the configured station.
+    Raises PlcError at once (not at the first trigger) when the pipeline is not available."""
+    try:
+        from station.measure import run_measurement
+    except ImportError as e:
+        raise PlcError(f"the measurement pipeline is not available in this installation "
+                       f"(station.measure.run_measurement: {e})",
+                       hint="use `station serve --dry-run` to commission the PLC with synthetic "
+                            "results, or install the full station") from None
+
+    def run(request: CycleRequest) -> dict:
+        if request.command == "calibration_check":
+            try:
+                from station.measure import run_calibration_check
+            except ImportError:
+                raise CalibrationError("calibration check from the PLC is not available in this "
+                                       "installation; run `station calibrate` at the station") from None
+            return run_calibration_check(config)
+        return run_measurement(config, job_id=request.job_id, vehicle_spec=request.vehicle_spec,
+                               seed=request.cycle)
+
+    return run
+
+
+# --- synthetic results (dry run) ----------------------------------------------------------------
+def job_number(job_id: str | None) -> int:
+    """The trailing decimal number of a job id ("JOB-000123" -> 123), else a CRC of it."""
+    m = re.search(r"(\d+)$", job_id or "")
+    return int(m.group(1)) if m else zlib.crc32((job_id or "").encode())
+
+
+def synthetic_result(request: CycleRequest, fail_every: int = 10) -> dict:
+    """A deterministic result for ``request``: the angles depend only on the job id, so a PLC
+    simulator can check that it got the result of *its* job. Raises RimNotFound for every
+    ``fail_every``-th job number (the cycle number when there is no job id; 0: never)."""
+    n = job_number(request.job_id) if request.job_id else request.cycle
+    if fail_every and n % fail_every == 0:
+        raise RimNotFound(f"RR cam7: no closed rim contour (dry run, job {n})")
+    rng = random.Random(zlib.crc32(f"{request.job_id}|{request.command}".encode()))
+    toe = {w: round(rng.uniform(-0.3, 0.3), 4) for w in WHEELS}
+    camber = {w: round(rng.uniform(-1.5, 0.5), 4) for w in WHEELS}
+    wheels = {w: {"toe_deg": toe[w], "camber_deg": camber[w]} for w in WHEELS}
+    thrust = (toe["RL"] - toe["RR"]) / 2
+    wheels["FL"]["toe_thrust_deg"] = toe["FL"] - thrust
+    wheels["FR"]["toe_thrust_deg"] = toe["FR"] + thrust
+    result = {
+        "schema_version": 1, "cycle_id": f"dry-run-{request.cycle:06d}", "station": "dry run",
+        "job_id": request.job_id, "vehicle_spec": request.vehicle_spec, "valid": True,
+        "failure": None, "warnings": ["dry run: synthetic result, no cameras"], "wheels": wheels,
+        "axles": {"front": {"total_toe_deg": toe["FL"] + toe["FR"]},
+                  "rear": {"total_toe_deg": toe["RL"] + toe["RR"]}},
+        "thrust_deg": thrust,
+    }
+    if request.vehicle_spec:
+        limits = {"toe": 0.3, "camber": 1.2, "total_toe": 0.5, "thrust": 0.25}
+        values = {f"{w}.toe": toe[w] for w in WHEELS} | {f"{w}.camber": camber[w] for w in WHEELS}
+        values |= {"front.total_toe": toe["FL"] + toe["FR"], "rear.total_toe": toe["RL"] + toe["RR"],
+                   "thrust": thrust}
+        verdict = {k: abs(v) <= limits[k.split(".")[-1]] for k, v in values.items()}
+        verdict["overall"] = all(verdict.values())
+        result["pass"] = verdict
+        for w in WHEELS:
+            wheels[w]["pass"] = {"toe": verdict[f"{w}.toe"], "camber": verdict[f"{w}.camber"]}
+    return result
+
+
+def dry_run_runner(fail_every: int = 10, delay_s: float = 0.0) -> CycleRunner:
+    """A runner returning :func:`synthetic_result`, after ``delay_s`` seconds (a stand-in for the
+    measurement time)."""
+    import time
+
+    def run(request: CycleRequest) -> dict:
+        if delay_s:
+            time.sleep(delay_s)
+        return synthetic_result(request, fail_every)
+
+    return run

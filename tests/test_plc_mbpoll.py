@@ -1,0 +1,101 @@
+"""A third-party Modbus master nobody here wrote - Debian's `mbpoll` (libmodbus) - drives a cycle:
+writes the job id and the command register, reads the result registers as big-endian float32 and
+as int16, and gets the right Modbus exceptions for bad writes. Over TCP and over RTU (socat)."""
+
+import re
+import shutil
+import subprocess
+import time
+
+import pytest
+
+from station.plc import register_map as rm
+from station.plc.background import BackgroundServer
+from station.plc.device import PlcDevice
+from station.plc.runner import CycleRequest, dry_run_runner, synthetic_result
+
+pytestmark = pytest.mark.skipif(shutil.which("mbpoll") is None, reason="mbpoll is not installed (apt-get install mbpoll)")
+JOB = "WVWZZZ1KZAW000017"
+
+
+def mbpoll(args: list[str], *values: int) -> subprocess.CompletedProcess:
+    return subprocess.run(["mbpoll", "-0", "-1", "-o", "2", *args, *map(str, values)],
+                          capture_output=True, text=True, timeout=20)
+
+
+def parse(out: str) -> dict[int, str]:
+    """mbpoll's '[120]: \t0.243700' lines -> {120: '0.243700'}."""
+    return {int(a): v.strip() for a, v in re.findall(r"^\[(\d+)\]:\s+(\S+)", out, re.M)}
+
+
+def signed(v: str) -> int:
+    n = int(v)
+    return n - 65536 if n > 32767 else n
+
+
+def drive_a_cycle(target: list[str]) -> None:
+    """One handshake done entirely by mbpoll: job id, trigger, poll, read, acknowledge."""
+    regs = rm.ascii_to_regs(JOB, 16)
+    r = mbpoll(target[:-1] + ["-r", "1", target[-1]], *regs)
+    assert r.returncode == 0, r.stdout + r.stderr
+    r = mbpoll(target[:-1] + ["-r", "0", target[-1]], 1)  # measure
+    assert r.returncode == 0 and "Written 1 references" in r.stdout, r.stdout + r.stderr
+    deadline = time.monotonic() + 10
+    while True:
+        status = parse(mbpoll(target[:-1] + ["-r", "100", "-c", "8", target[-1]]).stdout)
+        if status.get(100) == "2" or time.monotonic() > deadline:
+            break
+        time.sleep(0.05)
+    assert status[100] == "2" and status[104] == "1" and status[101] == "0", status  # done, valid, no fault
+    want = synthetic_result(CycleRequest("measure", JOB, None, 0), fail_every=10)
+    floats = parse(mbpoll(target[:-1] + ["-r", "120", "-c", "11", "-t", "4:float", "-B", target[-1]]).stdout)
+    ints = parse(mbpoll(target[:-1] + ["-r", "142", "-c", "11", target[-1]]).stdout)
+    expected = [want["wheels"][w][f"{a}_deg"] for w in ("FL", "FR", "RL", "RR") for a in ("toe", "camber")]
+    expected += [want["axles"]["front"]["total_toe_deg"], want["axles"]["rear"]["total_toe_deg"], want["thrust_deg"]]
+    assert [120 + 2 * i for i in range(11)] == sorted(floats)
+    for i, x in enumerate(expected):
+        assert float(floats[120 + 2 * i]) == pytest.approx(x, abs=2e-6), rm.ANGLES[i]
+        assert signed(ints[142 + i]) == round(x * 100), rm.ANGLES[i]
+    r = mbpoll(target[:-1] + ["-r", "0", target[-1]], 4)  # acknowledge
+    assert r.returncode == 0
+    assert parse(mbpoll(target[:-1] + ["-r", "100", target[-1]]).stdout)[100] == "0"
+
+
+def check_refusals(target: list[str]) -> None:
+    r = mbpoll(target[:-1] + ["-r", "104", target[-1]], 1)  # result_valid is the station's
+    assert r.returncode != 0 and "Illegal data address" in r.stderr
+    r = mbpoll(target[:-1] + ["-r", "0", target[-1]], 9)  # not a command
+    assert r.returncode != 0 and "Illegal data value" in r.stderr
+    r = mbpoll(target[:-1] + ["-r", "0", target[-1]], 4)  # nothing to acknowledge
+    assert r.returncode != 0 and "Illegal data value" in r.stderr
+    status = parse(mbpoll(target[:-1] + ["-r", "100", "-c", "8", target[-1]]).stdout)
+    assert status[100] == "0" and status[106] == "503" and status[107] == "2"  # refused commands only
+
+
+def test_mbpoll_over_tcp():
+    with BackgroundServer(PlcDevice(dry_run_runner(10))) as bg:
+        port = bg.start_tcp()
+        target = ["-m", "tcp", "-p", str(port), "-a", "1", "127.0.0.1"]
+        drive_a_cycle(target)
+        check_refusals(target)
+        assert bg.device.stats["done"] == 1
+
+
+@pytest.mark.skipif(shutil.which("socat") is None, reason="socat is not installed")
+def test_mbpoll_over_rtu(tmp_path):
+    a, b = tmp_path / "station", tmp_path / "plc"
+    socat = subprocess.Popen(["socat", f"pty,raw,echo=0,link={a}", f"pty,raw,echo=0,link={b}"],
+                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 5
+        while not (a.exists() and b.exists()):
+            assert time.monotonic() < deadline
+            time.sleep(0.01)
+        with BackgroundServer(PlcDevice(dry_run_runner(10), device_id=5)) as bg:
+            bg.start_rtu(str(a), baudrate=19200, parity="N")
+            target = ["-m", "rtu", "-b", "19200", "-P", "none", "-a", "5", str(b)]
+            drive_a_cycle(target)
+            check_refusals(target)
+    finally:
+        socat.terminate()
+        socat.wait(5)
