@@ -173,60 +173,71 @@ def _sample(levels: list[np.ndarray], s: np.ndarray, u: np.ndarray, lod: np.ndar
     return out
 
 
+def _clip_near(poly: np.ndarray, near: float = 1e-3) -> np.ndarray:
+    """Clip a convex polygon (n,3) in camera coordinates to z >= near (Sutherland-Hodgman)."""
+    out = []
+    for a, b in zip(poly, np.roll(poly, -1, axis=0)):
+        if a[2] >= near:
+            out.append(a)
+        if (a[2] >= near) != (b[2] >= near):
+            out.append(a + (near - a[2]) / (b[2] - a[2]) * (b - a))
+    return np.array(out).reshape(-1, 3)
+
+
 def render(room: Room, cam: CameraModel, rng: np.random.Generator | None = None,
            noise_grey: float = 1.0) -> np.ndarray:
     """Ray cast ``room`` through pinhole ``cam`` (no distortion): (H, W) uint8."""
     W, H = cam.width, cam.height
     K = cam.K
     uu, vv = np.meshgrid(np.arange(W, dtype=float), np.arange(H, dtype=float))
-    d_cam = np.stack([(uu - K[0, 2]) / K[0, 0], (vv - K[1, 2]) / K[1, 1], np.ones_like(uu)], -1)
-    d = d_cam.reshape(-1, 3) @ cam.R_cam_station        # (HW,3) world directions, z_cam = 1
-    dnorm = np.linalg.norm(d, axis=1)
+    Rt = cam.R_cam_station.T                            # world <- camera
+    xc, yc = (uu - K[0, 2]) / K[0, 0], (vv - K[1, 2]) / K[1, 1]
+    dx, dy, dz = (Rt[k, 0] * xc + Rt[k, 1] * yc + Rt[k, 2] for k in range(3))  # (H,W) each
     C = cam.center_station
-    depth = np.full(W * H, np.inf)
-    hit_q = np.full(W * H, -1, np.int32)
-    hit_s = np.zeros(W * H)
-    hit_u = np.zeros(W * H)
+    depth = np.full((H, W), np.inf)
+    hit_q = np.full((H, W), -1, np.int32)
+    hit_s = np.zeros((H, W))
+    hit_u = np.zeros((H, W))
     f = 0.5 * (K[0, 0] + K[1, 1])
     for qi, q in enumerate(room.quads):
         n = np.cross(q.e1, q.e2)
         if n @ (C - q.origin) <= 0:           # seen from behind
             continue
         corners = q.origin + np.array([[0, 0], [1, 0], [1, 1], [0, 1]]) @ np.stack([q.e1, q.e2])
-        pc = cam.station_to_cam(corners)
-        if np.all(pc[:, 2] <= 1e-6):
+        poly = _clip_near(cam.station_to_cam(corners))
+        if len(poly) < 3:
             continue
-        if np.all(pc[:, 2] > 1e-6):
-            uv = pc[:, :2] / pc[:, 2:] * [K[0, 0], K[1, 1]] + K[:2, 2]
-            c0, r0 = np.floor(uv.min(0)).astype(int) - 1
-            c1, r1 = np.ceil(uv.max(0)).astype(int) + 1
-            c0, r0, c1, r1 = max(c0, 0), max(r0, 0), min(c1, W - 1), min(r1, H - 1)
-            if c0 > c1 or r0 > r1:
-                continue
-            idx = (np.arange(r0, r1 + 1)[:, None] * W + np.arange(c0, c1 + 1)[None, :]).ravel()
-        else:
-            idx = np.arange(W * H)
-        D = d[idx]
-        denom = D @ n
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = (n @ (q.origin - C)) / denom
+        uv = poly[:, :2] / poly[:, 2:] * [K[0, 0], K[1, 1]] + K[:2, 2]
+        c0, r0 = np.floor(uv.min(0)).astype(int) - 1
+        c1, r1 = np.ceil(uv.max(0)).astype(int) + 1
+        c0, r0, c1, r1 = max(c0, 0), max(r0, 0), min(c1, W - 1), min(r1, H - 1)
+        if c0 > c1 or r0 > r1:
+            continue
+        sl = (slice(r0, r1 + 1), slice(c0, c1 + 1))     # views: no copies of the ray arrays
+        X, Y, Z = dx[sl], dy[sl], dz[sl]
         rel = C - q.origin
         e1n, e2n = q.e1 / (q.e1 @ q.e1), q.e2 / (q.e2 @ q.e2)
-        s = rel @ e1n + t * (D @ e1n)
-        u = rel @ e2n + t * (D @ e2n)
-        ok = (t > 1e-6) & (t < depth[idx]) & (s >= 0) & (s <= 1) & (u >= 0) & (u <= 1)
-        j = idx[ok]
-        depth[j] = t[ok]
-        hit_q[j] = qi
-        hit_s[j] = s[ok]
-        hit_u[j] = u[ok]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (n @ (q.origin - C)) / (X * n[0] + Y * n[1] + Z * n[2])
+        s = rel @ e1n + t * (X * e1n[0] + Y * e1n[1] + Z * e1n[2])
+        u = rel @ e2n + t * (X * e2n[0] + Y * e2n[1] + Z * e2n[2])
+        ok = (t > 1e-6) & (t < depth[sl]) & (s >= 0) & (s <= 1) & (u >= 0) & (u <= 1)
+        depth[sl][ok] = t[ok]
+        hit_q[sl][ok] = qi
+        hit_s[sl][ok] = s[ok]
+        hit_u[sl][ok] = u[ok]
+    d = np.stack([dx.ravel(), dy.ravel(), dz.ravel()], axis=1)
+    dnorm = np.linalg.norm(d, axis=1)
+    depth, hit_q, hit_s, hit_u = depth.ravel(), hit_q.ravel(), hit_s.ravel(), hit_u.ravel()
     img = np.zeros(W * H, np.float32)
     valid = hit_q >= 0
     light = np.array([0.3, -0.5, 0.81])
     light /= np.linalg.norm(light)
+    order = np.argsort(hit_q, kind="stable")          # pixels grouped by the quad they hit
+    bounds = np.searchsorted(hit_q[order], np.arange(len(room.quads) + 1))
     for qi in np.unique(hit_q[valid]):
         q = room.quads[qi]
-        m = np.flatnonzero(hit_q == qi)
+        m = order[bounds[qi]:bounds[qi + 1]]
         n = np.cross(q.e1, q.e2)
         n /= np.linalg.norm(n)
         dist = depth[m] * dnorm[m]

@@ -26,6 +26,28 @@ METHODS = ("paper", "robust")
 MIN_COMMON_PAPER = 6   # M = P Q^+ needs >= 4 non-coplanar points; a margin against degeneracy
 
 
+@dataclass(frozen=True)
+class Variant:
+    """A named estimator set-up: ``estimator`` 'paper' or 'robust', with its matching and
+    robust settings (for comparisons such as the paper's estimator on filtered matches)."""
+
+    name: str
+    estimator: str
+    matching: MatchSettings
+    robust: RobustSettings = RobustSettings()
+
+
+def variant(method: str | Variant) -> Variant:
+    """'paper' (the paper's matching and estimator), 'robust', or a Variant as it is."""
+    if isinstance(method, Variant):
+        return method
+    if method == "paper":
+        return Variant("paper", "paper", PAPER_MATCHING)
+    if method == "robust":
+        return Variant("robust", "robust", MatchSettings())
+    raise ValueError(f"unknown method {method!r}; use one of {METHODS}")
+
+
 @dataclass
 class StepInfo:
     """What one step used: keypoints in the left image, common to the four images, kept."""
@@ -45,14 +67,11 @@ class MethodRun:
     error: OdometryError | None = None
 
 
-def _settings(method: str) -> MatchSettings:
-    return PAPER_MATCHING if method == "paper" else MatchSettings()
-
-
-def _estimate(method: str, prev: StereoFrame, cur: StereoFrame, a: np.ndarray, b: np.ndarray,
-              seq: StereoSequence, robust: RobustSettings, step: int) -> StepEstimate:
+def _estimate(v: Variant, prev: StereoFrame, cur: StereoFrame, a: np.ndarray, b: np.ndarray,
+              seq: StereoSequence, step: int) -> StepEstimate:
     R, t = seq.paper_pair
-    if method == "paper":
+    robust = v.robust
+    if v.estimator == "paper":
         if len(a) < MIN_COMMON_PAPER:
             raise OdometryError(f"step {step}: only {len(a)} keypoints common to the four images "
                                 f"(the paper's method needs {MIN_COMMON_PAPER})",
@@ -67,14 +86,14 @@ def _estimate(method: str, prev: StereoFrame, cur: StereoFrame, a: np.ndarray, b
     return est
 
 
-def run_odometry(seq: StereoSequence, methods: tuple[str, ...] = ("robust",),
-                 robust: RobustSettings = RobustSettings(), max_steps: int | None = None,
+def run_odometry(seq: StereoSequence, methods: tuple[str | Variant, ...] = ("robust",),
+                 max_steps: int | None = None,
                  on_step: Callable[[str, int, MethodRun], None] | None = None) -> dict[str, MethodRun]:
-    """Estimate the trajectory of ``seq`` with each method; never raises for bad input: a
-    method that fails keeps its trajectory so far and records the error."""
-    for m in methods:
-        if m not in METHODS:
-            raise ValueError(f"unknown method {m!r}; use one of {METHODS}")
+    """Estimate the trajectory of ``seq`` with each method ('paper', 'robust' or a Variant),
+    sharing the SIFT detection; never raises for bad input: a method that fails keeps its
+    trajectory so far and records the error. Returns runs keyed by method name."""
+    variants = {v.name: v for v in map(variant, methods)}
+    methods = tuple(variants)
     runs = {m: MethodRun(m) for m in methods}
     n = len(seq) if max_steps is None else min(len(seq), max_steps + 1)
     frames: dict[str, StereoFrame] = {}
@@ -99,15 +118,16 @@ def run_odometry(seq: StereoSequence, methods: tuple[str, ...] = ("robust",),
         det_r = detect(right_img)
         pairs: dict[float, tuple] = {}             # left-right matches, shared by the methods
         for m in active:
-            ratio = _settings(m).ratio
+            v = variants[m]
+            ratio = v.matching.ratio
             if ratio not in pairs:
                 pairs[ratio] = ratio_matches(det_l[1], det_r[1], ratio)
-            cur = stereo_match(det_l, det_r, seq.left, seq.right, _settings(m), pairs[ratio])
+            cur = stereo_match(det_l, det_r, seq.left, seq.right, v.matching, pairs[ratio])
             if i > 0:
                 prev = frames[m]
-                a, b = common_keypoints(prev, cur, _settings(m))
+                a, b = common_keypoints(prev, cur, v.matching)
                 try:
-                    est = _estimate(m, prev, cur, a, b, seq, robust, i)
+                    est = _estimate(v, prev, cur, a, b, seq, i)
                 except OdometryError as e:
                     runs[m].error = e
                     continue
