@@ -1,0 +1,344 @@
+"""Ray casting of one wheel: rim flange, barrel, spokes, hub, brake, tyre, all exact.
+
+The wheel is a stack of surfaces of revolution about its spin axis plus non-symmetric masks
+(spokes, lug holes, caliper). Geometry in the wheel frame (docs/conventions.md): origin at the
+rim-flange circle centre, w = outward spin axis, r = distance from the axis.
+
+- flange: the plane w = 0 for r in [rim_radius - flange_width, rim_radius]. Its outer edge, the
+  circle r = rim_radius, w = 0, is the measured feature; it is intersected exactly.
+- barrel: the cylinder r = rim_radius - flange_width between the flange and the spoke face.
+- spoke face: the plane w = -rim_face_depth, spokes by angle, with gaps through which the
+  brake disc, the caliper and the dark wheel cavity behind show.
+- hub: a disc standing a little proud of the spoke face, with lug-nut holes.
+- tyre: a closed profile of cone frusta (outer sidewall bulging ``sidewall_bulge_m`` beyond
+  the flange plane, so oblique views lose part of the flange behind it, tread, inner sidewall)
+  and the dark inner face. Normals are interpolated along the profile (smooth shading).
+
+Every part is a plane annulus or a cone frustum ``r = A + B t`` along the ray: one linear or
+quadratic equation per ray, solved in float64.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from simulators.scene import Lighting
+from simulators.shading import LABEL_WHEEL, Hits, rowmat, shade
+from simulators.vehicle import WheelGeometry
+
+# part numbers (label = LABEL_WHEEL + 40 * wheel index + part)
+FLANGE, BARREL, SPOKE, RING, HUB, HUB_SIDE, LUG, CALIPER, DISC, CAVITY, INNER = range(11)
+TYRE = 12  # one label for the whole tyre (its shading is smooth across profile segments)
+
+
+@dataclass(frozen=True)
+class Finish:
+    """Surface finish of a vehicle's wheels (derived deterministically from the geometry)."""
+
+    spoke_albedo: float
+    flange_specular: float
+    spoke_specular: float
+    caliper_albedo: float
+
+
+def wheel_finish(g: WheelGeometry) -> Finish:
+    """Vary finishes between vehicles without a new random stream: hash the geometry."""
+    h = np.modf(np.sin(np.array([1.0, 2.0, 3.0, 4.0]) * (g.rim_albedo * 91.7 + g.spoke_count * 7.3
+                                                          + g.hub_radius_m * 311.0)) * 43758.5453)[0]
+    h = np.abs(h)
+    return Finish(spoke_albedo=float(np.clip(g.rim_albedo * (0.45 + 0.9 * h[0]), 0.08, 0.95)),
+                  flange_specular=float(0.2 + 0.8 * h[1]), spoke_specular=float(0.1 + 0.9 * h[2]),
+                  caliper_albedo=float(0.12 + 0.35 * h[3]))
+
+
+def tyre_profile(g: WheelGeometry) -> np.ndarray:
+    """(P,2) closed tyre outline (r, w) from the outer bead (rim_radius, 0) round to the inner bead."""
+    rr, tr, b, W = g.rim_radius_m, g.tyre_radius_m, g.sidewall_bulge_m, g.tyre_width_m
+    S = tr - rr
+    shoulder = min(0.035, 0.2 * W)
+    outer = np.array([
+        [rr, 0.0], [rr + 0.04 * S, 0.55 * b], [rr + 0.12 * S, 0.9 * b], [rr + 0.3 * S, b],
+        [rr + 0.6 * S, 0.85 * b], [tr - 0.08 * S, 0.5 * b - 0.3 * shoulder], [tr, b - shoulder]])
+    w_mid = b - W / 2
+    inner = outer[::-1].copy()
+    inner[:, 1] = 2 * w_mid - inner[:, 1]
+    return np.vstack([outer, inner])
+
+
+def _profile_normals(profile: np.ndarray) -> np.ndarray:
+    """(P,2) vertex normals (n_r, n_w) of the outline, outward from the tyre's inside."""
+    seg = np.diff(profile, axis=0)
+    n = np.stack([-seg[:, 1], seg[:, 0]], axis=1)
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    vn = np.vstack([n[:1], n[:-1] + n[1:], n[-1:]])
+    return vn / np.linalg.norm(vn, axis=1, keepdims=True)
+
+
+class _Rays:
+    """Rays in the wheel frame with the terms shared by every part; parts work on index subsets.
+
+    o: (3,) origin, d: (N,3) unit directions, both in the wheel frame.
+    """
+
+    def __init__(self, o_w: np.ndarray, d_w: np.ndarray):
+        self.o = o_w
+        self.du = np.ascontiguousarray(d_w[:, 0])
+        self.dv = np.ascontiguousarray(d_w[:, 1])
+        self.dw = np.ascontiguousarray(d_w[:, 2])
+        self.a2 = self.du * self.du + self.dv * self.dv
+        self.b1 = o_w[0] * self.du + o_w[1] * self.dv
+        self.c0 = o_w[0] ** 2 + o_w[1] ** 2
+        with np.errstate(divide="ignore"):
+            self.inv_dw = 1.0 / self.dw
+
+    def r2_at(self, sub, t):
+        return self.c0 + t * (2.0 * self.b1[sub] + t * self.a2[sub])
+
+    def subset(self, sub: np.ndarray) -> "_Rays":
+        """The same rays restricted to ``sub`` (avoids repeated gathers)."""
+        out = _Rays.__new__(_Rays)
+        out.o, out.c0 = self.o, self.c0
+        for name in ("du", "dv", "dw", "a2", "b1", "inv_dw"):
+            setattr(out, name, getattr(self, name)[sub])
+        return out
+
+    def reaching(self, sub: np.ndarray, best_t: np.ndarray, w_lo: float, w_hi: float,
+                 r_lo: float, r_hi: float) -> np.ndarray:
+        """The rays of ``sub`` that pass through the region w_lo<=w<=w_hi, r_lo<=r<=r_hi before
+        their current nearest hit (a conservative cull: r along a ray is convex in t)."""
+        inv = self.inv_dw[sub]
+        with np.errstate(invalid="ignore"):
+            ta = (w_lo - self.o[2]) * inv
+            tb = (w_hi - self.o[2]) * inv
+        t0 = np.maximum(np.minimum(ta, tb), 0.0)
+        t1 = np.minimum(np.maximum(ta, tb), best_t[sub])
+        keep = np.nonzero(t1 >= t0)[0]           # cheap first stage: slab before the nearest hit
+        sub, t0, t1 = sub[keep], t0[keep], t1[keep]
+        a2 = self.a2[sub]
+        b1 = self.b1[sub]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            ts = np.clip(-b1 / a2, t0, t1)
+            r2_0 = self.c0 + t0 * (2.0 * b1 + t0 * a2)
+            r2_1 = self.c0 + t1 * (2.0 * b1 + t1 * a2)
+            r2_s = self.c0 + ts * (2.0 * b1 + ts * a2)
+            keep = (r2_s <= r_hi * r_hi * (1 + 1e-9)) & (np.maximum(r2_0, r2_1) >= r_lo * r_lo * (1 - 1e-9))
+        return sub[keep]
+
+    def plane(self, sub: np.ndarray, w0: float, r_lo: float, r_hi: float):
+        """Hits of the annulus w = w0, r_lo <= r <= r_hi: (t, r2) over sub; misses t = inf."""
+        t = (w0 - self.o[2]) * self.inv_dw[sub]
+        r2 = self.r2_at(sub, t)
+        ok = (t > 1e-9) & (r2 >= r_lo * r_lo) & (r2 <= r_hi * r_hi)
+        return np.where(ok, t, np.inf), r2
+
+    def cone(self, sub: np.ndarray, r0: float, w0: float, r1: float, w1: float):
+        """Nearest hit (t, s) over sub of the frustum between profile points (r0,w0)-(r1,w1)."""
+        dw_seg = w1 - w0
+        k = (r1 - r0) / dw_seg
+        A = r0 + k * (self.o[2] - w0)
+        dw = self.dw[sub]
+        B = k * dw
+        a = self.a2[sub] - B * B
+        hb = self.b1[sub] - A * B
+        c = self.c0 - A * A
+        disc = hb * hb - a * c
+        with np.errstate(invalid="ignore", divide="ignore"):
+            sq = np.sqrt(np.maximum(disc, 0.0))
+            q = -(hb + np.copysign(sq, hb))
+            roots = (q / a, c / q)
+        best_t = np.full(len(a), np.inf)
+        best_s = np.zeros(len(a))
+        for t in roots:
+            with np.errstate(invalid="ignore"):
+                s = (self.o[2] + t * dw - w0) / dw_seg
+                ok = (disc >= 0) & (t > 1e-9) & (s >= 0) & (s <= 1) & (A + B * t >= 0) & (t < best_t)
+            best_t = np.where(ok, t, best_t)
+            best_s = np.where(ok, s, best_s)
+        return best_t, best_s
+
+
+def trace_wheel(o: np.ndarray, d: np.ndarray, idx: np.ndarray, hits: Hits, lighting: Lighting,
+                center: np.ndarray, R_station_wheel: np.ndarray, g: WheelGeometry, wheel_index: int,
+                caliper_angle: float) -> None:
+    """Intersect rays d[idx] (M,3) from o with one wheel and store the nearer hits in ``hits``.
+
+    caliper_angle: angle (rad, in the wheel's u-v plane) of the brake caliper, which does not
+    turn with the wheel.
+    """
+    if idx.size == 0:
+        return
+    R = R_station_wheel
+    rays = _Rays(R.T @ (o - center), rowmat(d[idx], R))
+    n = idx.size
+    r_in = g.rim_radius_m - g.flange_width_m
+    D = g.rim_face_depth_m
+    hub_h = min(0.015, 0.5 * D)
+    profile = tyre_profile(g)
+    best_t = hits.t[idx].copy()
+    part = np.full(n, -1, np.int32)
+    aux = np.zeros(n)  # profile parameter for the tyre, r^2 or a flag for planes
+    first = rays.reaching(np.arange(n), best_t, profile[:, 1].min(), profile[:, 1].max(),
+                          0.0, g.tyre_radius_m)
+    if first.size == 0:
+        return
+    # from here on, work only on the rays that can reach the wheel
+    idx, rays, best_t = idx[first], rays.subset(first), best_t[first]
+    n = idx.size
+    part = np.full(n, -1, np.int32)
+    aux = np.zeros(n)
+    everything = np.arange(n)
+
+    def offer(sub, t, p, a=None):
+        win = t < best_t[sub]
+        wi = sub[win]
+        best_t[wi] = t[win]
+        part[wi] = p
+        if a is not None:
+            aux[wi] = a[win]
+
+    def tyre_segment(k):
+        (r0, w0), (r1, w1) = profile[k], profile[k + 1]
+        sub = rays.reaching(everything, best_t, min(w0, w1), max(w0, w1), min(r0, r1), max(r0, r1))
+        if sub.size == 0:
+            return
+        if abs(w1 - w0) < 1e-12:
+            t, r2 = rays.plane(sub, w0, min(r0, r1), max(r0, r1))
+            s = (np.sqrt(r2) - r0) / (r1 - r0)
+        else:
+            t, s = rays.cone(sub, r0, w0, r1, w1)
+        offer(sub, t, TYRE, k + np.clip(s, 0, 1))
+
+    n_outer = 6  # segments of the outer sidewall (see tyre_profile)
+    for k in range(n_outer):
+        tyre_segment(k)
+    # rim: flange (the measured circle is its outer edge), barrel, hub
+    rim = rays.reaching(everything, best_t, -D - 0.08, 0.0, 0.0, r_in + 1e-3)
+    sub = rays.reaching(everything, best_t, -1e-9, 1e-9, r_in, g.rim_radius_m)
+    t, r2 = rays.plane(sub, 0.0, r_in, g.rim_radius_m)
+    offer(sub, t, FLANGE, r2)
+    if rim.size:
+        t, _ = rays.cone(rim, r_in, 0.0, r_in, -D)
+        offer(rim, t, BARREL)
+        t, r2 = rays.plane(rim, -D + hub_h, 0.0, g.hub_radius_m)
+        offer(rim, t, HUB, r2)
+        t, _ = rays.cone(rim, g.hub_radius_m, -D, g.hub_radius_m, -D + hub_h)
+        offer(rim, t, HUB_SIDE)
+        # spoke face with angular gaps
+        t, r2 = rays.plane(rim, -D, g.hub_radius_m, r_in)
+        ring_w = min(0.012, 0.15 * (r_in - g.hub_radius_m))
+        with np.errstate(invalid="ignore"):
+            theta = np.arctan2(rays.o[1] + t * rays.dv[rim], rays.o[0] + t * rays.du[rim])
+        f = np.mod(theta * g.spoke_count / (2 * np.pi) + g.spoke_width_frac / 2, 1.0)
+        ring = (r2 >= (r_in - ring_w) ** 2) | (r2 <= (g.hub_radius_m + 0.012) ** 2)
+        spoke = (f < g.spoke_width_frac) | ring
+        offer(rim, np.where(spoke, t, np.inf), SPOKE, np.where(ring, -1.0, 1.0))
+        # behind the spokes: caliper (fixed), brake disc, dark cavity
+        back = rays.reaching(rim, best_t, -D - 0.075, -D - 0.015, 0.0, r_in + 1e-3)
+        t, r2 = rays.plane(back, -D - 0.02, 0.55 * r_in, 0.92 * r_in)
+        with np.errstate(invalid="ignore"):
+            ang = np.arctan2(rays.o[1] + t * rays.dv[back], rays.o[0] + t * rays.du[back])
+        dth = np.abs(np.mod(ang - caliper_angle + np.pi, 2 * np.pi) - np.pi)
+        offer(back, np.where(dth < 0.45, t, np.inf), CALIPER)
+        t, r2 = rays.plane(back, -D - 0.035, g.hub_radius_m, 0.85 * r_in)
+        offer(back, t, DISC, r2)
+        t, _ = rays.plane(back, -D - 0.07, 0.0, r_in + 1e-3)
+        offer(back, t, CAVITY)
+    # tyre: tread and inner sidewall, then the inner face
+    for k in range(n_outer, len(profile) - 1):
+        tyre_segment(k)
+    sub = rays.reaching(everything, best_t, profile[-1, 1] - 1e-9, profile[-1, 1] + 1e-9, 0.0, g.rim_radius_m)
+    t, _ = rays.plane(sub, profile[-1, 1], 0.0, g.rim_radius_m)
+    offer(sub, t, INNER)
+
+    won = part >= 0
+    if not won.any():
+        return
+    sel = np.nonzero(won)[0]
+    t = best_t[sel]
+    p = part[sel]
+    a = aux[sel]
+    dw = np.stack([rays.du[sel], rays.dv[sel], rays.dw[sel]], axis=1)
+    pw = rays.o + t[:, None] * dw                       # hit points, wheel frame (M,3)
+    r = np.hypot(pw[:, 0], pw[:, 1])
+    er = np.stack([pw[:, 0], pw[:, 1], np.zeros_like(r)], axis=1) / np.maximum(r, 1e-12)[:, None]
+    axis = np.array([0.0, 0.0, 1.0])
+    normal_w = np.tile(axis, (len(sel), 1))
+    albedo = np.zeros(len(sel))
+    spec = np.zeros(len(sel))
+    label_part = p.copy()
+    fin = wheel_finish(g)
+
+    m = p == FLANGE  # rounded lip: the shading normal turns outward toward the edge
+    phi = (1.3 * (r[m] - r_in) / g.flange_width_m - 0.25)
+    normal_w[m] = np.cos(phi)[:, None] * axis + np.sin(phi)[:, None] * er[m]
+    albedo[m], spec[m] = g.rim_albedo, fin.flange_specular
+    m = p == BARREL
+    normal_w[m] = -er[m]
+    albedo[m], spec[m] = 0.8 * g.rim_albedo, 0.3 * fin.flange_specular
+    m = p == SPOKE
+    ringm = m & (a < 0)
+    albedo[m], spec[m] = fin.spoke_albedo, fin.spoke_specular
+    albedo[ringm] = 0.9 * g.rim_albedo
+    label_part[ringm] = RING
+    m = (p == HUB) | (p == HUB_SIDE)
+    albedo[m], spec[m] = 0.5, 0.3
+    normal_w[p == HUB_SIDE] = er[p == HUB_SIDE]
+    # lug holes: five dark circles on the hub disc
+    hub = p == HUB
+    lug_r = 0.6 * g.hub_radius_m
+    ang = np.arctan2(pw[hub, 1], pw[hub, 0])
+    near = np.round(ang / (2 * np.pi / 5)) * (2 * np.pi / 5)
+    dist2 = (pw[hub, 0] - lug_r * np.cos(near)) ** 2 + (pw[hub, 1] - lug_r * np.sin(near)) ** 2
+    lug = np.zeros(len(sel), bool)
+    lug[np.nonzero(hub)[0]] = dist2 < (0.17 * g.hub_radius_m) ** 2
+    albedo[lug], spec[lug] = 0.06, 0.0
+    label_part[lug] = LUG
+    m = p == CALIPER
+    albedo[m], spec[m] = fin.caliper_albedo, 0.1
+    m = p == DISC
+    albedo[m] = 0.26 + 0.04 * np.cos(40 * np.arctan2(pw[m, 1], pw[m, 0]))
+    spec[m] = 0.15
+    albedo[p == CAVITY] = 0.025
+    albedo[p == INNER] = 0.04
+    m = p == TYRE
+    if m.any():
+        vn = _profile_normals(profile)
+        k = np.clip(np.floor(a[m]).astype(int), 0, len(profile) - 2)
+        s = (a[m] - k)[:, None]
+        nrw = vn[k] * (1 - s) + vn[k + 1] * s
+        normal_w[m] = nrw[:, :1] * er[m] + nrw[:, 1:] * axis
+        albedo[m] = g.tyre_albedo
+        spec[m] = 0.04
+    normal_w /= np.linalg.norm(normal_w, axis=1, keepdims=True)
+    normals = rowmat(normal_w, R.T)
+    dirs = d[idx[sel]]
+    value = shade(albedo, normals, dirs, lighting) + _specular(spec, normals, dirs, lighting)
+    hits.store(idx[sel], t, LABEL_WHEEL + 40 * wheel_index + label_part, value)
+
+
+def _specular(ks: np.ndarray, normals: np.ndarray, dirs: np.ndarray, lighting: Lighting) -> np.ndarray:
+    """Per-point Phong lobe (shininess 24) with strengths ks (M,)."""
+    L = np.asarray(lighting.key_direction_station, float)
+    L = L / np.linalg.norm(L)
+    ndotd = np.einsum("ij,ij->i", normals, dirs)
+    nn = np.where((ndotd > 0)[:, None], -normals, normals)
+    ndotl = nn @ L
+    refl = L[None, :] - 2.0 * ndotl[:, None] * nn
+    cos_r = np.maximum(0.0, -np.einsum("ij,ij->i", refl, dirs))
+    return (ks * lighting.key_strength * cos_r ** 24).astype(np.float32)
+
+
+def wheel_outline_points(center: np.ndarray, R_station_wheel: np.ndarray, g: WheelGeometry,
+                         n: int = 72) -> np.ndarray:
+    """(2n, 3) station points on the tyre's bounding cylinder's rims (for image bounding boxes)."""
+    a = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    r = g.tyre_radius_m * 1.02
+    w_out = g.sidewall_bulge_m + 0.002
+    w_in = g.sidewall_bulge_m - g.tyre_width_m - 0.002
+    pts = []
+    for w in (w_out, w_in):
+        local = np.stack([r * np.cos(a), r * np.sin(a), np.full(n, w)], axis=1)
+        pts.append(local @ R_station_wheel.T + center)
+    return np.vstack(pts)

@@ -1,0 +1,125 @@
+"""Shared pieces of the ray tracer: the nearest-hit buffer, the lighting model, texture lookup.
+
+Radiance units: a white (albedo 1) surface facing the key light head-on under ``Lighting()``
+has radiance ``ambient + key_strength`` (1.1); the image is ``255 * gain * vignetting *
+radiance``, so values above ~1 saturate (glare).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from simulators.scene import Lighting
+
+# label blocks: a label change between neighbouring pixels marks an edge to supersample
+LABEL_SKY = 0
+LABEL_WALL = 10         # + face index (0..4)
+LABEL_FLOOR = 20        # + floor region (0 concrete, 1 runway plate, 2 runway edge strip)
+LABEL_BODY = 30         # + part of the vehicle body
+LABEL_QUAD = 1000       # + quad index
+LABEL_WHEEL = 100       # + 40 * wheel index + part
+
+
+class Hits:
+    """Nearest hit so far for N rays: t (N,) metres along the ray, label (N,), value (N,)."""
+
+    def __init__(self, n: int):
+        self.t = np.full(n, np.inf)
+        self.label = np.zeros(n, np.int32)
+        self.value = np.zeros(n, np.float32)
+
+    def take(self, idx: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """Boolean mask over idx: where the new hit ``t`` is nearer than the stored one."""
+        return t < self.t[idx]
+
+    def store(self, idx: np.ndarray, t: np.ndarray, label, value) -> None:
+        self.t[idx] = t
+        self.label[idx] = label
+        self.value[idx] = value
+
+
+def rowmat(a: np.ndarray, M: np.ndarray) -> np.ndarray:
+    """(N,k) @ (k,m) for tall arrays without BLAS: a multi-threaded BLAS call on a busy machine
+    costs ~30x more than this single-threaded einsum."""
+    return np.einsum("ij,jk->ik", a, M)
+
+
+def key_direction(lighting: Lighting) -> np.ndarray:
+    """(3,) unit direction the key light travels along (station frame)."""
+    L = np.asarray(lighting.key_direction_station, float)
+    return L / np.linalg.norm(L)
+
+
+def shade(albedo, normals: np.ndarray, dirs: np.ndarray, lighting: Lighting,
+          specular: float = 0.0, shininess: float = 20.0) -> np.ndarray:
+    """Radiance (N,) of surfaces with unit normals (N,3) seen along unit rays dirs (N,3).
+
+    Lambert (ambient + key * max(0, -n.L)) plus a Phong lobe for metal:
+    ``specular * key * max(0, R.(-d))^shininess`` with R the mirrored key direction.
+    Normals are flipped to face the camera (two-sided surfaces).
+    """
+    L = key_direction(lighting)
+    ndotd = np.einsum("ij,ij->i", normals, dirs)
+    n = np.where((ndotd > 0)[:, None], -normals, normals)
+    ndotl = n @ L
+    value = np.asarray(albedo) * (lighting.ambient + lighting.key_strength * np.maximum(0.0, -ndotl))
+    if specular:
+        refl = L[None, :] - 2.0 * ndotl[:, None] * n
+        cos_r = np.maximum(0.0, -np.einsum("ij,ij->i", refl, dirs))
+        value = value + specular * lighting.key_strength * cos_r ** shininess
+    return value.astype(np.float32)
+
+
+def bilinear(texture: np.ndarray, s: np.ndarray, t: np.ndarray, wrap: bool = False) -> np.ndarray:
+    """Sample a (h, w) texture at texel coordinates s (columns), t (rows), (N,) each.
+
+    Texel (i, j) covers [j, j+1) x [i, i+1): (0, 0) is the texture's outer corner, texel
+    centres are at half-integers. Clamped at the border, or wrapped (tiling) if ``wrap``.
+    """
+    h, w = texture.shape
+    x = np.asarray(s, float) - 0.5
+    y = np.asarray(t, float) - 0.5
+    x0 = np.floor(x)
+    y0 = np.floor(y)
+    fx = (x - x0).astype(np.float32)
+    fy = (y - y0).astype(np.float32)
+    x0 = x0.astype(np.int64)
+    y0 = y0.astype(np.int64)
+    if wrap:
+        x0 %= w
+        y0 %= h
+        x1 = (x0 + 1) % w
+        y1 = (y0 + 1) % h
+    else:
+        x1 = np.clip(x0 + 1, 0, w - 1)
+        y1 = np.clip(y0 + 1, 0, h - 1)
+        x0 = np.clip(x0, 0, w - 1)
+        y0 = np.clip(y0, 0, h - 1)
+    flat = texture.ravel()
+    a = flat[y0 * w + x0].astype(np.float32)
+    b = flat[y0 * w + x1].astype(np.float32)
+    c = flat[y1 * w + x0].astype(np.float32)
+    d = flat[y1 * w + x1].astype(np.float32)
+    top = a + (b - a) * fx
+    bottom = c + (d - c) * fx
+    return top + (bottom - top) * fy
+
+
+def smooth_noise(rng: np.random.Generator, shape: tuple[int, int], cells: tuple[int, int]) -> np.ndarray:
+    """Tileable band-limited noise, (h, w) float32 with zero mean and unit-ish std.
+
+    A random (cells) grid upsampled bicubically with wrap-around (Fourier resampling).
+    """
+    h, w = shape
+    coarse = rng.standard_normal(cells)
+    spec = np.fft.fft2(coarse)
+    full = np.zeros((h, w), complex)
+    ch, cw = cells
+    hh, hw = ch // 2, cw // 2
+    full[:hh, :hw] = spec[:hh, :hw]
+    full[:hh, -hw:] = spec[:hh, -hw:]
+    full[-hh:, :hw] = spec[-hh:, :hw]
+    full[-hh:, -hw:] = spec[-hh:, -hw:]
+    out = np.fft.ifft2(full).real
+    out /= out.std() + 1e-12
+    return out.astype(np.float32)
