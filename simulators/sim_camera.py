@@ -1,0 +1,128 @@
+"""SimCamera: a camera of the simulated station, behind the same interface as real ones.
+
+URI: ``sim://camN[?line=K&fps=F]``. The simulated world comes from ``context["sim_world"]``
+(a simulators.world.SimWorld); the camera renders ``world.render(camN, rng)`` of the world's
+current scene. Trigger modes behave as on the station:
+
+- software: one frame per ``trigger()``;
+- hardware: one frame per pulse on trigger line K (default N-1) of ``context["trigger_lines"]``
+  (simulators.trigger_board_sim.TriggerLines, driven by the simulated trigger board);
+- free-run: a frame every 1/F s (default 10 fps), stamped on that grid.
+
+Frames are deterministic: frame n of camera camN is rendered with the noise stream
+``default_rng([seed, N, n])``, seed = ``context["sim_seed"]`` (default the station seed),
+so the same world, scene and seed give bit-identical frames.
+"""
+
+from __future__ import annotations
+
+import re
+import threading
+import time
+from urllib.parse import parse_qs
+
+import numpy as np
+
+from drivers.base import Camera, CameraIdentity, CameraSettings, Frame
+from station.errors import CameraMissing, DriverError
+
+
+class SimCamera(Camera):
+    scheme = "sim"
+
+    def __init__(self, camera_id: str, uri: str, settings: CameraSettings | None = None,
+                 context: dict | None = None):
+        super().__init__(camera_id, uri, settings, context)
+        rest = uri.split("://", 1)[1]
+        name, _, query = rest.partition("?")
+        self.sim_id = name.strip("/") or camera_id
+        opts = {k: v[-1] for k, v in parse_qs(query).items()}
+        m = re.search(r"(\d+)$", self.sim_id)
+        self.index = int(m.group(1)) if m else 0
+        self.line = int(opts.get("line", max(self.index - 1, 0)))
+        self.fps = float(opts.get("fps", 10.0))
+        self.world = None
+        self.lines = None
+        self._n = 0  # frames rendered since open
+        self._triggered = threading.Event()
+        self._pulses_seen = 0
+        self._t_open_ns = 0
+
+    def _open(self) -> None:
+        world = self.context.get("sim_world")
+        if world is None:
+            raise DriverError(f"{self.camera_id}: sim:// cameras need the simulated station "
+                              "(context['sim_world'], a simulators.world.SimWorld)",
+                              hint="assemble the station with its simulator, or use real camera URIs")
+        if self.sim_id not in world.cameras:
+            raise CameraMissing(f"{self.camera_id}: the simulated station has no camera {self.sim_id!r} "
+                                f"(it has {', '.join(world.cameras)})")
+        self.world = world
+        self.seed = int(self.context.get("sim_seed", world.config.simulation.station_seed))
+        self._n = 0
+        self._t_open_ns = time.monotonic_ns()
+
+    def _configure(self, s: CameraSettings) -> None:
+        if s.pixel_format not in ("Mono8", "Mono16"):
+            raise DriverError(f"{self.camera_id}: the simulated camera gives Mono8 or Mono16, not {s.pixel_format}")
+        model = self.world.cameras[self.sim_id]
+        if (s.width, s.height) != (model.width, model.height):
+            raise DriverError(f"{self.camera_id}: the simulated sensor is {model.width}x{model.height}, "
+                              f"configured for {s.width}x{s.height}")
+        if s.trigger == "hardware":
+            self.lines = self.context.get("trigger_lines")
+            if self.lines is None:
+                raise DriverError(f"{self.camera_id}: hardware trigger needs the simulated trigger wires "
+                                  "(context['trigger_lines'])", hint="start the simulated trigger board")
+            if not 0 <= self.line < self.lines.n_lines:
+                raise DriverError(f"{self.camera_id}: trigger line {self.line} does not exist on the board")
+
+    def _arm(self) -> None:
+        self._triggered.clear()
+        if self.settings.trigger == "hardware":
+            self._pulses_seen = self.lines.count(self.line)
+
+    def _trigger(self) -> None:
+        self._trigger_ns = time.monotonic_ns()
+        self._triggered.set()
+
+    def _grab(self, timeout_s: float) -> Frame | None:
+        mode = self.settings.trigger
+        if mode == "software":
+            if not self._triggered.wait(timeout_s):
+                return None
+            self._triggered.clear()
+            t_ns = self._trigger_ns
+        elif mode == "hardware":
+            got = self.lines.wait(self.line, self._pulses_seen, timeout_s)
+            if got is None:
+                return None
+            self._pulses_seen, t_ns = got
+        else:  # free-run: the next tick of the frame clock
+            period_ns = int(1e9 / self.fps)
+            now = time.monotonic_ns()
+            t_ns = self._t_open_ns + ((now - self._t_open_ns) // period_ns + 1) * period_ns
+            if (t_ns - now) / 1e9 > timeout_s:
+                return None
+            time.sleep((t_ns - now) / 1e9)
+        image = self.render(self._n)
+        frame = Frame(self.camera_id, image, t_ns, self._n,
+                      {"pixel_format": self.settings.pixel_format, "sim_seed": self.seed, "sim_frame": self._n})
+        self._n += 1
+        return frame
+
+    def render(self, n: int) -> np.ndarray:
+        """Frame ``n`` of this camera: (H, W) uint8 (Mono8) or uint16 (Mono16, 8 bits shifted up)."""
+        rng = np.random.default_rng([self.seed, self.index, n])
+        image = self.world.render(self.sim_id, rng)
+        s = self.settings
+        if s.roi:
+            x, y, w, h = s.roi
+            image = image[y:y + h, x:x + w]
+        if s.pixel_format == "Mono16":
+            image = image.astype(np.uint16) << 8
+        return np.ascontiguousarray(image)
+
+    def _identity(self) -> CameraIdentity:
+        model = self.world.cameras[self.sim_id]
+        return CameraIdentity("simulated", "SimCamera", f"SIM-{self.sim_id}", model.width, model.height)
