@@ -118,7 +118,8 @@ class BundleProblem:
     """Parameters (initial values) + which are free + observations. :meth:`solve` refines."""
 
     def __init__(self, intrinsics, cam_rvec, cam_C, view_rvec, view_t, observations,
-                 free_cam_pose=None, free_view=None, free_intrinsics=None):
+                 free_cam_pose=None, free_view=None, free_intrinsics=None, solver: str = "lm"):
+        self.solver = solver
         self.intrinsics = np.array(intrinsics, float).reshape(-1, 9)
         self.cam_rvec = np.array(cam_rvec, float).reshape(-1, 3)
         self.cam_C = np.array(cam_C, float).reshape(-1, 3)
@@ -207,8 +208,12 @@ class BundleProblem:
                 full[free] = x
                 return (self.project(full) - self.obs_uv[self.active]).ravel()
 
-            result = least_squares(fun, x0, jac_sparsity=self._sparsity(free), method="trf",
-                                   x_scale="jac", xtol=1e-10, ftol=1e-10, gtol=1e-10, max_nfev=200)
+            jac = _grouped_jacobian(fun, self._sparsity(free).tocsc())
+            if self.solver == "scipy":
+                result = least_squares(fun, x0, jac=jac, method="trf", tr_solver="exact", x_scale="jac",
+                                       xtol=1e-10, ftol=1e-10, gtol=1e-10, max_nfev=100)
+            else:
+                result = levenberg_marquardt(fun, jac, x0)
             full0 = full0.copy()
             full0[free] = result.x
             # robust: drop points far beyond the residual spread, then solve again
@@ -252,6 +257,86 @@ class BundleProblem:
         return BundleResult(intr, crv, cC, vrv, vt, s_intr.copy(), s_crv.copy(), s_cC.copy(), rms, npts,
                             residuals=np.split(res_all, split), outliers=int((~self.active).sum()),
                             sigma_px=float(np.sqrt(s2 / 1.0)), iterations=int(result.nfev))
+
+
+@dataclass
+class _LMResult:
+    x: np.ndarray
+    fun: np.ndarray
+    jac: np.ndarray
+    nfev: int
+
+
+def levenberg_marquardt(fun, jac, x0: np.ndarray, max_iter: int = 100, tol: float = 1e-12) -> _LMResult:
+    """Levenberg-Marquardt on the normal equations (J^T J is only n x n): the same minimum as
+    ``scipy.optimize.least_squares`` (a test checks it; ``solver="scipy"`` uses scipy), but
+    without an SVD of the tall m x n Jacobian at every step, which is slow on busy machines."""
+    x = np.asarray(x0, float).copy()
+    r = fun(x)
+    cost = r @ r
+    lam = 1e-3
+    nfev = 1
+    J = jac(x)
+    for _ in range(max_iter):
+        g = J.T @ r
+        A = J.T @ J
+        d = np.sqrt(np.diag(A)) + 1e-300
+        As = A / d[:, None] / d[None, :]
+        gs = g / d
+        improved = False
+        for _ in range(20):
+            step = -np.linalg.solve(As + lam * np.eye(len(x)), gs) / d
+            r_new = fun(x + step)
+            nfev += 1
+            c_new = r_new @ r_new
+            if c_new < cost:
+                x, r, lam = x + step, r_new, max(lam / 5, 1e-12)
+                improved = True
+                break
+            lam *= 10
+        if not improved:
+            break
+        done = cost - c_new <= tol * cost or np.max(np.abs(step) / (np.abs(x) + 1e-8)) < 1e-12
+        cost = c_new
+        J = jac(x)
+        if done:
+            break
+    return _LMResult(x, r, J, nfev)
+
+
+def _grouped_jacobian(fun, sparsity):
+    """A dense central-difference Jacobian that perturbs many columns at once: columns whose
+    residual rows do not overlap (e.g. the poses of different views) share one evaluation
+    (greedy colouring of the sparsity pattern, as Curtis-Powell-Reid)."""
+    S = sparsity.astype(bool)
+    n = S.shape[1]
+    col_rows = [S.indices[S.indptr[j]:S.indptr[j + 1]] for j in range(n)]
+    groups: list[list[int]] = []
+    used: list[np.ndarray] = []
+    for j in range(n):
+        for g, rows in enumerate(used):
+            if not rows[col_rows[j]].any():
+                groups[g].append(j)
+                rows[col_rows[j]] = True
+                break
+        else:
+            rows = np.zeros(S.shape[0], bool)
+            rows[col_rows[j]] = True
+            groups.append([j])
+            used.append(rows)
+
+    def jac(x):
+        J = np.zeros((S.shape[0], n))
+        h = 1e-6 * np.maximum(1.0, np.abs(x))
+        for g in groups:
+            dx = np.zeros(n)
+            dx[g] = h[g]
+            diff = (fun(x + dx) - fun(x - dx))
+            for j in g:
+                r = col_rows[j]
+                J[r, j] = diff[r] / (2 * h[j])
+        return J
+    return jac
 
 
 def reprojection_rms(K: np.ndarray, dist: np.ndarray, R: np.ndarray, t: np.ndarray,

@@ -1,0 +1,275 @@
+"""The station calibration file (JSON, versioned; docs/calibration-format.md) and OpenCV
+import/export.
+
+Saving is atomic (write a temporary file beside the target, fsync, rename): a crash or a failed
+run never leaves a half-written file, and a good file is replaced only by a validated one.
+Loading validates everything (format, version, shapes, NaN, camera ids against the station
+configuration) and raises :class:`CalibrationError` naming the file, the camera and the key.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+import uuid
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from importlib import metadata
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from calibration.camera_model import CameraModel
+from calibration.stereo import StereoPair
+from station.errors import CalibrationError, CalibrationMismatch
+
+FORMAT = "wheel-alignment-station/calibration"
+FORMAT_VERSION = 1
+
+
+def software_version() -> str:
+    try:
+        return metadata.version("wheel-alignment-station")
+    except metadata.PackageNotFoundError:
+        return "unknown"
+
+
+@dataclass
+class CameraCalibration:
+    """One camera: the model plus how well it is known.
+
+    std: parameter standard deviations {"fx": px, ..., "k3": -, "position_m": [3],
+    "rotation_deg": [3]}. reprojection_rms_px, n_points: from the refinement.
+    """
+
+    model: CameraModel
+    reprojection_rms_px: float = float("nan")
+    n_points: int = 0
+    std: dict = field(default_factory=dict)
+
+
+@dataclass
+class StationCalibration:
+    cameras: dict[str, CameraCalibration]
+    pairs: dict[str, tuple[str, str]] = field(default_factory=dict)  # wheel -> (left, right)
+    station_name: str = ""
+    calibration_id: str = field(default_factory=lambda: uuid.uuid4().hex[:12])
+    created_utc: str = field(default_factory=lambda: datetime.now(timezone.utc).isoformat(timespec="seconds"))
+    software_version: str = field(default_factory=software_version)
+    method: str = "box: paper eqs 4-22 + bundle adjustment"
+    notes: dict = field(default_factory=dict)
+
+    def model(self, cam_id: str) -> CameraModel:
+        return self.cameras[cam_id].model
+
+    def pair(self, wheel: str) -> StereoPair:
+        left, right = self.pairs[wheel]
+        return StereoPair(wheel, self.model(left), self.model(right))
+
+    # --- JSON ---------------------------------------------------------------------------------
+    def to_dict(self) -> dict:
+        cams = {}
+        for cam_id, c in self.cameras.items():
+            d = c.model.to_dict()
+            d.pop("name")
+            d["center_station_m"] = c.model.center_station.tolist()
+            d["reprojection_rms_px"] = _num(c.reprojection_rms_px)
+            d["n_points"] = int(c.n_points)
+            d["std"] = {k: (list(map(float, v)) if isinstance(v, (list, tuple, np.ndarray)) else float(v))
+                        for k, v in c.std.items()}
+            cams[cam_id] = d
+        pairs = {}
+        for wheel, (left, right) in self.pairs.items():
+            p = self.pair(wheel)
+            pairs[wheel] = {"left": left, "right": right, "R": p.R.tolist(), "t_m": p.t.tolist(),
+                            "baseline_m": p.baseline_m, "E": p.E.tolist(), "F": p.F.tolist()}
+        return {"format": FORMAT, "format_version": FORMAT_VERSION, "calibration_id": self.calibration_id,
+                "created_utc": self.created_utc, "software_version": self.software_version,
+                "station_name": self.station_name, "method": self.method,
+                "camera_ids": list(self.cameras), "cameras": cams, "pairs": pairs, "notes": self.notes}
+
+    @classmethod
+    def from_dict(cls, d: dict, source: str = "calibration") -> "StationCalibration":
+        def bad(msg):
+            return CalibrationError(f"{source}: {msg}", hint="recalibrate with `station calibrate` or fix the file")
+        if not isinstance(d, dict) or d.get("format") != FORMAT:
+            raise bad(f"not a station calibration file (format must be {FORMAT!r})")
+        if d.get("format_version") != FORMAT_VERSION:
+            raise bad(f"format_version {d.get('format_version')!r} is not supported (this software reads {FORMAT_VERSION})")
+        cams = {}
+        if not isinstance(d.get("cameras"), dict) or not d["cameras"]:
+            raise bad("no cameras")
+        for cam_id, c in d["cameras"].items():
+            try:
+                for key in ("K", "dist", "R_cam_station", "t_cam_station_m"):
+                    arr = np.asarray(c[key], float)
+                    if not np.all(np.isfinite(arr)):
+                        raise bad(f"camera {cam_id}: {key} contains NaN or infinity")
+                model = CameraModel.from_dict({**c, "name": cam_id})
+            except CalibrationError:
+                raise
+            except (KeyError, TypeError, ValueError) as e:
+                raise bad(f"camera {cam_id}: missing or malformed {e}") from None
+            R = model.R_cam_station
+            if abs(np.linalg.det(R) - 1) > 1e-6 or np.abs(R @ R.T - np.eye(3)).max() > 1e-6:
+                raise bad(f"camera {cam_id}: R_cam_station is not a rotation")
+            if model.K[0, 0] <= 0 or model.K[1, 1] <= 0:
+                raise bad(f"camera {cam_id}: focal length must be positive")
+            cams[cam_id] = CameraCalibration(model, float(c.get("reprojection_rms_px", math.nan) or math.nan),
+                                             int(c.get("n_points", 0)), dict(c.get("std", {})))
+        pairs = {}
+        for wheel, p in (d.get("pairs") or {}).items():
+            if p.get("left") not in cams or p.get("right") not in cams:
+                raise bad(f"pair {wheel}: names a camera that is not in the file ({p.get('left')}, {p.get('right')})")
+            pairs[wheel] = (p["left"], p["right"])
+        return cls(cams, pairs, d.get("station_name", ""), d.get("calibration_id", ""), d.get("created_utc", ""),
+                   d.get("software_version", ""), d.get("method", ""), d.get("notes", {}))
+
+    def check_against_config(self, config, source: str = "calibration") -> None:
+        """The file must describe exactly the configured cameras and pairs."""
+        want = set(config.cameras)
+        have = set(self.cameras)
+        if want - have:
+            raise CalibrationMismatch(f"{source}: no calibration for camera(s) {', '.join(sorted(want - have))}",
+                                      hint="run `station calibrate` for this station")
+        if have - want:
+            raise CalibrationMismatch(f"{source}: calibrates camera(s) {', '.join(sorted(have - want))} that the "
+                                      "station configuration does not have", hint="use the calibration made for this station")
+        for cam_id, cam in config.cameras.items():
+            m = self.model(cam_id)
+            if (m.width, m.height) != (cam.width, cam.height):
+                raise CalibrationMismatch(f"{source}: camera {cam_id} was calibrated at {m.width}x{m.height} but is "
+                                          f"configured for {cam.width}x{cam.height}")
+        for wheel, pc in config.pairs.items():
+            if wheel in self.pairs and self.pairs[wheel] != (pc.precision, pc.reference):
+                raise CalibrationMismatch(f"{source}: pair {wheel} is {self.pairs[wheel]} in the file but "
+                                          f"({pc.precision}, {pc.reference}) in the configuration")
+
+
+def _num(x: float):
+    return None if x is None or not math.isfinite(x) else float(x)
+
+
+def save_calibration(calib: StationCalibration, path: str | os.PathLike) -> Path:
+    """Validate, then write atomically (temp file + fsync + rename). Returns the path."""
+    path = Path(path)
+    d = calib.to_dict()
+    StationCalibration.from_dict(json.loads(json.dumps(d)), str(path))  # validates what we write
+    text = json.dumps(d, indent=2, allow_nan=False)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        try:
+            with os.fdopen(fd, "w") as f:
+                f.write(text + "\n")
+                f.flush()
+                os.fsync(f.fileno())
+            os.replace(tmp, path)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
+    except OSError as e:
+        raise CalibrationError(f"{path}: cannot write the calibration ({e.strerror or e})") from None
+    return path
+
+
+def load_calibration(path: str | os.PathLike, config=None) -> StationCalibration:
+    """Read and validate a calibration file (and check it against ``config`` if given)."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise CalibrationError(f"{path}: calibration file not found", hint="run `station calibrate`") from None
+    except OSError as e:
+        raise CalibrationError(f"{path}: cannot read the calibration ({e.strerror})") from None
+    try:
+        d = json.loads(text, parse_constant=lambda c: float("nan"))
+    except json.JSONDecodeError as e:
+        raise CalibrationError(f"{path}: not valid JSON at line {e.lineno}: {e.msg}") from None
+    calib = StationCalibration.from_dict(d, str(path))
+    if config is not None:
+        calib.check_against_config(config, str(path))
+    return calib
+
+
+# --- OpenCV interchange -----------------------------------------------------------------------
+def export_opencv(calib: StationCalibration, directory: str | os.PathLike) -> list[Path]:
+    """One ``<cam_id>.yaml`` per camera as ``cv2.FileStorage`` writes it: image_width,
+    image_height, camera_matrix (3x3), distortion_coefficients (1x5: k1 k2 p1 p2 k3),
+    R (3x3, R_cam_station), T (3x1, t_cam_station in metres), rvec (3x1)."""
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    out = []
+    for cam_id, c in calib.cameras.items():
+        m = c.model
+        path = directory / f"{cam_id}.yaml"
+        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+        fs.write("camera_id", cam_id)
+        fs.write("image_width", int(m.width))
+        fs.write("image_height", int(m.height))
+        fs.write("camera_matrix", np.asarray(m.K, float))
+        fs.write("distortion_coefficients", np.asarray(m.dist, float).reshape(1, 5))
+        fs.write("R", np.asarray(m.R_cam_station, float))
+        fs.write("T", np.asarray(m.t_cam_station, float).reshape(3, 1))
+        fs.write("rvec", np.asarray(m.rvec, float).reshape(3, 1))
+        fs.release()
+        out.append(path)
+    return out
+
+
+def import_opencv(paths: dict[str, str | os.PathLike], pairs: dict | None = None,
+                  station_name: str = "") -> StationCalibration:
+    """Build a calibration from per-camera OpenCV files {cam_id: path} (YAML/JSON/XML as
+    ``cv2.FileStorage`` reads). Needs camera_matrix, distortion_coefficients (4, 5, or more:
+    only k1 k2 p1 p2 k3 are used; extra non-zero terms are refused), image size, and R (3x3)
+    or rvec, and T. T is taken in metres."""
+    cams = {}
+    for cam_id, p in paths.items():
+        p = Path(p)
+        if not p.exists():
+            raise CalibrationError(f"{p}: OpenCV calibration file for camera {cam_id} not found")
+        fs = cv2.FileStorage(str(p), cv2.FILE_STORAGE_READ)
+        try:
+            def mat(name, required=True):
+                node = fs.getNode(name)
+                if node.empty():
+                    if required:
+                        raise CalibrationError(f"{p}: camera {cam_id}: missing {name!r}")
+                    return None
+                m = node.mat()
+                if m is None:
+                    raise CalibrationError(f"{p}: camera {cam_id}: {name!r} is not a matrix")
+                m = np.asarray(m, float)
+                if not np.all(np.isfinite(m)):
+                    raise CalibrationError(f"{p}: camera {cam_id}: {name!r} contains NaN or infinity")
+                return m
+            K = mat("camera_matrix")
+            d = mat("distortion_coefficients").ravel()
+            if d.size < 4:
+                raise CalibrationError(f"{p}: camera {cam_id}: distortion_coefficients needs at least 4 values")
+            if d.size > 5 and np.any(d[5:] != 0):
+                raise CalibrationError(f"{p}: camera {cam_id}: distortion terms beyond k1 k2 p1 p2 k3 are not "
+                                       "supported by this station's camera model")
+            dist = np.zeros(5)
+            dist[:min(5, d.size)] = d[:5]
+            R = mat("R", required=False)
+            if R is None:
+                rvec = mat("rvec", required=False)
+                R = cv2.Rodrigues(rvec.reshape(3))[0] if rvec is not None else np.eye(3)
+            T = mat("T", required=False)
+            T = np.zeros(3) if T is None else T.reshape(3)
+            w = int(fs.getNode("image_width").real())
+            h = int(fs.getNode("image_height").real())
+            if w <= 0 or h <= 0:
+                raise CalibrationError(f"{p}: camera {cam_id}: image_width/image_height missing")
+            try:
+                model = CameraModel(cam_id, w, h, K, dist, R, T)
+            except ValueError as e:
+                raise CalibrationError(f"{p}: {e}") from None
+        finally:
+            fs.release()
+        cams[cam_id] = CameraCalibration(model)
+    return StationCalibration(cams, dict(pairs or {}), station_name, method="imported from OpenCV files")
