@@ -141,3 +141,19 @@ def test_missing_calibration_and_folders(seq_copy, tmp_path):
     shutil.copy(seq_copy / "left" / "000003.png", seq_copy / "left" / "000009.png")
     with pytest.raises(OdometryError, match="do not pair up"):
         open_sequence(seq_copy)
+
+
+def test_simulate_refuses_a_non_empty_folder(small_seq, capsys):
+    rc = cli.main(["odometry", str(small_seq), "--simulate", "short"])
+    assert rc == cli.EXIT_ERROR
+    assert "not empty" in capsys.readouterr().err
+
+
+def test_unwritable_output_is_a_clear_error(small_seq, tmp_path, capsys):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("x")
+    rc = cli.main(["odometry", str(small_seq), "--method", "robust", "--max-steps", "1",
+                   "--out", str(blocker / "traj.txt"), "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == cli.EXIT_ERROR
+    assert "cannot write the trajectory" in err and "Traceback" not in err

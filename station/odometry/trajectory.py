@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from station.errors import StorageError
 from station.odometry.sequence_io import write_poses
 
 
@@ -40,13 +41,17 @@ class Trajectory:
     def write(self, path: str | Path) -> Path:
         """KITTI pose file (12 numbers per line), or CSV (step,x_m,y_m,z_m) for a .csv name."""
         path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        if path.suffix.lower() == ".csv":
-            B = self.positions
-            rows = "\n".join(f"{i},{x:.6f},{y:.6f},{z:.6f}" for i, (x, y, z) in enumerate(B))
-            path.write_text("step,x_m,y_m,z_m\n" + rows + "\n")
-        else:
-            write_poses(path, np.array(self.poses))
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            if path.suffix.lower() == ".csv":
+                B = self.positions
+                rows = "\n".join(f"{i},{x:.6f},{y:.6f},{z:.6f}" for i, (x, y, z) in enumerate(B))
+                path.write_text("step,x_m,y_m,z_m\n" + rows + "\n")
+            else:
+                write_poses(path, np.array(self.poses))
+        except OSError as e:
+            raise StorageError(f"{path}: cannot write the trajectory ({e.strerror or e})",
+                               hint="choose a writable file with --out") from e
         return path
 
 
