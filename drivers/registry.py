@@ -61,3 +61,19 @@ def uri_address(uri: str, camera_id: str | None = None) -> str:
         cam = cam[0].split("=", 1)[1] if cam else camera_id
         rest = os.path.realpath(rest) + (f"?camera={cam}" if cam else "")
     return f"{scheme}://{rest}"
+
+
+def build_context(uris, config, **options) -> dict:
+    """What the drivers in use need from the assembled station, built once.
+
+    A driver module may define ``build_context(config, **options) -> dict`` (the sim:// driver
+    builds the simulated world there); it is called only if a camera uses that scheme, so the
+    station never imports a simulator unless its configuration names one.
+    """
+    context: dict = {}
+    for scheme in sorted({urlparse(u).scheme for u in uris}):
+        module = importlib.import_module(driver_class(f"{scheme}://x").__module__)
+        provider = getattr(module, "build_context", None)
+        if provider is not None:
+            context.update(provider(config, **options))
+    return context

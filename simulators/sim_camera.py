@@ -126,3 +126,18 @@ class SimCamera(Camera):
     def _identity(self) -> CameraIdentity:
         model = self.world.cameras[self.sim_id]
         return CameraIdentity("simulated", "SimCamera", f"SIM-{self.sim_id}", model.width, model.height)
+
+
+def build_context(config, seed: int | None = None, **_) -> dict:
+    """The simulated station for sim:// cameras (called through drivers.registry.build_context).
+
+    ``seed``: a random vehicle (SimWorld.vehicle_scene(seed)) stands on the lift; None: empty.
+    Rendering a 1280x1024 frame takes seconds on a slow machine, so the simulated cameras ask
+    for a capture deadline of their own (``capture_timeout_s``), used instead of a shorter one.
+    """
+    from simulators.world import SimWorld
+
+    world = SimWorld.from_config(config)
+    if seed is not None:
+        world.set_scene(world.vehicle_scene(seed))
+    return {"sim_world": world, "truth": world.truth, "capture_timeout_s": 600.0}

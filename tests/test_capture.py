@@ -177,3 +177,41 @@ def test_save_refuses_to_overwrite(tmp_path):
     save_capture(f, tmp_path / "c")
     with pytest.raises(FrameError, match="never overwritten"):
         save_capture(f, tmp_path / "c")
+
+
+# --- the commands ---------------------------------------------------------------------------
+def test_station_capture_and_cameras_commands(tmp_path, capsys):
+    from station.cli import main
+    config = station_config(tmp_path, width=32, height=24)
+    out = tmp_path / "set1"
+    assert main(["--config", str(config.path), "capture", "--out", str(out), "--timeout", "60"]) == 0
+    meta = json.loads((out / "cycle.json").read_text())
+    assert meta["complete"] and set(meta["cameras"]) == set(IDS) and (out / "truth.json").exists()
+    assert "captured 8 frames" in capsys.readouterr().out
+    # the same --out again: refused, nothing overwritten
+    assert main(["--config", str(config.path), "capture", "--out", str(out)]) == 2
+    assert "already exists" in capsys.readouterr().err
+    # replay the saved set through the station's own configuration
+    uris = {cid: f"replay://{out}?camera={cid}" for cid in IDS}
+    (tmp_path / "r").mkdir()
+    replay_cfg = station_config(tmp_path / "r", uris, width=32, height=24)
+    assert main(["--config", str(replay_cfg.path), "cameras", "--snap", "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)
+    assert [r["id"] for r in rows] == IDS and all(r["open"] for r in rows)
+    assert rows[0]["vendor"] == "replay" and rows[0]["resolution"] == "32x24"
+    assert rows[0]["last_frame"].startswith("now: #1")
+
+
+def test_station_cameras_lists_failures_without_a_traceback(tmp_path, capsys):
+    from station.cli import main
+    uris = {"cam3": f"replay://{tmp_path / 'gone'}", "cam4": "v4l2:///dev/video97"}
+    config = station_config(tmp_path, uris, width=32, height=24)
+    assert main(["--config", str(config.path), "cameras"]) == 2
+    out = capsys.readouterr().out
+    lines = out.splitlines()
+    assert lines[0].split()[:4] == ["camera", "wheel", "role", "state"]
+    assert sum("FAILED" in ln for ln in lines[1:9]) == 2 and "simulated" in lines[1]
+    assert "cam4: no device /dev/video97" in out and "cam3: replay directory" in out
+    assert main(["--config", str(config.path), "capture", "--timeout", "30"]) == 2
+    err = capsys.readouterr().err
+    assert "error 202" in err and "(cam3, cam4)" in err and "Traceback" not in err

@@ -1,0 +1,52 @@
+"""`station capture --out DIR`: one synchronised set from all eight cameras, saved losslessly."""
+
+from __future__ import annotations
+
+HELP = "capture one synchronised set from all cameras and save it (lossless PNG + metadata)"
+
+
+def add_arguments(parser):
+    parser.add_argument("--out", metavar="DIR", help="directory to create for the set "
+                        "(default: <data_dir>/captures/<cycle id>)")
+    parser.add_argument("--seed", type=int, default=None,
+                        help="simulated station only: the random vehicle on the lift (default: none)")
+    parser.add_argument("--timeout", type=float, default=None, help="capture deadline in s (default: capture.timeout_s)")
+
+
+def run(args) -> int:
+    from pathlib import Path
+
+    from drivers.registry import build_context
+    from station.capture import capture_and_save, close_cameras, new_cycle_id, open_station_cameras
+    from station.config import load_config
+    from station.errors import StationError
+
+    config = load_config(args.config)
+    context = build_context([c.uri for c in config.cameras.values()], config, seed=args.seed)
+    cycle_id = new_cycle_id()
+    out = Path(args.out) if args.out else config.data_path("captures", cycle_id)
+    if out.exists():
+        raise StationError(f"{out} already exists; a capture is never written over another",
+                           hint="choose a new --out directory")
+    timeout = args.timeout or max(config.capture.timeout_s, context.get("capture_timeout_s", 0.0))
+    board = None
+    cameras = open_station_cameras(config, context)
+    try:
+        if config.trigger_board.port:
+            from drivers.trigger_board import TriggerBoard
+            board = TriggerBoard(config.trigger_board.port, config.trigger_board.baudrate).open()
+        truth = context["truth"]() if "truth" in context else None
+        try:
+            frames, path = capture_and_save(cameras, timeout, out, trigger_board=board, truth=truth,
+                                            extra={"station": config.name})
+        except StationError as e:
+            if getattr(e, "saved_to", None):
+                print(f"partial set ({len(e.frames)} of {len(cameras)} frames) kept in {e.saved_to}")
+            raise
+    finally:
+        if board is not None:
+            board.close()
+        close_cameras(cameras)
+    lat = [f.metadata.get("latency_ms", 0.0) for f in frames.values()]
+    print(f"captured {len(frames)} frames in {max(lat):.0f} ms (trigger to last frame) -> {path}")
+    return 0
