@@ -34,6 +34,7 @@ import uuid
 import warnings
 from pathlib import Path
 
+import cv2
 import numpy as np
 import rerun as rr
 
@@ -220,14 +221,22 @@ class CycleRecorder:
                                          camera_xyz=rr.ViewCoordinates.RDF, image_plane_distance=0.3))
 
     def log_images(self, images: dict[str, np.ndarray]) -> None:
-        """Camera images (H,W) uint8 mono or (H,W,3) RGB, JPEG-compressed at ``jpeg_quality``."""
+        """Camera images (H,W) uint8/uint16 mono or (H,W,3) RGB, JPEG at ``jpeg_quality``.
+
+        Encoded with OpenCV's libjpeg-turbo (about 30 % faster here than Rerun's own
+        ``Image.compress``, which goes through Pillow) and logged as an EncodedImage.
+        """
+        params = [cv2.IMWRITE_JPEG_QUALITY, self.jpeg_quality]
         for cam_id, img in images.items():
             img = np.asarray(img)
             if img.dtype == np.uint16:
                 img = (img >> 8).astype(np.uint8)
-            model = "L" if img.ndim == 2 else "RGB"
-            self._log(f"/station/{cam_id}/image",
-                      rr.Image(img, color_model=model).compress(jpeg_quality=self.jpeg_quality))
+            if img.dtype != np.uint8 or img.ndim not in (2, 3) or (img.ndim == 3 and img.shape[2] != 3):
+                raise ValueError(f"image {cam_id}: expected (H,W) or (H,W,3) 8/16-bit, got {img.shape} {img.dtype}")
+            ok, jpeg = cv2.imencode(".jpg", img if img.ndim == 2 else img[:, :, ::-1], params)
+            if not ok:
+                raise ValueError(f"image {cam_id}: JPEG encoding failed")
+            self._log(f"/station/{cam_id}/image", rr.EncodedImage(contents=jpeg.tobytes(), media_type="image/jpeg"))
 
     def log_detection(self, cam_id: str, ellipse_points_px, edge_points_px) -> None:
         """Detected rim ellipse (N,2) px (drawn closed) and the edge points (M,2) px behind it."""

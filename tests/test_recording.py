@@ -136,6 +136,29 @@ def test_rerun_cli_verifies_the_file(recorded):
     assert out.returncode == 0, out.stderr
 
 
+def test_images_round_trip(recorded, tmp_path):
+    import cv2
+    path, _, _ = recorded
+    blob = column(path, "/station/cam5/image", "EncodedImage:blob")[0][0]
+    assert column(path, "/station/cam5/image", "EncodedImage:media_type")[0][0] == "image/jpeg"
+    back = cv2.imdecode(np.frombuffer(bytes(blob), np.uint8), cv2.IMREAD_UNCHANGED)
+    original = images()["cam5"]
+    assert back.shape == original.shape
+    assert np.abs(back.astype(int) - original).mean() < 2.0  # JPEG q90 of a smooth noisy frame
+    # colour frames keep their channel order (RGB in, RGB out), 16-bit frames keep their top byte
+    rgb = np.zeros((64, 64, 3), np.uint8)
+    rgb[..., 0] = 200
+    mono16 = np.full((64, 64), 40000, np.uint16)
+    with CycleRecorder(tmp_path / "c.rrd") as rec:
+        rec.log_images({"camR": rgb, "camW": mono16})
+    b = cv2.imdecode(np.frombuffer(bytes(column(tmp_path / "c.rrd", "/station/camR/image", "EncodedImage:blob")[0][0]),
+                                   np.uint8), cv2.IMREAD_COLOR)  # BGR
+    assert b[..., 2].mean() > 190 and b[..., 0].mean() < 10
+    w = cv2.imdecode(np.frombuffer(bytes(column(tmp_path / "c.rrd", "/station/camW/image", "EncodedImage:blob")[0][0]),
+                                   np.uint8), cv2.IMREAD_UNCHANGED)
+    assert abs(w.mean() - (40000 >> 8)) < 2
+
+
 def test_invalid_cycle_logs_failure_not_angles(tmp_path):
     r = make_result(0, cycle=3, valid=False)
     path = tmp_path / "c.rrd"
