@@ -22,13 +22,15 @@ import numpy as np
 
 from calibration.camera_model import CameraModel
 from simulators.rays import normalized_to_rays_station, pixel_grid_normalized, sample_rays_station
-from simulators.render_wheel import trace_wheel, wheel_outline_points
+from simulators.render_wheel import BARREL, FLANGE, TYRE, trace_wheel, wheel_outline_points
 from simulators.scene import Lighting, Scene
-from simulators.shading import LABEL_QUAD, Hits
+from simulators.shading import LABEL_QUAD, LABEL_WHEEL, Hits
 from simulators.vehicle import WHEELS
 from simulators.workshop import trace_floor, trace_quads, trace_room
 
 EDGE_RADIANCE_STEP = 0.04   # radiance jump between neighbours that also counts as an edge (~10 grey)
+CLUTTER_SAMPLES = 13        # samples per edge pixel away from measured features (1/26 px)
+PRECISE_PARTS = (FLANGE, BARREL, TYRE)  # wheel parts whose edges are measured: full supersampling
 
 
 _RAY_CACHE: dict = {}
@@ -100,19 +102,26 @@ def trace(o: np.ndarray, d: np.ndarray, scene: Scene, lighting: Lighting,
           wheel_candidates: dict[int, np.ndarray]) -> Hits:
     """Nearest hits of rays d (N,3) from o (3,); wheel_candidates: wheel index -> ray indices."""
     hits = Hits(len(d))
-    trace_room(o, d, hits, lighting)
-    trace_floor(o, d, hits, lighting, scene.floor_z_m)
     if scene.quads:
         trace_quads(o, d, hits, lighting, scene.quads)
     vehicle = scene.vehicle
     if vehicle is not None:
-        for i, name in enumerate(WHEELS):
+        frames = {name: vehicle.wheel_frame_station(name) for name in WHEELS}
+        # nearest wheel first: its hits cull the rays of the wheels behind it
+        order = sorted(range(len(WHEELS)), key=lambda i: np.linalg.norm(frames[WHEELS[i]][0] - o))
+        for i in order:
             idx = wheel_candidates.get(i)
             if idx is None or idx.size == 0:
                 continue
-            center, R = vehicle.wheel_frame_station(name)
+            center, R = frames[WHEELS[i]]
             trace_wheel(o, d, idx, hits, lighting, center, R, vehicle.wheel, i,
-                        _caliper_angle(vehicle, name, R))
+                        _caliper_angle(vehicle, WHEELS[i], R))
+    # objects stand on the floor inside the room: the floor and the walls are seen only by
+    # the rays that hit nothing else
+    rest = np.nonzero(np.isinf(hits.t))[0]
+    trace_floor(o, d, rest, hits, lighting, scene.floor_z_m)
+    rest = rest[np.isinf(hits.t[rest])]
+    trace_room(o, d, rest, hits, lighting)
     return hits
 
 
@@ -144,6 +153,14 @@ def _edge_mask(label: np.ndarray, value: np.ndarray) -> np.ndarray:
     return diff
 
 
+def _precise_area(label: np.ndarray) -> np.ndarray:
+    """(H,W) bool: printed quads and the rim flange's surroundings, dilated by one pixel."""
+    part = np.mod(label - LABEL_WHEEL, 40)
+    wheel = (label >= LABEL_WHEEL) & (label < LABEL_QUAD)
+    area = (label >= LABEL_QUAD) | (wheel & np.isin(part, PRECISE_PARTS))
+    return cv2.dilate(area.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+
+
 def render_radiance(camera: CameraModel, scene: Scene, lighting: Lighting | None = None,
                     supersample: int = 34) -> tuple[np.ndarray, np.ndarray]:
     """Noise-free, unblurred radiance (H,W) float32 and the centre-sample labels (H,W) int32."""
@@ -161,10 +178,12 @@ def render_radiance(camera: CameraModel, scene: Scene, lighting: Lighting | None
     hits = trace(o, d, scene, lighting, cand)
     label = hits.label.reshape(H, W)
     value = hits.value.reshape(H, W).copy()
-    if supersample > 1:
-        rr, cc = np.nonzero(_edge_mask(label, value))
+    edges = _edge_mask(label, value) if supersample > 1 else np.zeros((H, W), bool)
+    precise = edges & _precise_area(label)
+    for mask, n_samples in ((precise, supersample), (edges & ~precise, min(supersample, CLUTTER_SAMPLES))):
+        rr, cc = np.nonzero(mask)
         if rr.size:
-            offsets = lattice_offsets(supersample)
+            offsets = lattice_offsets(n_samples)
             S = len(offsets)
             uv = np.empty((rr.size * S, 2))
             uv[:, 0] = (cc[:, None] + offsets[None, :, 0]).ravel()

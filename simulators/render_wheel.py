@@ -30,6 +30,7 @@ from simulators.vehicle import WheelGeometry
 
 # part numbers (label = LABEL_WHEEL + 40 * wheel index + part)
 FLANGE, BARREL, SPOKE, RING, HUB, HUB_SIDE, LUG, CALIPER, DISC, CAVITY, INNER = range(11)
+N_OUTER = 4  # segments of the tyre's outer sidewall profile
 TYRE = 12  # one label for the whole tyre (its shading is smooth across profile segments)
 
 
@@ -58,9 +59,9 @@ def tyre_profile(g: WheelGeometry) -> np.ndarray:
     rr, tr, b, W = g.rim_radius_m, g.tyre_radius_m, g.sidewall_bulge_m, g.tyre_width_m
     S = tr - rr
     shoulder = min(0.035, 0.2 * W)
-    outer = np.array([
-        [rr, 0.0], [rr + 0.04 * S, 0.55 * b], [rr + 0.12 * S, 0.9 * b], [rr + 0.3 * S, b],
-        [rr + 0.6 * S, 0.85 * b], [tr - 0.08 * S, 0.5 * b - 0.3 * shoulder], [tr, b - shoulder]])
+    outer = np.array([  # N_OUTER segments
+        [rr, 0.0], [rr + 0.06 * S, 0.7 * b], [rr + 0.3 * S, b], [tr - 0.1 * S, 0.6 * b - 0.3 * shoulder],
+        [tr, b - shoulder]])
     w_mid = b - W / 2
     inner = outer[::-1].copy()
     inner[:, 1] = 2 * w_mid - inner[:, 1]
@@ -169,6 +170,11 @@ def trace_wheel(o: np.ndarray, d: np.ndarray, idx: np.ndarray, hits: Hits, light
     """
     if idx.size == 0:
         return
+    # rays already stopped before the wheel's bounding sphere cannot reach it
+    bound = np.hypot(g.tyre_radius_m, g.tyre_width_m)
+    idx = idx[hits.t[idx] > np.linalg.norm(o - center) - bound]
+    if idx.size == 0:
+        return
     R = R_station_wheel
     rays = _Rays(R.T @ (o - center), rowmat(d[idx], R))
     n = idx.size
@@ -210,7 +216,7 @@ def trace_wheel(o: np.ndarray, d: np.ndarray, idx: np.ndarray, hits: Hits, light
             t, s = rays.cone(sub, r0, w0, r1, w1)
         offer(sub, t, TYRE, k + np.clip(s, 0, 1))
 
-    n_outer = 6  # segments of the outer sidewall (see tyre_profile)
+    n_outer = N_OUTER
     for k in range(n_outer):
         tyre_segment(k)
     # rim: flange (the measured circle is its outer edge), barrel, hub
@@ -314,20 +320,8 @@ def trace_wheel(o: np.ndarray, d: np.ndarray, idx: np.ndarray, hits: Hits, light
     normal_w /= np.linalg.norm(normal_w, axis=1, keepdims=True)
     normals = rowmat(normal_w, R.T)
     dirs = d[idx[sel]]
-    value = shade(albedo, normals, dirs, lighting) + _specular(spec, normals, dirs, lighting)
+    value = shade(albedo, normals, dirs, lighting, specular=spec)
     hits.store(idx[sel], t, LABEL_WHEEL + 40 * wheel_index + label_part, value)
-
-
-def _specular(ks: np.ndarray, normals: np.ndarray, dirs: np.ndarray, lighting: Lighting) -> np.ndarray:
-    """Per-point Phong lobe (shininess 24) with strengths ks (M,)."""
-    L = np.asarray(lighting.key_direction_station, float)
-    L = L / np.linalg.norm(L)
-    ndotd = np.einsum("ij,ij->i", normals, dirs)
-    nn = np.where((ndotd > 0)[:, None], -normals, normals)
-    ndotl = nn @ L
-    refl = L[None, :] - 2.0 * ndotl[:, None] * nn
-    cos_r = np.maximum(0.0, -np.einsum("ij,ij->i", refl, dirs))
-    return (ks * lighting.key_strength * cos_r ** 24).astype(np.float32)
 
 
 def wheel_outline_points(center: np.ndarray, R_station_wheel: np.ndarray, g: WheelGeometry,

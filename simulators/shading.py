@@ -51,23 +51,25 @@ def key_direction(lighting: Lighting) -> np.ndarray:
 
 
 def shade(albedo, normals: np.ndarray, dirs: np.ndarray, lighting: Lighting,
-          specular: float = 0.0, shininess: float = 20.0) -> np.ndarray:
-    """Radiance (N,) of surfaces with unit normals (N,3) seen along unit rays dirs (N,3).
+          specular=0.0, shininess: float = 24.0) -> np.ndarray:
+    """Radiance (N,) float32 of surfaces with unit normals (N,3) seen along unit rays dirs (N,3).
 
-    Lambert (ambient + key * max(0, -n.L)) plus a Phong lobe for metal:
-    ``specular * key * max(0, R.(-d))^shininess`` with R the mirrored key direction.
-    Normals are flipped to face the camera (two-sided surfaces).
+    Lambert ``albedo * (ambient + key * max(0, -n.L))`` plus a Phong lobe for metal,
+    ``specular * key * max(0, R.(-d))^shininess`` with R the key direction mirrored at the
+    surface. albedo, specular: scalars or (N,). Normals are flipped to face the camera.
     """
     L = key_direction(lighting)
     ndotd = np.einsum("ij,ij->i", normals, dirs)
-    n = np.where((ndotd > 0)[:, None], -normals, normals)
-    ndotl = n @ L
-    value = np.asarray(albedo) * (lighting.ambient + lighting.key_strength * np.maximum(0.0, -ndotl))
-    if specular:
-        refl = L[None, :] - 2.0 * ndotl[:, None] * n
-        cos_r = np.maximum(0.0, -np.einsum("ij,ij->i", refl, dirs))
-        value = value + specular * lighting.key_strength * cos_r ** shininess
-    return value.astype(np.float32)
+    flip = np.where(ndotd > 0, -1.0, 1.0)
+    ndotl = flip * (normals @ L)                      # with the camera-facing normal
+    value = np.asarray(albedo, np.float32) * np.float32(lighting.ambient) + (
+        np.asarray(albedo, np.float32) * np.float32(lighting.key_strength)
+        * np.maximum(0.0, -ndotl).astype(np.float32))
+    if np.any(specular):
+        # R.(-d) = -(L.d) + 2 (L.n)(n.d) with the camera-facing normal (n.d = -|n.d|)
+        cos_r = np.maximum(0.0, -(dirs @ L) - 2.0 * ndotl * np.abs(ndotd)).astype(np.float32)
+        value = value + np.asarray(specular, np.float32) * np.float32(lighting.key_strength) * cos_r ** shininess
+    return value.astype(np.float32, copy=False)
 
 
 def bilinear(texture: np.ndarray, s: np.ndarray, t: np.ndarray, wrap: bool = False) -> np.ndarray:

@@ -88,8 +88,11 @@ def floor_textures() -> tuple[np.ndarray, np.ndarray]:
     return concrete.astype(np.float32), plate.astype(np.float32)
 
 
-def trace_room(o: np.ndarray, d: np.ndarray, hits: Hits, lighting: Lighting) -> None:
-    """Walls and ceiling of the room: every ray ends somewhere (the camera is inside)."""
+def trace_room(o: np.ndarray, d_all: np.ndarray, idx: np.ndarray, hits: Hits, lighting: Lighting) -> None:
+    """Walls and ceiling of the room for rays d_all[idx]: every ray ends there (camera inside)."""
+    if idx.size == 0:
+        return
+    d = d_all[idx]
     textures = wall_textures()
     bounds = np.array([ROOM_HALF_X_M, ROOM_HALF_Y_M, ROOM_HEIGHT_M])
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -118,16 +121,18 @@ def trace_room(o: np.ndarray, d: np.ndarray, hits: Hits, lighting: Lighting) -> 
             s = (q[:, 0] + ROOM_HALF_X_M) / WALL_TEXEL_M
             r = (q[:, 1] + ROOM_HALF_Y_M) / WALL_TEXEL_M
         value[sel] = bilinear(tex, s, r) * (lighting.background_level * 1.6)
-    hits.store(slice(None), t, LABEL_WALL + face, value)
+    hits.store(idx, t, LABEL_WALL + face, value)
 
 
-def trace_floor(o: np.ndarray, d: np.ndarray, hits: Hits, lighting: Lighting, floor_z: float,
-                shadow=None) -> None:
-    """The runway/floor plane z = floor_z, lit by the key light; ``shadow(p) -> (N,) factor``."""
+def trace_floor(o: np.ndarray, d: np.ndarray, idx: np.ndarray, hits: Hits, lighting: Lighting,
+                floor_z: float, shadow=None) -> None:
+    """The runway/floor plane z = floor_z for rays d[idx], lit by the key light;
+    ``shadow(p) -> (N,) factor`` darkens it (contact shadows)."""
+    dz = d[idx, 2]
     with np.errstate(divide="ignore", invalid="ignore"):
-        t = (floor_z - o[2]) / d[:, 2]
-    idx = np.nonzero((d[:, 2] < 0) & (t > 0))[0]
-    t = t[idx]
+        t = (floor_z - o[2]) / dz
+    keep = (dz < 0) & (t > 0)
+    idx, t = idx[keep], t[keep]
     win = hits.take(idx, t)
     idx, t = idx[win], t[win]
     if idx.size == 0:
