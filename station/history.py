@@ -18,6 +18,7 @@ import math
 import os
 import sqlite3
 import tempfile
+import threading
 from pathlib import Path
 
 from station.errors import StorageError
@@ -111,9 +112,12 @@ class History:
     def __init__(self, path: str | os.PathLike, *, timeout_s: float = 5.0):
         self.path = Path(path)
         self.timeout_s = timeout_s
+        self._lock = threading.RLock()
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
-            self._conn = sqlite3.connect(self.path, timeout=timeout_s, isolation_level=None)
+            # one connection, usable from the server's threads; self._lock serialises its use
+            self._conn = sqlite3.connect(self.path, timeout=timeout_s, isolation_level=None,
+                                         check_same_thread=False)
             self._conn.row_factory = sqlite3.Row
             self._conn.execute("PRAGMA foreign_keys=ON")
             mode = self._conn.execute("PRAGMA journal_mode=WAL").fetchone()[0]
@@ -163,6 +167,7 @@ class History:
                result.get("station"), json.dumps(result, default=str, allow_nan=False))
         try:
             c = self._conn
+            self._lock.acquire()
             c.execute("BEGIN IMMEDIATE")
             try:
                 cur = c.execute(
@@ -177,6 +182,8 @@ class History:
                 if c.in_transaction:
                     c.execute("ROLLBACK")
                 raise
+            finally:
+                self._lock.release()
         except sqlite3.IntegrityError as e:
             raise StorageError(f"{self.path}: cycle {cycle_id} is already in the history ({e})",
                                hint="every cycle needs a unique cycle_id") from None
@@ -207,14 +214,8 @@ class History:
         if limit is not None:
             sql += f" LIMIT {int(limit)}"
         try:
-            rows = self._conn.execute(sql, args).fetchall()[::-1]
-            ids = [r["id"] for r in rows]
-            angles: dict[int, dict] = {i: {} for i in ids}
-            for start in range(0, len(ids), 500):
-                part = ids[start:start + 500]
-                for a in self._conn.execute(
-                        f"SELECT cycle, name, value_deg FROM angles WHERE cycle IN ({','.join('?' * len(part))})", part):
-                    angles[a["cycle"]][a["name"]] = a["value_deg"]
+            with self._lock:
+                rows, angles = self._select(sql, args)
         except sqlite3.Error as e:
             raise self._error(e, "cannot read the history") from e
         out = []
@@ -226,6 +227,17 @@ class History:
             d["result"] = json.loads(r["result_json"])
             out.append(d)
         return out
+
+    def _select(self, sql: str, args: list) -> tuple[list, dict]:
+        rows = self._conn.execute(sql, args).fetchall()[::-1]
+        ids = [r["id"] for r in rows]
+        angles: dict[int, dict] = {i: {} for i in ids}
+        for start in range(0, len(ids), 500):
+            part = ids[start:start + 500]
+            for a in self._conn.execute(
+                    f"SELECT cycle, name, value_deg FROM angles WHERE cycle IN ({','.join('?' * len(part))})", part):
+                angles[a["cycle"]][a["name"]] = a["value_deg"]
+        return rows, angles
 
     def jobs(self, job_id: str) -> list[dict]:
         """The results (full dicts) of one job, in time order."""

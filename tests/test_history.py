@@ -241,3 +241,12 @@ def test_cli_bad_input_and_corrupt_db(tmp_path, monkeypatch, capsys):
     assert _cli(["history"], monkeypatch, tmp_path) == 2
     err = capsys.readouterr().err
     assert "error 600" in err and "corrupt" in err and "Traceback" not in err
+
+
+def test_threads_share_one_history(hist):
+    from concurrent.futures import ThreadPoolExecutor
+    with ThreadPoolExecutor(4) as pool:
+        ids = list(pool.map(lambda i: hist.store(make_result(i, cycle=i + 1)), range(40)))
+        reads = list(pool.map(lambda _: len(hist.query()), range(8)))
+    assert sorted(ids) == list(range(1, 41)) and all(0 <= n <= 40 for n in reads)
+    assert len(hist.query()) == 40 and hist.check() == "ok"
