@@ -64,8 +64,11 @@ class PlcSimulator:
         self.poll_s = poll_s
 
     # --- Modbus primitives ----------------------------------------------------------------------
-    def read_block(self) -> dict:
+    def read_block(self, status_only: bool = False) -> dict:
+        """Decode the station's output: the whole block (one read of 108 registers), or only
+        the status registers 100..119 as a PLC polls them."""
         lo, hi = rm.RESULT_BLOCK
+        hi = rm.STATUS_END if status_only else hi
         r = self.client.read_holding_registers(lo, count=hi - lo, device_id=self.device_id)
         if r.isError():
             raise ModbusFailure(f"reading registers {lo}..{hi - 1} failed: {r}")
@@ -83,11 +86,11 @@ class PlcSimulator:
         """One full handshake. ``expect(job_id, spec, command)`` -> ("done", result dict) or
         ("fault", code), to check the values too."""
         rep = CycleReport(job_id, spec, command)
-        before = self.read_block()
+        before = self.read_block(status_only=True)
         if before["state"] in (rm.STATE_CODES["done"], rm.STATE_CODES["fault"]):
             rep.problems.append(f"station was {rm.STATES[before['state']]} before the trigger; acknowledged it")
             self.acknowledge(rep)
-            before = self.read_block()
+            before = self.read_block(status_only=True)
         counter0 = before["cycle_counter"]
         f_job, f_spec = rm.FIELDS["job_id"], rm.FIELDS["vehicle_spec"]
         payload = [command] + rm.ascii_to_regs(job_id, f_job.count) + rm.ascii_to_regs(spec, f_spec.count)
@@ -98,7 +101,7 @@ class PlcSimulator:
             return rep
         deadline = t0 + self.timeout_s
         while True:
-            b = self.read_block()
+            b = self.read_block(status_only=True)
             state = rm.STATES.get(b["state"], str(b["state"]))
             if state == "idle":
                 rep.problems.append("station idle after the trigger")
@@ -115,6 +118,9 @@ class PlcSimulator:
         if state not in ("done", "fault"):
             rep.problems.append(f"no result within {self.timeout_s:g} s (state {state})")
             return rep
+        b = self.read_block()  # the whole result in one read: it cannot change until acknowledged
+        if rm.STATES.get(b["state"]) != state:
+            rep.problems.append(f"state changed from {state} to {rm.STATES.get(b['state'])} before acknowledge")
         if (b["cycle_counter"] - counter0) % 65536 != 1:
             rep.problems.append(f"cycle counter moved from {counter0} to {b['cycle_counter']}")
         rep.measure_s = b["cycle_time_us"] / 1e6
@@ -159,7 +165,7 @@ class PlcSimulator:
 
     def acknowledge(self, rep: CycleReport | None = None) -> None:
         r = self.write(rm.COMMAND, [rm.COMMAND_CODES["acknowledge"]])
-        b = self.read_block()
+        b = self.read_block(status_only=True)
         problems = rep.problems if rep else []
         if r.isError():
             problems.append(f"acknowledge refused: {r}")

@@ -12,6 +12,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
+from concurrent.futures import ThreadPoolExecutor
 
 from pymodbus.constants import ExcCodes
 from pymodbus.simulator import DataType, SimData, SimDevice
@@ -48,6 +49,9 @@ class PlcDevice:
         self._start = 0
         self._task: asyncio.Task | None = None
         self._heartbeat: asyncio.Task | None = None
+        # One worker thread runs the cycles (one at a time by the handshake); a cycle that
+        # overruns its timeout keeps its thread, and the next cycle gets a fresh one.
+        self._executor = ThreadPoolExecutor(1, thread_name_prefix="plc-cycle")
 
     # --- the pymodbus datastore -----------------------------------------------------------------
     def simdevice(self) -> SimDevice:
@@ -153,10 +157,13 @@ class PlcDevice:
     async def _run(self, request: CycleRequest) -> None:
         t0 = time.perf_counter()
         try:
-            result = await asyncio.wait_for(asyncio.to_thread(self.runner, request), self.cycle_timeout_s)
+            work = asyncio.get_running_loop().run_in_executor(self._executor, self.runner, request)
+            result = await asyncio.wait_for(work, self.cycle_timeout_s)
         except StationError as e:
             return self._fault(request, e.code, str(e), time.perf_counter() - t0)
         except asyncio.TimeoutError:
+            self._executor.shutdown(wait=False)
+            self._executor = ThreadPoolExecutor(1, thread_name_prefix="plc-cycle")
             return self._fault(request, PlcCycleTimeout.code,
                                f"cycle timed out after {self.cycle_timeout_s:g} s", time.perf_counter() - t0)
         except Exception as e:  # noqa: BLE001 - a bug in the pipeline must not stop the server
@@ -214,3 +221,4 @@ class PlcDevice:
                     await task
                 except (asyncio.CancelledError, Exception):  # noqa: BLE001 - shutting down
                     pass
+        self._executor.shutdown(wait=False)

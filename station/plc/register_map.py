@@ -107,6 +107,7 @@ FIELDS = {f.name: f for f in PLC_FIELDS + STATION_FIELDS}
 PLC_AREA = (0, 100)  # [start, end) of the PLC -> station area
 STATION_AREA = (100, 300)  # [start, end) of the station -> PLC area
 RESULT_BLOCK = (100, 208)  # one read (<= 125 registers) that returns the whole station output
+STATUS_END = 120  # registers 100..119: state, codes, counters, flags (what a PLC polls)
 COMMAND = FIELDS["command"].address
 
 
