@@ -161,14 +161,18 @@ def paper_box_calibration(points_box: np.ndarray, pixels: np.ndarray, triplets: 
     K_T = np.array([[np.sqrt(fx2), 0, u0], [0, np.sqrt(fy2), v0], [0, 0, 1.0]])   # eqs 14, 17, 18
     U, _, Vt2 = np.linalg.svd(np.linalg.solve(K_T, K_R))               # eq. 19
     R = U @ Vt2                                                        # eq. 20
-    # eq. 21: [blockdiag(p̂_k) | -K̃] [λ; t] = K̄_R B_k  (3N equations, N + 3 unknowns)
-    n = len(B)
-    A = np.zeros((3 * n, n + 3))
-    A[np.arange(3 * n), np.repeat(np.arange(n), 3)] = p_h.ravel()
-    A[:, n:] = -np.tile(K_T, (n, 1))
-    rhs = (B @ K_R.T).ravel()
-    sol, *_ = np.linalg.lstsq(A, rhs, rcond=None)
-    depths, t = sol[:n], sol[n:]                                       # eq. 22
+    # eq. 21: [blockdiag(p̂_k) | -K̃] [λ; t] = K̄_R B_k  (3N equations, N + 3 unknowns).
+    # Its least-squares solution, with the block-diagonal λ eliminated exactly (Schur
+    # complement): for fixed t, z_k = p̂_k^T (K̄_R B_k + K̃ t) / |p̂_k|^2, and t minimises
+    # sum_k |M_k (K̄_R B_k + K̃ t)|^2 with M_k = I - p̂_k p̂_k^T / |p̂_k|^2. Same answer as a dense
+    # lstsq of eq. 21, in O(N) instead of O(N^3).
+    q = B @ K_R.T                                                      # (N,3) K̄_R B_k
+    M = np.eye(3) - np.einsum("ni,nj->nij", p_h, p_h) / np.einsum("ni,ni->n", p_h, p_h)[:, None, None]
+    MK = M @ K_T                                                       # (N,3,3)
+    lhs = np.einsum("nki,nkj->ij", MK, MK)
+    rhs = -np.einsum("nki,nk->i", MK, np.einsum("nij,nj->ni", M, q))
+    t = np.linalg.solve(lhs, rhs)
+    depths = np.einsum("ni,ni->n", p_h, q + K_T @ t) / np.einsum("ni,ni->n", p_h, p_h)   # eq. 22
     K = np.linalg.solve(T, K_T)
     K = K / K[2, 2]
     return LinearCalibration(K=K, R=R, t=t, depths=depths, K_R=np.linalg.solve(T, K_R),

@@ -83,6 +83,9 @@ class StationCalibration:
             cams[cam_id] = d
         pairs = {}
         for wheel, (left, right) in self.pairs.items():
+            missing = [c for c in (left, right) if c not in self.cameras]
+            if missing:
+                raise CalibrationError(f"pair {wheel} names camera {missing[0]}, which has no calibration")
             p = self.pair(wheel)
             pairs[wheel] = {"left": left, "right": right, "R": p.R.tolist(), "t_m": p.t.tolist(),
                             "baseline_m": p.baseline_m, "E": p.E.tolist(), "F": p.F.tolist()}

@@ -1,0 +1,127 @@
+"""`station calibrate`: calibrate every camera and pair with the box (docs/calibration.md).
+
+Asks the operator to place the box (the simulated operator on a simulated station), takes the
+images through the camera drivers, detects the box, runs the paper's closed form and the
+bundle adjustment per pair, prints a table per camera and pair, checks the configured limits,
+and saves the calibration atomically. A refused or failed run saves nothing and leaves the
+previous file untouched.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from calibration.box_detect import BoxDetector
+from calibration.box_target import load_box
+from calibration.calib_file import save_calibration
+from calibration.station_calibration import assemble, calibrate_pair, check_limits, fixture_poses
+from drivers.base import CameraSettings
+from drivers.registry import create_camera
+from station.config import load_config
+from station.errors import CalibrationError, CalibrationRejected
+from station.operator import TerminalOperator
+
+HELP = "calibrate the eight cameras and four pairs with the calibration box"
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("--json", metavar="PATH", help="also write the calibration as JSON to PATH")
+    parser.add_argument("--seed", type=int, default=0, help="simulated operator's seed (box poses)")
+    parser.add_argument("--poses", type=int, default=None,
+                        help="box poses per pair for the intrinsics (default: calibration.intrinsic_poses)")
+
+
+def _progress(text: str) -> None:
+    print(f"[{time.strftime('%H:%M:%S')}] {text}", file=sys.stderr, flush=True)
+
+
+def _open_cameras(config, context):
+    cams = {}
+    for cam_id, c in config.cameras.items():
+        settings = CameraSettings(width=c.width, height=c.height, pixel_format=c.pixel_format,
+                                  exposure_us=c.exposure_us, gain_db=c.gain_db, trigger="software")
+        cams[cam_id] = create_camera(cam_id, c.uri, settings, context).open()
+    return cams
+
+
+def run(args) -> int:
+    config = load_config(args.config)
+    box = load_box(config.box_path)
+    n_poses = args.poses or config.calibration.intrinsic_poses
+    if n_poses < 3:
+        raise CalibrationError(f"--poses {n_poses}: at least 3 box poses are needed for the intrinsics")
+    simulated = all(c.uri.startswith("sim://") for c in config.cameras.values())
+    context = {}
+    if simulated:
+        from simulators.sim_operator import SimOperator  # assembled here only: the station runs on sim
+        from simulators.world import SimWorld
+        world = SimWorld.from_config(config)
+        context = {"sim_world": world}
+        operator = SimOperator(world, box, config, seed=args.seed)
+    else:
+        operator = TerminalOperator()
+    cameras = _open_cameras(config, context)
+    timeout = max(float(config.capture.timeout_s), 600.0 if simulated else 0.0)
+    detector = BoxDetector(box)
+
+    def take(cam_ids, what):
+        out = {}
+        for cam in cam_ids:
+            frame = cameras[cam].snap(timeout)
+            det = detector.detect(frame.image)
+            _progress(f"{cam}: {what}: {det.n_points} corners on faces {', '.join(det.faces) or 'none'}")
+            out[cam] = det
+        return out
+
+    fixtures = fixture_poses(config)
+    results = {}
+    try:
+        for wheel, pair in config.pairs.items():
+            ids = [pair.precision, pair.reference]
+            dets = {c: [] for c in ids}
+            for i in range(n_poses):
+                operator.place_box_for_intrinsics(ids, i)
+                got = take(ids, f"pose {i + 1}/{n_poses}")
+                for c in ids:
+                    dets[c].append(got[c])
+            operator.place_box_at_fixture(wheel)
+            fixture_dets = take(ids, f"box at the {wheel} fixture")
+            sizes = {c: (config.cameras[c].width, config.cameras[c].height) for c in ids}
+            results[wheel] = calibrate_pair(wheel, *ids, sizes, dets, fixture_dets, fixtures[wheel], _progress)
+        operator.done()
+    finally:
+        for cam in cameras.values():
+            cam.close()
+    calib = assemble(config, results, box)
+    print_tables(calib)
+    reasons = check_limits(calib, config.calibration.limits)
+    if reasons:
+        raise CalibrationRejected("calibration refused, nothing saved: " + "; ".join(reasons),
+                                  hint="check the named camera's view of the box (focus, light, box placement) and recalibrate")
+    path = save_calibration(calib, config.calibration_file)
+    print(f"saved {path} (calibration id {calib.calibration_id})")
+    if args.json:
+        save_calibration(calib, Path(args.json))
+        print(f"wrote {args.json}")
+    return 0
+
+
+def print_tables(calib) -> None:
+    print("camera  fx(px)    fy(px)    cx(px)   cy(px)   k1       k2       k3       p1        p2        "
+          "rms(px) points  std fx  std cx  std cy  std k1   pos std(mm) rot std(deg)")
+    for cam_id, c in calib.cameras.items():
+        m, s = c.model, c.std
+        pos = np.max(s.get("position_m", [np.nan])) * 1000
+        rot = np.max(s.get("rotation_deg", [np.nan]))
+        k1, k2, p1, p2, k3 = m.dist
+        print(f"{cam_id:7s} {m.K[0, 0]:9.2f} {m.K[1, 1]:9.2f} {m.K[0, 2]:8.2f} {m.K[1, 2]:8.2f} {k1:8.4f} {k2:8.4f} "
+              f"{k3:8.4f} {p1:9.2e} {p2:9.2e} {c.reprojection_rms_px:7.3f} {c.n_points:6d}  {s.get('fx', np.nan):6.3f}"
+              f"  {s.get('cx', np.nan):6.3f}  {s.get('cy', np.nan):6.3f}  {s.get('k1', np.nan):7.5f}  {pos:10.4f}  {rot:11.5f}")
+    print("pair  left  right  baseline(mm)")
+    for wheel in calib.pairs:
+        p = calib.pair(wheel)
+        print(f"{wheel:5s} {p.left.name:5s} {p.right.name:6s} {p.baseline_m * 1000:12.3f}")

@@ -1,0 +1,112 @@
+"""Calibration file: JSON round trip, OpenCV import/export, validation, atomic save, stereo."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from calibration.calib_file import (CameraCalibration, StationCalibration, export_opencv, import_opencv,
+                                    load_calibration, save_calibration)
+from calibration.camera_model import CameraModel, look_at
+from calibration.stereo import StereoPair, epipolar_distance, pair_extrinsics
+from station.config import load_config
+from station.errors import CalibrationError, CalibrationMismatch
+
+
+def _calibration(config) -> StationCalibration:
+    cams = {}
+    rng = np.random.default_rng(2)
+    for cam_id, c in config.cameras.items():
+        R, t = look_at(np.array(c.nominal.position_m), np.array(c.nominal.look_at_m))
+        K = np.array([[1800 + rng.normal(0, 10), 0, 640 + rng.normal(0, 5)], [0, 1801.0, 512.3], [0, 0, 1]])
+        dist = np.array([-0.1, 0.05, 1e-4, -2e-4, 0.01]) * rng.uniform(0.5, 1.5)
+        cams[cam_id] = CameraCalibration(CameraModel(cam_id, c.width, c.height, K, dist, R, t), 0.11, 3000,
+                                         {"fx": 0.08, "fy": 0.08, "position_m": [1e-5, 2e-5, 3e-5]})
+    pairs = {w: (p.precision, p.reference) for w, p in config.pairs.items()}
+    return StationCalibration(cams, pairs, station_name=config.name)
+
+
+@pytest.fixture(scope="module")
+def config():
+    return load_config()
+
+
+def test_json_round_trip_is_exact(config, tmp_path):
+    calib = _calibration(config)
+    path = save_calibration(calib, tmp_path / "c.json")
+    back = load_calibration(path, config)
+    assert back.calibration_id == calib.calibration_id and back.software_version == calib.software_version
+    for cam_id in config.cameras:
+        a, b = calib.model(cam_id), back.model(cam_id)
+        for key in ("K", "dist", "R_cam_station", "t_cam_station"):
+            assert np.array_equal(getattr(a, key), getattr(b, key)), (cam_id, key)
+    d = json.loads(path.read_text())
+    assert d["format_version"] == 1 and set(d["camera_ids"]) == set(config.cameras)
+    assert abs(d["pairs"]["FR"]["baseline_m"] - 0.6) < 0.01
+
+
+def test_opencv_export_import_round_trip(config, tmp_path):
+    calib = _calibration(config)
+    files = export_opencv(calib, tmp_path / "ocv")
+    assert len(files) == 8
+    back = import_opencv({f.stem: f for f in files}, calib.pairs)
+    for cam_id in config.cameras:
+        a, b = calib.model(cam_id), back.model(cam_id)
+        assert np.allclose(a.K, b.K, rtol=1e-12) and np.allclose(a.dist, b.dist, rtol=1e-12, atol=1e-15)
+        assert np.allclose(a.R_cam_station, b.R_cam_station, atol=1e-12)
+        assert np.allclose(a.t_cam_station, b.t_cam_station, atol=1e-12)
+    back.check_against_config(config)
+
+
+def test_nan_in_file_is_refused_and_named(config, tmp_path):
+    path = save_calibration(_calibration(config), tmp_path / "c.json")
+    d = json.loads(path.read_text())
+    d["cameras"]["cam3"]["K"][0][0] = float("nan")
+    path.write_text(json.dumps(d))
+    with pytest.raises(CalibrationError, match="cam3.*NaN"):
+        load_calibration(path)
+
+
+def test_failed_save_keeps_the_good_file(config, tmp_path):
+    good = _calibration(config)
+    path = save_calibration(good, tmp_path / "c.json")
+    before = path.read_bytes()
+    bad = _calibration(config)
+    bad.pairs["FR"] = ("cam1", "cam99")
+    with pytest.raises(CalibrationError):
+        save_calibration(bad, path)
+    assert path.read_bytes() == before
+    assert [p.name for p in tmp_path.iterdir()] == ["c.json"]   # no temporary left behind
+
+
+def test_camera_ids_must_match_the_configuration(config, tmp_path):
+    calib = _calibration(config)
+    calib.cameras["cam9"] = CameraCalibration(calib.model("cam1"))
+    path = save_calibration(calib, tmp_path / "c.json")
+    with pytest.raises(CalibrationMismatch, match="cam9"):
+        load_calibration(path, config)
+    del calib.cameras["cam9"], calib.cameras["cam4"]
+    calib.pairs.pop("FL")
+    path = save_calibration(calib, tmp_path / "d.json")
+    with pytest.raises(CalibrationMismatch, match="cam4"):
+        load_calibration(path, config)
+
+
+def test_stereo_eqs_34_35_29_33(config):
+    calib = _calibration(config)
+    pair: StereoPair = calib.pair("FR")
+    L, R_ = pair.left, pair.right
+    R, t = pair_extrinsics(L.R_cam_station, L.t_cam_station, R_.R_cam_station, R_.t_cam_station)
+    X = np.random.default_rng(0).uniform([0.6, 1.0, 0.1], [1.0, 1.7, 0.6], (50, 3))
+    P_l, P_r = L.station_to_cam(X), R_.station_to_cam(X)
+    assert np.allclose(P_l, P_r @ R + t, atol=1e-12)              # eq. 25: P_l = R^T P_r + t
+    assert abs(pair.baseline_m - np.linalg.norm(L.center_station - R_.center_station)) < 1e-12
+    p_l, p_r = P_l / P_l[:, 2:], P_r / P_r[:, 2:]
+    assert np.abs(np.einsum("ni,ij,nj->n", p_r, pair.E, p_l)).max() < 1e-12     # eq. 28
+    uv_l, uv_r = L.project(X), R_.project(X)
+    assert np.abs(pair.epipolar_distance_px(uv_l, uv_r)).max() < 1e-6          # eq. 32 via F
+    assert np.abs(pair.triangulate_station(uv_l, uv_r) - X).max() < 1e-9       # eq. 24
+    shifted = uv_r + [0, 3.0]
+    assert np.abs(pair.epipolar_distance_px(uv_l, shifted)).min() > 1.0
