@@ -1,0 +1,145 @@
+"""Accuracy of toe and camber on random simulated vehicles (issue 3's benchmark).
+
+For each scenario, N random vehicles (toe within +/-2 deg, camber within +/-3 deg, offset and
+yaw on the lift, lighting differing between cameras) are rendered by the simulator and
+measured with the calibration that `station calibrate` produced ("file") and with the
+simulator's true cameras ("truth"), which separates calibration error from the rest.
+Prints per angle the mean, RMS and max error (deg) and the failed cycles, for both methods
+(the paper's section 3.2 and the 3-D circle fit), and how well the stated uncertainty
+matches the observed spread.
+
+    .venv/bin/python bench/accuracy.py --n 50            # all scenarios
+    .venv/bin/python bench/accuracy.py --n 10 --scenario sigma2
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from station.config import WHEELS, load_config  # noqa: E402
+from station.measure import add_truth, measure_frames  # noqa: E402
+
+SCENARIOS = {
+    # name: (noise sigma, darker camera or None)
+    "sigma2": (2.0, None),
+    "sigma5": (5.0, None),
+    "dark-cam": (2.0, "cam2"),
+}
+GROUPS = {
+    "toe": [f"{w}.toe" for w in WHEELS],
+    "camber": [f"{w}.camber" for w in WHEELS],
+    "total toe": ["front.total_toe", "rear.total_toe"],
+    "thrust": ["thrust"],
+}
+
+
+def _errors(result: dict) -> dict[str, float]:
+    e = result["errors"]
+    out = {}
+    for w in WHEELS:
+        out[f"{w}.toe"] = e[w]["toe_error_deg"]
+        out[f"{w}.camber"] = e[w]["camber_error_deg"]
+    for k in ("front.total_toe", "rear.total_toe", "thrust"):
+        out[k] = e[k]
+    return out
+
+
+def _stated(result: dict) -> dict[str, float]:
+    out = {}
+    for w in WHEELS:
+        out[f"{w}.toe"] = result["wheels"][w]["toe_std_deg"]
+        out[f"{w}.camber"] = result["wheels"][w]["camber_std_deg"]
+    out["front.total_toe"] = result["axles"]["front"]["total_toe_std_deg"]
+    out["rear.total_toe"] = result["axles"]["rear"]["total_toe_std_deg"]
+    out["thrust"] = result["thrust_std_deg"]
+    return out
+
+
+def run(config, cameras_by_source: dict, n: int, scenario: str, seed0: int, methods) -> dict:
+    from simulators.world import SimWorld
+
+    sigma, dark = SCENARIOS[scenario]
+    world = SimWorld.from_config(config, noise_sigma=sigma, gain_override={dark: 0.8} if dark else None)
+    rows = {(src, m): {"err": [], "std": [], "failed": 0, "time": []} for src in cameras_by_source for m in methods}
+    for i in range(n):
+        seed = seed0 + i
+        scene = world.vehicle_scene(seed)
+        world.set_scene(scene)
+        images = world.render_all(np.random.default_rng(10_000 + seed))
+        truth = world.truth(scene)
+        for src, cams in cameras_by_source.items():
+            for m in methods:
+                t0 = time.perf_counter()
+                res = measure_frames(images, cams, config, method=m)
+                rows[(src, m)]["time"].append(time.perf_counter() - t0)
+                if not res["valid"]:
+                    rows[(src, m)]["failed"] += 1
+                    print(f"  seed {seed} {src}/{m}: FAILED {res['failure']['message']}", file=sys.stderr)
+                    continue
+                add_truth(res, truth)
+                rows[(src, m)]["err"].append(_errors(res))
+                rows[(src, m)]["std"].append(_stated(res))
+        print(f"  {scenario}: vehicle {i + 1}/{n} done", file=sys.stderr, flush=True)
+    return rows
+
+
+def print_table(scenario: str, rows: dict, n: int) -> None:
+    print(f"\n### {scenario}: {n} vehicles")
+    print("| calibration | method | angle | mean (deg) | RMS (deg) | max abs (deg) | stated std / RMS | failed |")
+    print("|---|---|---|---|---|---|---|---|")
+    for (src, m), r in rows.items():
+        for group, names in GROUPS.items():
+            if not r["err"]:
+                print(f"| {src} | {m} | {group} | - | - | - | - | {r['failed']} |")
+                continue
+            e = np.array([[row[k] for k in names] for row in r["err"]]).ravel()
+            s = np.array([[row[k] for k in names] for row in r["std"]]).ravel()
+            rms = float(np.sqrt(np.mean(e ** 2)))
+            ratio = float(np.sqrt(np.mean(s ** 2)) / rms) if rms > 0 else float("nan")
+            print(f"| {src} | {m} | {group} | {np.mean(e):+.4f} | {rms:.4f} | {np.max(np.abs(e)):.4f} | {ratio:.2f} | {r['failed']} |")
+    times = [t for r in rows.values() for t in r["time"]]
+    print(f"\nmeasurement time per cycle (capture excluded): median {np.median(times) * 1000:.0f} ms")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--n", type=int, default=50)
+    ap.add_argument("--seed", type=int, default=1000)
+    ap.add_argument("--config", default=None)
+    ap.add_argument("--scenario", choices=list(SCENARIOS) + ["all"], default="all")
+    ap.add_argument("--calibration", choices=["file", "truth", "both"], default="both")
+    ap.add_argument("--methods", default="circle,paper")
+    args = ap.parse_args()
+    config = load_config(args.config)
+    from simulators.world import SimWorld
+
+    sources = {}
+    if args.calibration in ("truth", "both"):
+        sources["truth"] = SimWorld.from_config(config).cameras
+    if args.calibration in ("file", "both"):
+        from calibration.calib_file import load_calibration
+
+        path = config.calibration_file
+        if not path.exists():
+            print(f"no calibration at {path}: run `station calibrate` first (or --calibration truth)", file=sys.stderr)
+            return 2
+        sources["file"] = load_calibration(path, config).cameras
+    methods = args.methods.split(",")
+    scenarios = list(SCENARIOS) if args.scenario == "all" else [args.scenario]
+    print(f"# Accuracy benchmark: {args.n} vehicles per scenario, seeds from {args.seed}")
+    for sc in scenarios:
+        srcs = sources if sc == "sigma2" else {k: v for k, v in sources.items() if k == "file"} or sources
+        rows = run(config, srcs, args.n, sc, args.seed, methods)
+        print_table(sc, rows, args.n)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

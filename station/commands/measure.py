@@ -1,0 +1,95 @@
+"""`station measure`: one measurement cycle, a per-wheel table, optionally JSON."""
+
+from __future__ import annotations
+
+import random
+import sys
+
+from station.config import WHEELS, load_config
+
+HELP = "measure toe and camber of all four wheels (one cycle on the configured station)"
+
+
+def add_arguments(parser):
+    parser.add_argument("--seed", type=int, default=None,
+                        help="simulated station only: which random vehicle stands on the lift (default: a new one)")
+    parser.add_argument("--vehicle", metavar="NAME", help="vehicle spec from config/vehicles.yaml: adds pass/fail")
+    parser.add_argument("--job", metavar="ID", help="job id / VIN stored with the cycle")
+    parser.add_argument("--json", metavar="PATH", help="also write the result as JSON (docs/result-schema.md)")
+    parser.add_argument("--method", choices=["circle", "paper"], default="circle",
+                        help="3-D wheel: the refined 3-D circle fit (default) or the paper's section 3.2")
+    parser.add_argument("--no-record", action="store_true", help="do not write a Rerun recording")
+
+
+def run(args) -> int:
+    from station.cycle import Station, write_json
+
+    config = load_config(args.config)
+    if args.vehicle:  # a typo in the vehicle name is found before the cameras are opened
+        from station.vehicle_specs import get_spec, load_vehicle_specs
+        get_spec(load_vehicle_specs(config.vehicle_specs_path), args.vehicle, config.vehicle_specs_path)
+    seed = args.seed if args.seed is not None else random.randrange(1_000_000)
+    with Station(config, seed=seed) as station:
+        result = station.measure(job_id=args.job, vehicle_spec=args.vehicle, method=args.method,
+                                 record=not args.no_record)
+    if "truth" in result:
+        result["simulation_seed"] = seed
+    print_result(result)
+    if args.json:
+        write_json(result, args.json)
+        print(f"result written to {args.json}")
+    return 0 if result["valid"] else 1
+
+
+def _pm(value, std):
+    return f"{value:+7.3f} +/- {std:.3f}"
+
+
+def print_result(result: dict, out=sys.stdout) -> None:
+    p = lambda *a: print(*a, file=out)  # noqa: E731
+    p(f"cycle {result.get('cycle_id')}  station {result.get('station')}  calibration {result.get('calibration_id')}"
+      + (f"  simulated vehicle seed {result['simulation_seed']}" if "simulation_seed" in result else ""))
+    if not result["valid"]:
+        f = result.get("failure") or {}
+        p(f"MEASUREMENT FAILED (error {f.get('code')}): {f.get('message')}")
+        p("no angle of this cycle is valid.")
+        if result.get("captures_dir"):
+            p(f"the images are kept for review in {result['captures_dir']}")
+        return
+    spec = result.get("vehicle_spec")
+    sim = "errors" in result
+    head = f"{'wheel':<6}{'toe (deg)':>20}{'camber (deg)':>20}"
+    if spec:
+        head += f"{'toe':>7}{'camber':>8}"
+    if sim:
+        head += f"{'toe err':>10}{'camber err':>12}"
+    p(head)
+    for w in WHEELS:
+        d = result["wheels"][w]
+        line = f"{w:<6}{_pm(d['toe_deg'], d['toe_std_deg']):>20}{_pm(d['camber_deg'], d['camber_std_deg']):>20}"
+        if spec:
+            ok = d.get("pass", {})
+            line += f"{_verdict(ok.get('toe')):>7}{_verdict(ok.get('camber')):>8}"
+        if sim:
+            line += f"{d['toe_error_deg']:>+10.4f}{d['camber_error_deg']:>+12.4f}"
+        p(line)
+    for axle in ("front", "rear"):
+        a = result["axles"][axle]
+        verdict = f"  {_verdict(result['pass'].get(axle + '.total_toe'))}" if spec else ""
+        p(f"{axle} total toe {_pm(a['total_toe_deg'], a['total_toe_std_deg'])} deg{verdict}   "
+          f"setback {a['setback_m'] * 1000:+.1f} mm   track {a['track_m']:.3f} m")
+    verdict = f"  {_verdict(result['pass'].get('thrust'))}" if spec else ""
+    p(f"thrust angle {_pm(result['thrust_deg'], result['thrust_std_deg'])} deg{verdict}   "
+      f"wheelbase L {result['wheelbase_m']['left']:.3f} m  R {result['wheelbase_m']['right']:.3f} m")
+    if spec:
+        p(f"vehicle {spec}: {'PASS' if result['pass'].get('overall') else 'FAIL'}")
+    for w in result.get("warnings", []):
+        p(f"warning: {w}")
+    t = result.get("timing_s", {})
+    p("time: " + ", ".join(f"{k} {v * 1000:.0f} ms" for k, v in t.items()))
+    if result.get("recording"):
+        p(f"recording: {result['recording']}")
+
+
+def _verdict(v):
+    return {True: "ok", False: "OUT", None: "-"}[v]

@@ -1,0 +1,171 @@
+"""A measurement cycle on the assembled station: capture, keep, measure, record, store.
+
+:class:`Station` is assembled once from the configuration (cameras through the driver
+registry, the calibration file); nothing below asks whether it is simulated: the sim://
+driver brings its world through ``drivers.registry.build_context``. Everything a cycle
+produces is kept: the frames (even of a failed cycle), the result JSON, the Rerun
+recording and the history row; a failure to record or store becomes a warning on the
+result, never a lost measurement.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Callable
+
+from calibration.calib_file import StationCalibration, load_calibration
+from drivers.registry import build_context
+from station import capture
+from station.config import StationConfig
+from station.errors import StationError, StorageError
+from station.measure import add_truth, measure_frames
+
+SOFTWARE_NAME = "wheel-alignment-station"
+
+
+def _say(msg: str) -> None:
+    print(msg, flush=True)
+
+
+class Station:
+    """Cameras + calibration of one configured station. Use as a context manager."""
+
+    def __init__(self, config: StationConfig, *, seed: int | None = None,
+                 calibration: StationCalibration | None = None, progress: Callable[[str], None] = _say):
+        self.config = config
+        self.progress = progress
+        self.calibration = calibration or load_calibration(config.calibration_file, config)
+        self.models = {cid: self.calibration.model(cid) for cid in config.cameras}
+        uris = [c.uri for c in config.cameras.values()]
+        self.context = build_context(uris, config, seed=seed)
+        self.cameras = capture.open_station_cameras(config, self.context)
+        self.timeout_s = max(config.capture.timeout_s, float(self.context.get("capture_timeout_s", 0)))
+        self.cycle_count = 0
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def close(self) -> None:
+        capture.close_cameras(self.cameras)
+
+    # --- one cycle --------------------------------------------------------------------------
+    def measure(self, *, job_id: str | None = None, vehicle_spec: str | None = None,
+                method: str = "circle", record: bool = True, store: bool = True) -> dict:
+        """Run one cycle and return the result dict (docs/result-schema.md)."""
+        cfg = self.config
+        cycle_id = capture.new_cycle_id()
+        t0 = time.perf_counter()
+        truth_fn = self.context.get("truth")
+        truth = truth_fn() if truth_fn else None
+        captures_dir = cfg.data_path("captures", cycle_id)
+        self.progress(f"cycle {cycle_id}: capturing {len(self.cameras)} cameras")
+        try:
+            if cfg.capture.keep_captures:
+                frames, _ = capture.capture_and_save(self.cameras, self.timeout_s, captures_dir, truth=truth,
+                                                     extra={"job_id": job_id})
+            else:
+                frames = capture.capture_cycle(self.cameras, self.timeout_s)
+        except StationError as e:
+            saved = getattr(e, "saved_to", None)
+            result = self._base(cycle_id, job_id, vehicle_spec)
+            result["failure"] = {"code": e.code, "message": str(e)}
+            result["captures_dir"] = str(saved) if saved else None
+            self._finish(result, record=False, store=store)
+            return result
+        t_capture = time.perf_counter() - t0
+        self.progress(f"cycle {cycle_id}: detecting rims and rebuilding the wheels")
+        images = {cid: f.image for cid, f in frames.items()}
+        result = measure_frames(images, self.models, cfg, method=method)
+        result.update(self._base(cycle_id, job_id, vehicle_spec))
+        result["timing_s"]["capture"] = t_capture
+        result["captures_dir"] = str(captures_dir) if cfg.capture.keep_captures else None
+        if truth is not None:
+            add_truth(result, truth)
+        if vehicle_spec and result["valid"]:
+            _apply_spec(cfg, result, vehicle_spec)
+        self._finish(result, record=record and cfg.recording.enabled, store=store, images=images)
+        result["timing_s"]["total"] = time.perf_counter() - t0
+        self.cycle_count += 1
+        return result
+
+    def _base(self, cycle_id, job_id, vehicle_spec) -> dict:
+        from calibration.calib_file import software_version
+        return {"cycle_id": cycle_id,
+                "time_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+                "station": self.config.name, "software_version": software_version(),
+                "calibration_id": self.calibration.calibration_id,
+                "job_id": job_id, "vehicle_spec": vehicle_spec}
+
+    def _finish(self, result: dict, *, record: bool, store: bool, images: dict | None = None) -> None:
+        observations = result.pop("_observations", None)
+        t0 = time.perf_counter()
+        if record:
+            path = self.config.data_path("recordings", f"{result['cycle_id']}.rrd")
+            try:
+                _record(path, self, result, images or {}, observations or {})
+                result["recording"] = str(path)
+            except StorageError as e:
+                result.setdefault("warnings", []).append(str(e))
+        if store:
+            try:
+                from station.history import History
+                History(self.config.data_path("history.sqlite")).store(result)
+            except StorageError as e:
+                result.setdefault("warnings", []).append(str(e))
+        result.setdefault("timing_s", {})["record_and_store"] = time.perf_counter() - t0
+
+
+def _apply_spec(cfg: StationConfig, result: dict, key: str) -> None:
+    from station.vehicle_specs import apply_spec, get_spec, load_vehicle_specs
+
+    specs = load_vehicle_specs(cfg.vehicle_specs_path)
+    apply_spec(result, get_spec(specs, key, cfg.vehicle_specs_path))
+
+
+def _record(path: Path, station: Station, result: dict, images: dict, observations: dict) -> None:
+    from station.recording import CycleRecorder
+
+    rec = CycleRecorder(path, jpeg_quality=station.config.recording.jpeg_quality)
+    with rec:
+        rec.log_cameras(station.models)
+        if images:
+            rec.log_images(images)
+        for wheel, o in observations.items():
+            for cam_id, det in zip(o.cams, o.detections):
+                rec.log_detection(cam_id, det.ellipse.points(180), det.points_px)
+            rec.log_wheel(wheel, o.paper.points_station, o.circle.center_station, o.circle.axis_station,
+                          o.circle.radius_m)
+        frame = result.get("alignment_frame")
+        if frame:
+            rec.log_car_frame(frame["origin_station_m"], frame["R_station_align"])
+        rec.log_result(result)
+        for w in result.get("warnings", []):
+            rec.log_event(w, level="WARN")
+        if result.get("failure"):
+            rec.log_event(result["failure"]["message"], level="ERROR")
+    if rec.error is not None:
+        raise rec.error
+
+
+def write_json(result: dict, path: str | Path) -> Path:
+    """Write a result as JSON atomically (temp file + rename)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(json.dumps(result, indent=1, default=_json_default))
+    tmp.replace(path)
+    return path
+
+
+def _json_default(o):
+    import numpy as np
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")

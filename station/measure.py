@@ -1,0 +1,192 @@
+"""One measurement from eight images: detect the rims, rebuild the wheels, compute the angles.
+
+:func:`measure_frames` is pure (images + calibrated cameras -> result dict, schema in
+docs/result-schema.md); the cycle around it (capture, saving, recording, history) is in
+station/cycle.py. A wheel that cannot be measured makes the whole result invalid, with the
+wheel, the camera and the reason; no angle of an invalid result is reported as valid.
+"""
+
+from __future__ import annotations
+
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+
+from calibration.camera_model import CameraModel
+from station import alignment
+from station.config import WHEELS, StationConfig
+from station.errors import MeasurementError, StationError
+from station.wheel3d import WheelFit, reconstruct_paper, refine_circle
+
+METHODS = ("circle", "paper")
+SCHEMA_VERSION = 1
+
+
+@dataclass
+class WheelObservation:
+    wheel: str
+    cams: tuple[str, str]            # (precision, reference)
+    detections: tuple                # RimDetection per camera
+    paper: WheelFit
+    circle: WheelFit
+
+
+def detect_all(images: dict[str, np.ndarray], cameras: dict[str, CameraModel], workers: int = 2) -> dict:
+    """Run the rim detector on every image (threads: OpenCV releases the GIL).
+
+    Returns cam_id -> RimDetection or the StationError that camera raised.
+    """
+    from station.rim import detect_rim
+
+    def one(cam_id):
+        try:
+            return detect_rim(images[cam_id], camera=cameras[cam_id], camera_id=cam_id)
+        except StationError as e:
+            return e
+
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        results = dict(zip(images, pool.map(one, images)))
+    return results
+
+
+def reconstruct_wheel(wheel: str, cams: tuple[str, str], detections: dict, cameras: dict) -> WheelObservation:
+    cam_l, cam_r = (cameras[c] for c in cams)
+    det_l, det_r = detections[cams[0]], detections[cams[1]]
+    paper = reconstruct_paper(det_l.points_px, det_r.points_px, cam_l, cam_r)
+    circle = refine_circle(det_l.points_px, det_r.points_px, cam_l, cam_r, paper)
+    return WheelObservation(wheel, cams, (det_l, det_r), paper, circle)
+
+
+def measure_frames(images: dict[str, np.ndarray], cameras: dict[str, CameraModel],
+                   config: StationConfig, method: str = "circle") -> dict:
+    """The measurement result (docs/result-schema.md) for one set of eight images.
+
+    images, cameras: keyed by camera id. method: "circle" (default, the refined fit) or
+    "paper" (section 3.2 exactly). Never raises for a wheel that fails: the result is
+    invalid and ``failure`` names the wheel, the camera and why.
+    """
+    if method not in METHODS:
+        raise MeasurementError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
+    timing = {}
+    t0 = time.perf_counter()
+    detections = detect_all(images, cameras)
+    timing["detect"] = time.perf_counter() - t0
+    result = _empty_result(config)
+    failures = [(cid, d) for cid, d in detections.items() if isinstance(d, StationError)]
+    if failures:
+        cid, err = failures[0]
+        wheel = config.cameras[cid].wheel
+        result["failure"] = {"code": err.code, "wheel": wheel, "camera": cid,
+                             "message": f"{wheel} {cid}: {err}"}
+        result["warnings"] += [f"{config.cameras[c].wheel} {c}: {e}" for c, e in failures[1:]]
+        result["timing_s"] = {**timing, "total": time.perf_counter() - t0}
+        result["detections"] = _detection_summary(detections)
+        return result
+    t1 = time.perf_counter()
+    observations = {}
+    for wheel in WHEELS:
+        pair = config.pairs[wheel]
+        cams = (pair.precision, pair.reference)
+        try:
+            observations[wheel] = reconstruct_wheel(wheel, cams, detections, cameras)
+        except StationError as e:
+            result["failure"] = {"code": e.code, "wheel": wheel, "camera": f"{cams[0]}+{cams[1]}",
+                                 "message": f"{wheel} ({cams[0]}, {cams[1]}): {e}"}
+            result["timing_s"] = {**timing, "total": time.perf_counter() - t0}
+            return result
+    timing["reconstruct"] = time.perf_counter() - t1
+    t2 = time.perf_counter()
+    fits = {w: (o.circle if method == "circle" else o.paper) for w, o in observations.items()}
+    _fill_angles(result, fits, observations, config)
+    timing["angles"] = time.perf_counter() - t2
+    timing["total"] = time.perf_counter() - t0
+    result["timing_s"] = timing
+    result["valid"] = True
+    result["method"] = method
+    result["detections"] = _detection_summary(detections)
+    result["_observations"] = observations  # for recordings; dropped from JSON
+    return result
+
+
+def _fill_angles(result: dict, fits: dict[str, WheelFit], observations: dict, config: StationConfig) -> None:
+    centers = {w: f.center_station for w, f in fits.items()}
+    axes = {w: f.axis_station for w, f in fits.items()}
+    angles = alignment.compute_angles(centers, axes)
+    cov_c = {w: _finite_cov(f.cov_center, 1e-8) for w, f in fits.items()}
+    cov_a = {w: _finite_cov(f.cov_axis, 1e-8) for w, f in fits.items()}
+    cov = alignment.angle_covariance(centers, axes, cov_c, cov_a)
+    std = dict(zip(alignment.ANGLE_NAMES, np.sqrt(np.clip(np.diag(cov), 0, None))))
+    limit = config.measurement.epipolar_limit_px
+    for w in WHEELS:
+        f, o = fits[w], observations[w]
+        entry = {k: float(v) for k, v in angles["wheels"][w].items()}
+        entry["toe_std_deg"] = float(std[f"{w}.toe"])
+        entry["camber_std_deg"] = float(std[f"{w}.camber"])
+        det_l, det_r = o.detections
+        entry.update({
+            "center_station_m": f.center_station.tolist(),
+            "axis_station": f.axis_station.tolist(),
+            "rim_radius_m": float(f.radius_m),
+            "quality": {"score": float(min(det_l.score, det_r.score)),
+                        "points_left": int(len(det_l.points_px)), "points_right": int(len(det_r.points_px)),
+                        "epipolar_rms_px": float(o.paper.epipolar_rms_px),
+                        "reprojection_rms_px": float(o.circle.reprojection_rms_px)},
+        })
+        result["wheels"][w] = entry
+        if o.paper.epipolar_rms_px > limit:
+            result["warnings"].append(
+                f"pair {w} ({o.cams[0]}, {o.cams[1]}): epipolar residual {o.paper.epipolar_rms_px:.2f} px "
+                f"> {limit} px: a camera of this pair may have moved since calibration; recalibrate")
+    for axle in ("front", "rear"):
+        a = {k: float(v) for k, v in angles["axles"][axle].items()}
+        a["total_toe_std_deg"] = float(std[f"{axle}.total_toe"])
+        result["axles"][axle] = a
+    result["thrust_deg"] = float(angles["thrust_deg"])
+    result["thrust_std_deg"] = float(std["thrust"])
+    result["wheelbase_m"] = angles["wheelbase_m"]
+    result["centreline_deg"] = angles["centreline_deg"]
+    result["paper_front_angles_deg"] = alignment.paper_front_angles(centers, axes)
+    result["alignment_frame"] = {"origin_station_m": np.mean([centers[w] for w in WHEELS], axis=0).tolist(),
+                                 "R_station_align": angles["R_station_align"].tolist()}
+
+
+def _finite_cov(c: np.ndarray, fallback_var: float) -> np.ndarray:
+    c = np.asarray(c, float)
+    return c if np.all(np.isfinite(c)) else np.eye(3) * fallback_var
+
+
+def _detection_summary(detections: dict) -> dict:
+    out = {}
+    for cid, d in detections.items():
+        if isinstance(d, StationError):
+            out[cid] = {"ok": False, "reason": str(d)}
+        else:
+            e = d.ellipse
+            out[cid] = {"ok": True, "center_px": np.asarray(e.center_px).tolist(),
+                        "axes_px": np.asarray(e.axes_px).tolist(), "angle_deg": float(np.degrees(e.angle_rad)),
+                        "score": float(d.score), "points": int(len(d.points_px))}
+    return out
+
+
+def _empty_result(config: StationConfig) -> dict:
+    return {"schema_version": SCHEMA_VERSION, "station": config.name, "valid": False, "failure": None,
+            "warnings": [], "wheels": {}, "axles": {}, "thrust_deg": None}
+
+
+def add_truth(result: dict, truth: dict) -> None:
+    """Simulation only: attach the truth and each angle's error (measured - true)."""
+    result["truth"] = truth
+    if not result.get("valid"):
+        return
+    errors = {}
+    for w in WHEELS:
+        m, t = result["wheels"][w], truth["wheels"][w]
+        errors[w] = {"toe_error_deg": m["toe_deg"] - t["toe_deg"], "camber_error_deg": m["camber_deg"] - t["camber_deg"]}
+        result["wheels"][w]["toe_error_deg"] = errors[w]["toe_error_deg"]
+        result["wheels"][w]["camber_error_deg"] = errors[w]["camber_error_deg"]
+    errors["front.total_toe"] = result["axles"]["front"]["total_toe_deg"] - truth["total_toe_front_deg"]
+    errors["rear.total_toe"] = result["axles"]["rear"]["total_toe_deg"] - truth["total_toe_rear_deg"]
+    errors["thrust"] = result["thrust_deg"] - truth["thrust_deg"]
+    result["errors"] = errors
