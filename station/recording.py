@@ -29,10 +29,13 @@ import datetime as _dt
 import json
 import os
 import re
+import socket
+import threading
 import time
 import uuid
 import warnings
 from pathlib import Path
+from urllib.parse import urlparse
 
 import cv2
 import numpy as np
@@ -146,6 +149,11 @@ class CycleRecorder:
     # -- plumbing ------------------------------------------------------------------------------
     def _attach_viewer(self, application, spawn, url):
         try:
+            if url:
+                # Rerun connects lazily and, when nobody listens, blocks ~6 s at shutdown: look first
+                parsed = urlparse(url)
+                with socket.create_connection((parsed.hostname or "127.0.0.1", parsed.port or 9876), timeout=0.3):
+                    pass
             viewer = rr.RecordingStream(application, recording_id=self.recording_id)
             if url:
                 viewer.connect_grpc(url)
@@ -308,12 +316,8 @@ class CycleRecorder:
         if self._closed:
             return None if self.error else self.path
         self._closed = True
-        for rec in self._recs[1:]:
-            try:
-                rec.flush(timeout_sec=2.0)
-                rec.disconnect()
-            except Exception:  # noqa: BLE001 - the viewer is best effort
-                pass
+        if len(self._recs) > 1:  # let the viewer stream drain without holding up the cycle
+            threading.Thread(target=_disconnect_all, args=(self._recs[1:],), daemon=True).start()
         if self.error is None:
             self._write_out()
         else:
@@ -353,6 +357,15 @@ class CycleRecorder:
                 self.close()
             except StorageError:
                 pass
+
+
+def _disconnect_all(recs) -> None:
+    for rec in recs:
+        try:
+            rec.flush(timeout_sec=2.0)
+            rec.disconnect()
+        except Exception:  # noqa: BLE001 - the viewer is best effort
+            pass
 
 
 def _parse_time(text) -> float | None:

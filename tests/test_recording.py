@@ -285,3 +285,55 @@ def test_review_without_display_prints_contents_and_how(tmp_path, monkeypatch, c
     assert "no display" not in capsys.readouterr().out
     assert main(["review", "no-such-cycle"]) == 2
     assert "no recording found" in capsys.readouterr().err
+
+
+# --- streaming to a viewer ------------------------------------------------------------------------
+def test_streams_to_a_running_viewer_too(tmp_path):
+    import signal
+    import socket
+    import time
+    exe = Path(sys.executable).with_name("rerun")
+    if not exe.exists():
+        pytest.skip("the rerun CLI is not in this environment")
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    received = tmp_path / "viewer.rrd"
+    # a headless Rerun server that saves what it receives stands in for the viewer
+    server = subprocess.Popen([str(exe), "--bind", "127.0.0.1", "--port", str(port), "--save", str(received)],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        for _ in range(100):
+            try:
+                socket.create_connection(("127.0.0.1", port), timeout=0.2).close()
+                break
+            except OSError:
+                time.sleep(0.1)
+        rec = CycleRecorder(tmp_path / "c.rrd", viewer_url=f"rerun+http://127.0.0.1:{port}/proxy")
+        rec.log_images({"cam1": np.zeros((64, 64), np.uint8)})
+        rec.log_event("seen live")
+        rec.close()
+        assert rec.warnings == []
+        for _ in range(50):
+            time.sleep(0.1)
+            if received.exists() and received.stat().st_size > 1000:
+                break
+    finally:
+        server.send_signal(signal.SIGINT)
+        server.wait(timeout=10)
+    assert read_recording_summary(tmp_path / "c.rrd")["events"] == [("INFO", "seen live")]
+    live = read_recording_summary(received)
+    assert live["images"] == 1 and ("INFO", "seen live") in live["events"]
+
+
+def test_unreachable_viewer_is_only_a_warning(tmp_path):
+    import socket
+    import time
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]  # nobody listens here
+    t0 = time.monotonic()
+    rec = CycleRecorder(tmp_path / "c.rrd", viewer_url=f"rerun+http://127.0.0.1:{port}/proxy")
+    rec.log_event("x")
+    assert rec.close() == tmp_path / "c.rrd"
+    assert time.monotonic() - t0 < 2 and "viewer not available" in rec.warnings[0]
