@@ -132,12 +132,22 @@ def build_context(config, seed: int | None = None, **_) -> dict:
     """The simulated station for sim:// cameras (called through drivers.registry.build_context).
 
     ``seed``: a random vehicle (SimWorld.vehicle_scene(seed)) stands on the lift; None: empty.
+    ``trigger_board.port: sim`` in the configuration starts the simulated trigger board on a
+    pty wired to the cameras' trigger lines (``context["trigger_board_port"]``; stop it with
+    ``context["close"]()``).
     Rendering a 1280x1024 frame takes seconds on a slow machine, so the simulated cameras ask
     for a capture deadline of their own (``capture_timeout_s``), used instead of a shorter one.
     """
+    from simulators.trigger_board_sim import TriggerBoardSim, TriggerLines
     from simulators.world import SimWorld
 
     world = SimWorld.from_config(config)
     if seed is not None:
         world.set_scene(world.vehicle_scene(seed))
-    return {"sim_world": world, "truth": world.truth, "capture_timeout_s": 600.0}
+    context = {"sim_world": world, "truth": world.truth, "capture_timeout_s": 600.0,
+               "trigger_lines": TriggerLines(), "close": lambda: None}
+    board = getattr(getattr(config, "trigger_board", None), "port", None)
+    if board == "sim":  # trigger_board.port: sim -> the simulated board on a pty, wired to the cameras
+        sim = TriggerBoardSim(context["trigger_lines"])
+        context.update(trigger_board_port=sim.port, close=sim.close)
+    return context

@@ -74,6 +74,7 @@ def run(args) -> int:
             rows.append(row)
     finally:
         close_cameras(cams)
+        context.get("close", lambda: None)()
     if args.json:
         print(json.dumps(rows, indent=1))
     else:

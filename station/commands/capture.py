@@ -22,19 +22,21 @@ def run(args) -> int:
     from station.errors import StationError
 
     config = load_config(args.config)
-    context = build_context([c.uri for c in config.cameras.values()], config, seed=args.seed)
     cycle_id = new_cycle_id()
     out = Path(args.out) if args.out else config.data_path("captures", cycle_id)
     if out.exists():
         raise StationError(f"{out} already exists; a capture is never written over another",
                            hint="choose a new --out directory")
+    context = build_context([c.uri for c in config.cameras.values()], config, seed=args.seed)
     timeout = args.timeout or max(config.capture.timeout_s, context.get("capture_timeout_s", 0.0))
     board = None
-    cameras = open_station_cameras(config, context)
+    cameras: dict = {}
     try:
-        if config.trigger_board.port:
+        cameras = open_station_cameras(config, context)
+        port = context.get("trigger_board_port", config.trigger_board.port)
+        if port:
             from drivers.trigger_board import TriggerBoard
-            board = TriggerBoard(config.trigger_board.port, config.trigger_board.baudrate).open()
+            board = TriggerBoard(port, config.trigger_board.baudrate).open()
         truth = context["truth"]() if "truth" in context else None
         try:
             frames, path = capture_and_save(cameras, timeout, out, trigger_board=board, truth=truth,
@@ -47,6 +49,7 @@ def run(args) -> int:
         if board is not None:
             board.close()
         close_cameras(cameras)
+        context.get("close", lambda: None)()
     lat = [f.metadata.get("latency_ms", 0.0) for f in frames.values()]
     print(f"captured {len(frames)} frames in {max(lat):.0f} ms (trigger to last frame) -> {path}")
     return 0
