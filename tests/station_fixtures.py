@@ -1,0 +1,27 @@
+"""Helpers for tests that need a small simulated station (half resolution: 640x512, f/2)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import yaml
+
+from station.config import DEFAULT_CONFIG, load_config
+
+
+def small_station_config(tmp_path: Path, scale: float = 0.5, **overrides):
+    """A copy of config/station.yaml with every camera at ``scale`` resolution and focal length."""
+    data = yaml.safe_load(DEFAULT_CONFIG.read_text())
+    w, h = data["camera_defaults"]["resolution"]
+    data["camera_defaults"]["resolution"] = [int(w * scale), int(h * scale)]
+    for cam in data["cameras"].values():
+        cam["nominal"]["focal_px"] = cam["nominal"]["focal_px"] * scale
+    data["data_dir"] = str(tmp_path / "var")
+    data["vehicle_specs"] = str(DEFAULT_CONFIG.parent / data.get("vehicle_specs", "vehicles.yaml"))
+    data["calibration"]["box"] = str(DEFAULT_CONFIG.parent / data["calibration"].get("box", "box.yaml"))
+    for key, value in overrides.items():
+        section, name = key.split("__")
+        data[section][name] = value
+    path = tmp_path / "station.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return load_config(path)

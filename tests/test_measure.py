@@ -1,0 +1,68 @@
+"""A whole measurement on simulated images: angles near the truth, failures named, CLI output."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from station.measure import add_truth, measure_frames
+from tests.station_fixtures import small_station_config
+
+
+@pytest.fixture(scope="module")
+def sim(tmp_path_factory):
+    from simulators.world import SimWorld
+
+    cfg = small_station_config(tmp_path_factory.mktemp("station"))
+    world = SimWorld.from_config(cfg)
+    scene = world.vehicle_scene(3)
+    world.set_scene(scene)
+    images = world.render_all(np.random.default_rng(3))
+    return cfg, world, scene, images
+
+
+@pytest.mark.slow
+def test_angles_match_the_simulated_vehicle(sim):
+    cfg, world, scene, images = sim
+    result = measure_frames(images, world.cameras, cfg)
+    assert result["valid"], result["failure"]
+    add_truth(result, world.truth(scene))
+    for w in ("FL", "FR", "RL", "RR"):
+        # Half resolution and a single vehicle: a loose bound that a sign or frame error breaks.
+        assert abs(result["wheels"][w]["toe_error_deg"]) < 0.4
+        assert abs(result["wheels"][w]["camber_error_deg"]) < 0.4
+        assert result["wheels"][w]["toe_std_deg"] > 0
+    truth_toe = np.array([scene.vehicle.toe_deg[w] for w in ("FL", "FR", "RL", "RR")])
+    measured = np.array([result["wheels"][w]["toe_deg"] for w in ("FL", "FR", "RL", "RR")])
+    assert np.corrcoef(truth_toe, measured)[0, 1] > 0.95
+    json.dumps({k: v for k, v in result.items() if not k.startswith("_")})  # JSON-ready
+
+
+@pytest.mark.slow
+def test_a_black_camera_invalidates_the_cycle_and_is_named(sim):
+    cfg, world, scene, images = sim
+    broken = dict(images, cam5=np.zeros_like(images["cam5"]))
+    result = measure_frames(broken, world.cameras, cfg)
+    assert not result["valid"]
+    assert result["failure"]["camera"] == "cam5" and result["failure"]["wheel"] == "RL"
+    assert "cam5" in result["failure"]["message"]
+    assert not result["wheels"], "no angle of an invalid cycle is reported"
+
+
+def test_unknown_method_is_refused(sim):
+    from station.errors import MeasurementError
+
+    cfg, world, _, images = sim
+    with pytest.raises(MeasurementError, match="unknown method"):
+        measure_frames(images, world.cameras, cfg, method="magic")
+
+
+def test_measure_without_calibration_names_the_file_and_what_to_do(tmp_path):
+    cfg = small_station_config(tmp_path)
+    out = subprocess.run([sys.executable, "-m", "station.cli", "--config", str(cfg.path), "measure", "--seed", "1"],
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 2
+    assert "calibration file not found" in out.stderr and "station calibrate" in out.stderr
+    assert "Traceback" not in out.stderr
