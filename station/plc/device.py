@@ -19,17 +19,14 @@ from pymodbus.simulator import DataType, SimData, SimDevice
 
 from station.errors import MeasurementError, PlcError, StationError
 from station.plc import register_map as rm
-from station.plc.handshake import (Event, PlcBadJobId, PlcBusy, PlcCycleTimeout, PlcUnknownCommand,
-                                   State, event_for_command, next_state)
+from station.plc.handshake import (Event, PlcBadJobId, PlcCycleTimeout, State, event_for_command,
+                                   modbus_exception, next_state)
 from station.plc.results import cleared_registers, result_registers
 from station.plc.runner import CycleRequest, CycleRunner
 
 log = logging.getLogger("station.plc")
 
 BIT_FUNCTIONS = (1, 2, 5, 15)  # coils / discrete inputs: the map has none
-# Modbus exception for each refusal: 6 "device busy" while a cycle runs, 3 "illegal data value"
-# for a command that is not allowed now or not a command at all.
-_EXCEPTION_FOR = {PlcBusy.code: ExcCodes.DEVICE_BUSY}
 
 
 class PlcDevice:
@@ -107,7 +104,7 @@ class PlcDevice:
             self._set("reject_code", e.code)
             self._set("reject_count", self._get("reject_count") + 1)
             log.warning("PLC command %s refused (%d): %s", values[i], e.code, e)
-            return _EXCEPTION_FOR.get(e.code, ExcCodes.ILLEGAL_VALUE)
+            return ExcCodes(modbus_exception(e))
         # Consumed: the mailbox reads back 0 once this write is applied. The response still
         # echoes the written value, as function 6 requires (libmodbus checks the echo).
         asyncio.get_running_loop().call_soon(self._set, "command", 0)

@@ -108,6 +108,12 @@ for _s in State:  # the cycle's own events outside busy: a late cycle after a ti
             REFUSALS[(_s, _e)] = (PlcInternal, f"cycle end ignored: the station is {_s.name.lower()}, not busy")
 
 
+def modbus_exception(error: PlcError) -> int:
+    """The Modbus exception code that answers a refused write: 6 (server device busy) while a
+    cycle runs, 3 (illegal data value) for a command not allowed now or not a command."""
+    return 6 if isinstance(error, PlcBusy) else 3
+
+
 def next_state(state: State, event: Event) -> State:
     """The state after ``event`` in ``state``; raises the refusal's PlcError for an illegal move."""
     try:
@@ -132,17 +138,17 @@ def event_for_command(value: int) -> Event:
 
 def markdown_table() -> str:
     """The transition table for docs/plc.md."""
-    rows = ["| state | command / event | result |", "|---|---|---|"]
+    rows = ["| state | command / event | result | Modbus answer |", "|---|---|---|---|"]
     for s in State:
         for e in Event:
             if (s, e) in TRANSITIONS:
-                res = f"-> **{TRANSITIONS[(s, e)].name.lower()}**"
+                res, answer = f"-> **{TRANSITIONS[(s, e)].name.lower()}**", "ok" if e in PLC_EVENTS else "-"
             else:
                 cls, msg = REFUSALS[(s, e)]
                 if e not in PLC_EVENTS:
                     continue
-                res = f"refused, reject_code {cls.code}: {msg}"
-            rows.append(f"| {s.name.lower()} | {e.name.lower()} | {res} |")
+                res, answer = f"refused, reject_code {cls.code}: {msg}", f"exception {modbus_exception(cls(msg))}"
+            rows.append(f"| {s.name.lower()} | {e.name.lower()} | {res} | {answer} |")
     return "\n".join(rows) + "\n"
 
 
