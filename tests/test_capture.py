@@ -32,49 +32,49 @@ def test_eight_software_triggered_cameras(config, world):
     cams = open_station_cameras(config, {"sim_world": world})
     assert list(cams) == IDS and all(c.is_open for c in cams.values())
     t = time.monotonic()
-    frames = capture_cycle(cams, 1.0)
-    assert time.monotonic() - t < 0.5
+    frames = capture_cycle(cams, 3.0)
+    assert time.monotonic() - t < 2.0
     assert list(frames) == IDS
     for i, cid in enumerate(IDS, 1):
         assert np.array_equal(frames[cid].image, world.render(cid, np.random.default_rng([7, i, 0])))
         assert frames[cid].metadata["latency_ms"] >= -5
     stamps = [f.timestamp_ns for f in frames.values()]
     assert max(stamps) - min(stamps) < 0.2e9  # released together
-    assert [f.frame_id for f in capture_cycle(cams, 1.0).values()] == [1] * 8
+    assert [f.frame_id for f in capture_cycle(cams, 3.0).values()] == [1] * 8
 
 
 def test_hardware_trigger_through_the_board(config, world):
-    with TriggerBoardSim() as sim, TriggerBoard(sim.port, timeout_s=0.5) as board:
+    with TriggerBoardSim() as sim, TriggerBoard(sim.port, timeout_s=2.0) as board:
         cams = open_station_cameras(config, {"sim_world": world, "trigger_lines": sim.lines})
         for c in cams.values():
             c.configure(trigger="hardware")
-        frames = capture_cycle(cams, 1.0, trigger_board=board)
+        frames = capture_cycle(cams, 3.0, trigger_board=board)
         assert sim.fired == 1 and {f.metadata["board_seq"] for f in frames.values()} == {1}
         stamps = {f.timestamp_ns for f in frames.values()}
         assert len(stamps) == 1  # one edge on every wire
         sim.fault_mask = 1 << 4  # cam5's wire
         with pytest.raises(DriverError, match="line\\(s\\) 4 did not fire") as e:
-            capture_cycle(cams, 0.5, trigger_board=board)
+            capture_cycle(cams, 2.0, trigger_board=board)
         assert "cam5" in e.value.failures
         sim.fault_mask = 0
-        assert len(capture_cycle(cams, 1.0, trigger_board=board)) == 8  # the next cycle works
+        assert len(capture_cycle(cams, 3.0, trigger_board=board)) == 8  # the next cycle works
 
 
 def test_missing_and_late_cameras_are_named_and_the_deadline_holds(config, world):
     cams = open_station_cameras(config, {"sim_world": world})
-    world.delay["cam3"] = 0.6  # late
+    world.delay["cam3"] = 1.6  # late
     world.dead.add("cam6")  # broken
     t = time.monotonic()
     with pytest.raises(DriverError) as e:
-        capture_cycle(cams, 0.3)
-    assert time.monotonic() - t < 0.45
+        capture_cycle(cams, 0.8)
+    assert 0.75 < time.monotonic() - t < 1.2  # the deadline, and only the deadline
     assert set(e.value.failures) == {"cam3", "cam6"}
     assert "cam3, cam6" in str(e.value) and "sensor fault" in e.value.failures["cam6"]
     assert set(e.value.frames) == set(IDS) - {"cam3", "cam6"}  # what did arrive rides on the error
-    time.sleep(0.4)  # let the late render finish
+    time.sleep(1.0)  # let the late render finish
     world.delay.clear()
     world.dead.clear()
-    assert len(capture_cycle(cams, 1.0)) == 8  # back: the next cycle works
+    assert len(capture_cycle(cams, 3.0)) == 8  # back: the next cycle works
 
 
 class _LateCam(Camera):
@@ -92,10 +92,10 @@ class _LateCam(Camera):
 def test_max_skew_names_the_slow_camera(config, world):
     cams = open_station_cameras(config, {"sim_world": world})
     cams["cam8"] = _LateCam("cam8", "late://", cams["cam1"].settings).open()
-    frames = capture_cycle(cams, 1.0)  # without a skew limit only the deadline counts
+    frames = capture_cycle(cams, 3.0)  # without a skew limit only the deadline counts
     assert frames["cam8"].metadata["latency_ms"] >= 110
     with pytest.raises(CameraTimeout, match=r"\(cam8\).*limit 50 ms") as e:
-        capture_cycle(cams, 1.0, max_skew_s=0.05)
+        capture_cycle(cams, 3.0, max_skew_s=0.05)
     assert set(e.value.failures) == {"cam8"}
 
 
@@ -117,7 +117,7 @@ def test_stale_and_repeated_frames_are_refused(config, world):
     cams["cam4"] = Repeat("cam4", "y://", s).open()
     capture_cycle({"cam4": cams["cam4"]}, 1.0)
     with pytest.raises(FrameError) as e:
-        capture_cycle(cams, 1.0)
+        capture_cycle(cams, 3.0)
     assert "stale frame" in e.value.failures["cam2"] and "repeated frame 5" in e.value.failures["cam4"]
     assert set(e.value.failures) == {"cam2", "cam4"}
 
@@ -144,13 +144,13 @@ def test_two_cameras_with_one_address(tmp_path, world):
 
 def test_saved_cycle_replays_bit_for_bit(config, world, tmp_path):
     cams = open_station_cameras(config, {"sim_world": world})
-    frames, path = capture_and_save(cams, 1.0, config.data_path("captures", new_cycle_id()),
+    frames, path = capture_and_save(cams, 3.0, config.data_path("captures", new_cycle_id()),
                                     truth={"toe_deg": 0.1})
     meta = json.loads((path / "cycle.json").read_text())
     assert meta["complete"] and meta["failures"] == {} and set(meta["cameras"]) == set(IDS)
     assert json.loads((path / "truth.json").read_text()) == {"toe_deg": 0.1}
     replay = {cid: create_camera(cid, f"replay://{path}", cams[cid].settings).open() for cid in IDS}
-    again = capture_cycle(replay, 1.0)
+    again = capture_cycle(replay, 3.0)
     for cid in IDS:
         assert again[cid].image.tobytes() == frames[cid].image.tobytes()
 
@@ -159,7 +159,7 @@ def test_a_failed_cycle_keeps_what_arrived(config, world, tmp_path):
     cams = open_station_cameras(config, {"sim_world": world})
     world.dead.add("cam7")
     with pytest.raises(DriverError) as e:
-        capture_and_save(cams, 0.5, tmp_path / "cycle-x")
+        capture_and_save(cams, 3.0, tmp_path / "cycle-x")
     meta = json.loads((e.value.saved_to / "cycle.json").read_text())
     assert meta["complete"] is False and set(meta["failures"]) == {"cam7"}
     assert set(meta["cameras"]) == set(IDS) - {"cam7"}
