@@ -2,6 +2,7 @@
 atomic results, heartbeat, device ids, allow-list and the `station serve` command."""
 
 import math
+import random
 import socket
 import subprocess
 import sys
@@ -296,6 +297,25 @@ def test_allow_list_refuses_other_clients(station):
         allowed.close()
 
 
+def test_garbage_on_a_tcp_connection_does_not_disturb_the_station(station):
+    bg, client, port = station()
+    rng = random.Random(3)
+    junk = [bytes(rng.getrandbits(8) for _ in range(n)) for n in (1, 7, 300, 2000)]
+    junk.append(bytes.fromhex("0001 0000 ffff 01 03 0064 0001"))  # MBAP length 65535
+    junk.append(bytes.fromhex("0001 0001 0006 01 03 0064"))  # cut short, then closed
+    for data in junk:
+        with socket.create_connection(("127.0.0.1", port), timeout=2) as raw:
+            raw.sendall(data)
+            raw.settimeout(0.2)
+            try:
+                raw.recv(512)
+            except (TimeoutError, ConnectionResetError):
+                pass
+    assert PlcSimulator(client).run_cycle("JOB-000001", expect=dry_run_expectation(10)).problems == []
+    sock = next(iter(bg.server.server.active_connections.values())).transport.get_extra_info("socket")
+    assert sock.getsockopt(socket.SOL_SOCKET, socket.SO_KEEPALIVE) == 1
+
+
 def test_bad_job_id_bytes_are_refused(station):
     _, client, _ = station()
     r = client.write_registers(0, [1, 0x4101] + [0] * 15)
@@ -342,7 +362,18 @@ def test_station_serve_command_with_the_plc_simulator():
     assert "served 4 cycles (3 done, 1 fault)" in out  # job 10 fails on purpose
 
 
-def test_station_serve_reports_bad_setups_without_traceback(capsys):
+def test_station_serve_reports_bad_setups_without_traceback(capsys, tmp_path):
+    base = (ROOT / "config" / "station.yaml").read_text()
+    for change, message in ((("transport: tcp ", "transport: rtu "), "plc.serial_port is null"),
+                            (("allowed_clients: []", "allowed_clients: [bogus]"), "'bogus' is not an IP")):
+        assert change[0] in base
+        cfg = tmp_path / "station.yaml"
+        cfg.write_text(base.replace(*change))
+        for name in ("box.yaml", "vehicles.yaml"):
+            if (ROOT / "config" / name).exists():
+                (tmp_path / name).write_text((ROOT / "config" / name).read_text())
+        assert cli_main(["--config", str(cfg), "serve", "--dry-run"]) == 2
+        assert message in capsys.readouterr().err
     assert cli_main(["serve", "--dry-run", "--rtu", "/nonexistent/tty"]) == 2
     err = capsys.readouterr().err
     assert "cannot open serial line /nonexistent/tty" in err and "Traceback" not in err
