@@ -268,3 +268,16 @@ def capture_and_save(cameras: dict[str, Camera], timeout_s: float, out_dir, *, t
             log.warning("cycle failed; %d frame(s) kept in %s", len(partial), e.saved_to)
         raise
     return frames, save_capture(frames, out_dir, truth=truth, extra=extra)
+
+
+def capture_station_cycle(cameras: dict[str, Camera], config, *, trigger_board=None, context: dict | None = None,
+                          truth: dict | None = None, extra: dict | None = None) -> tuple[dict[str, Frame], Path | None]:
+    """The station's cycle: capture with ``capture.timeout_s`` (or the simulated cameras' own
+    deadline from ``context``) and, if ``capture.keep_captures``, save under
+    ``<data_dir>/captures/<cycle id>`` (a failed cycle's partial set too). (frames, path or None)."""
+    timeout = max(config.capture.timeout_s, (context or {}).get("capture_timeout_s", 0.0))
+    if not config.capture.keep_captures:
+        return capture_cycle(cameras, timeout, trigger_board), None
+    cycle_id = new_cycle_id()
+    return capture_and_save(cameras, timeout, config.data_path("captures", cycle_id), trigger_board=trigger_board,
+                            truth=truth, extra={"station": config.name, **(extra or {})})

@@ -215,3 +215,19 @@ def test_station_cameras_lists_failures_without_a_traceback(tmp_path, capsys):
     assert main(["--config", str(config.path), "capture", "--timeout", "30"]) == 2
     err = capsys.readouterr().err
     assert "error 202" in err and "(cam3, cam4)" in err and "Traceback" not in err
+
+
+def test_station_cycle_saves_under_data_dir_unless_told_not_to(tmp_path, world):
+    from station.capture import capture_station_cycle
+    config = station_config(tmp_path)
+    cams = open_station_cameras(config, {"sim_world": world})
+    frames, path = capture_station_cycle(cams, config, truth={"x": 1})
+    assert path.parent == config.data_path("captures") and len(frames) == 8
+    assert json.loads((path / "cycle.json").read_text())["station"] == config.name
+    (tmp_path / "k").mkdir()
+    config2 = station_config(tmp_path / "k")
+    config2.path.write_text(config2.path.read_text().replace("keep_captures: true", "keep_captures: false"))
+    from station.config import load_config
+    config2 = load_config(config2.path)
+    frames, path = capture_station_cycle(cams, config2)
+    assert path is None and len(frames) == 8 and not config2.data_path("captures").exists()
