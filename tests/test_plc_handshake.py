@@ -180,3 +180,26 @@ def test_dry_run_is_deterministic_per_job_and_fails_on_purpose():
         synthetic_result(CycleRequest("measure", "JOB-000020", None, 1), fail_every=10)
     assert info.value.code == 401
     assert job_number("WVWZZZ1KZAW000017") == 17 and job_number("ABC") == job_number("ABC")
+
+
+def test_measurement_runner_calls_the_pipeline_with_the_plc_request(monkeypatch):
+    import station.measure
+    from station.errors import CalibrationError
+    from station.plc.runner import measurement_runner
+
+    calls = []
+
+    def fake_run_measurement(config, *, job_id, vehicle_spec, seed):
+        calls.append((config, job_id, vehicle_spec, seed))
+        return {"valid": True}
+
+    monkeypatch.setattr(station.measure, "run_measurement", fake_run_measurement, raising=False)
+    monkeypatch.delattr(station.measure, "run_calibration_check", raising=False)
+    run = measurement_runner("CONFIG")
+    assert run(CycleRequest("measure", "VIN1", "spec-a", 12)) == {"valid": True}
+    assert calls == [("CONFIG", "VIN1", "spec-a", 12)]
+    with pytest.raises(CalibrationError, match="calibration check"):
+        run(CycleRequest("calibration_check", None, None, 13))
+    monkeypatch.delattr(station.measure, "run_measurement")
+    with pytest.raises(PlcError, match="measurement pipeline is not available"):
+        measurement_runner("CONFIG")
