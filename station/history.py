@@ -15,6 +15,7 @@ import datetime as dt
 import io
 import json
 import math
+import numbers
 import os
 import sqlite3
 import tempfile
@@ -55,6 +56,29 @@ CREATE TABLE IF NOT EXISTS angles (
 """
 _COLUMNS = ("id", "cycle_id", "time_utc", "job_id", "vehicle_spec", "valid", "passed",
             "calibration_id", "recording", "software_version", "station")
+
+
+def jsonable(obj):
+    """``obj`` with numpy scalars/arrays as Python numbers/lists and NaN/inf as None (strict JSON)."""
+    if isinstance(obj, dict):
+        return {str(k): jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [jsonable(v) for v in obj]
+    if hasattr(obj, "tolist") and not isinstance(obj, (str, bytes)):  # numpy arrays and scalars
+        return jsonable(obj.tolist())
+    if isinstance(obj, bool) or obj is None or isinstance(obj, (str, int)):
+        return obj
+    if isinstance(obj, numbers.Real):
+        f = float(obj)
+        return f if math.isfinite(f) else None
+    return str(obj)
+
+
+def finite_number(v) -> float | None:
+    if isinstance(v, bool) or not isinstance(v, numbers.Real):
+        return None
+    v = float(v)
+    return v if math.isfinite(v) else None
 
 
 def normalize_time(text: str | dt.datetime) -> str:
@@ -98,9 +122,7 @@ def _angle_rows(result: dict) -> list[tuple[str, float | None, float | None, int
         else:
             wheel, key = name.split(".")
             d = wheels.get(wheel) or {}
-        value, std = d.get(f"{key}_deg"), d.get(f"{key}_std_deg")
-        value = float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) else None
-        std = float(std) if isinstance(std, (int, float)) and not isinstance(std, bool) else None
+        value, std = finite_number(d.get(f"{key}_deg")), finite_number(d.get(f"{key}_std_deg"))
         p = passes.get(name)
         rows.append((name, value, std, None if p is None else int(bool(p))))
     return rows
@@ -161,10 +183,11 @@ class History:
         except (KeyError, TypeError, ValueError) as e:
             raise StorageError(f"cannot store a result without a valid cycle_id and time_utc ({e})") from None
         passed = (result.get("pass") or {}).get("overall")
+        passed = None if passed is None else bool(passed)
         row = (cycle_id, time_utc, result.get("job_id"), result.get("vehicle_spec"),
                int(bool(result.get("valid", False))), None if passed is None else int(bool(passed)),
                result.get("calibration_id"), result.get("recording"), result.get("software_version"),
-               result.get("station"), json.dumps(result, default=str, allow_nan=False))
+               result.get("station"), json.dumps(jsonable(result), allow_nan=False))
         try:
             c = self._conn
             self._lock.acquire()

@@ -42,6 +42,7 @@ import numpy as np
 import rerun as rr
 
 from station.errors import StorageError
+from station.history import finite_number, jsonable
 
 WHEELS = ("FL", "FR", "RL", "RR")
 ANGLE_NAMES = ("FL.toe", "FL.camber", "FR.toe", "FR.camber", "RL.toe", "RL.camber",
@@ -61,18 +62,18 @@ def angle_values(result: dict) -> dict[str, float]:
     for w in WHEELS:
         d = wheels.get(w) or {}
         for key in ("toe", "camber", "toe_thrust"):
-            v = d.get(f"{key}_deg")
-            if isinstance(v, (int, float)) and not isinstance(v, bool):
-                out[f"{w}.{key}"] = float(v)
+            v = finite_number(d.get(f"{key}_deg"))
+            if v is not None:
+                out[f"{w}.{key}"] = v
     for axle in ("front", "rear"):
         d = (result.get("axles") or {}).get(axle) or {}
         for key in ("total_toe", "setback"):
-            v = d.get(f"{key}_deg")
-            if isinstance(v, (int, float)) and not isinstance(v, bool):
-                out[f"{axle}.{key}"] = float(v)
-    v = result.get("thrust_deg")
-    if isinstance(v, (int, float)) and not isinstance(v, bool):
-        out["thrust"] = float(v)
+            v = finite_number(d.get(f"{key}_deg"))
+            if v is not None:
+                out[f"{axle}.{key}"] = v
+    v = finite_number(result.get("thrust_deg"))
+    if v is not None:
+        out["thrust"] = v
     return out
 
 
@@ -297,7 +298,7 @@ class CycleRecorder:
             self._log("/events", rr.TextLog(text, level="INFO" if passes.get("overall") else "WARN"))
         for w in result.get("warnings") or []:
             self._log("/events", rr.TextLog(str(w), level="WARN"))
-        self._log("/result", rr.TextDocument(json.dumps(result, indent=1, default=str), media_type="text/plain"))
+        self._log("/result", rr.TextDocument(json.dumps(jsonable(result), indent=1), media_type="text/plain"))
 
     def log_event(self, text: str, level: str = "INFO") -> None:
         """One sequencer event, stamped with the current time on the ``time`` timeline."""

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import difflib
 import math
+import numbers
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -164,7 +165,7 @@ def angle_value(result: dict, name: str) -> float | None:
     else:
         wheel, kind = name.split(".")
         v = ((result.get("wheels") or {}).get(wheel) or {}).get(f"{kind}_deg")
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+    if isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(v):
         return None
     return float(v)
 

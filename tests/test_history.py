@@ -250,3 +250,18 @@ def test_threads_share_one_history(hist):
         reads = list(pool.map(lambda _: len(hist.query()), range(8)))
     assert sorted(ids) == list(range(1, 41)) and all(0 <= n <= 40 for n in reads)
     assert len(hist.query()) == 40 and hist.check() == "ok"
+
+
+def test_numpy_and_nan_values_store_cleanly(hist):
+    import numpy as np
+    r = make_result(1, cycle=1)
+    r["wheels"]["FL"]["toe_deg"] = np.float32(0.25)
+    r["wheels"]["FL"]["toe_std_deg"] = float("nan")
+    r["wheels"]["FR"]["center_station_m"] = np.array([0.78, 1.35, 0.33])
+    r["pass"] = {"overall": np.bool_(True)}
+    hist.store(r)
+    row = hist.query()[0]
+    assert row["angles"]["FL.toe"] == pytest.approx(0.25)
+    assert row["result"]["wheels"]["FL"]["toe_std_deg"] is None  # strict JSON: NaN -> null
+    assert row["result"]["wheels"]["FR"]["center_station_m"] == pytest.approx([0.78, 1.35, 0.33])
+    assert row["passed"] is True
