@@ -197,6 +197,20 @@ def test_failed_cycles_set_code_and_reason_and_the_next_command_works(station):
     assert bg.device.stats["fault"] == 4
 
 
+def test_calibration_check_reports_done_without_angles_or_a_calibration_fault(station):
+    outcomes = iter([{"valid": True, "warnings": []},
+                     {"valid": False, "failure": {"code": 301, "message": "cam5 moved by 0.8 px"}}])
+    _, client, _ = station(lambda request: next(outcomes))
+    assert not trigger(client, "", command=2).isError()
+    b = wait_state(client, {DONE, FAULT})
+    assert (b["state"], b["result_valid"], b["active_command"]) == (DONE, 1, 2)
+    assert all(v is None for v in rm.angles_from_block(b, "f32").values())
+    assert not client.write_register(0, 4).isError()
+    assert not trigger(client, "", command=2).isError()
+    b = wait_state(client, {DONE, FAULT})
+    assert (b["state"], b["fault_code"], b["fault_reason"]) == (FAULT, 301, "cam5 moved by 0.8 px")
+
+
 def test_cycle_timeout_faults_and_a_late_result_is_ignored(station):
     def slow(request):
         time.sleep(0.6)

@@ -176,7 +176,7 @@ class PlcDevice:
                 failure = result.get("failure") or {}
                 code = failure.get("code") if isinstance(failure.get("code"), int) else MeasurementError.code
                 return self._fault(request, code, str(failure.get("message") or "invalid result"), elapsed)
-            values = result_registers(result, request.job_id)
+            values = result_registers(result, request.job_id, request.command == "measure")
         except StationError as e:
             return self._fault(request, e.code, str(e), elapsed)
         self._finish(request, Event.CYCLE_OK, values, elapsed)

@@ -12,13 +12,16 @@ from station.errors import MeasurementError
 from station.plc import register_map as rm
 
 
-def result_angles(result: dict) -> dict[str, float | None]:
+def result_angles(result: dict, required: bool = True) -> dict[str, float | None]:
     """{angle name: degrees or None} in :data:`register_map.ANGLES` order. Raises
-    MeasurementError naming the key when a valid result lacks an angle or holds a non-number."""
+    MeasurementError naming the key when a valid result lacks an angle (unless not
+    ``required``: a calibration check reports no angles) or holds a non-number."""
     def get(path: tuple[str, ...]):
         node = result
         for key in path:
             if not isinstance(node, dict) or key not in node:
+                if not required:
+                    return None
                 raise MeasurementError(f"the measurement result lacks {'.'.join(path)}; "
                                        "it does not follow docs/result-schema.md")
             node = node[key]
@@ -61,9 +64,9 @@ def result_verdicts(result: dict) -> tuple[int, int]:
     return passed, judged
 
 
-def result_registers(result: dict, job_id: str | None) -> dict[int, list[int]]:
+def result_registers(result: dict, job_id: str | None, angles_required: bool = True) -> dict[int, list[int]]:
     """{address: register values} for a finished, valid result."""
-    angles = result_angles(result)
+    angles = result_angles(result, angles_required)
     passed, judged = result_verdicts(result)
     out: dict[int, list[int]] = {}
     for name, value in angles.items():
