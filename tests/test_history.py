@@ -265,3 +265,48 @@ def test_numpy_and_nan_values_store_cleanly(hist):
     assert row["result"]["wheels"]["FL"]["toe_std_deg"] is None  # strict JSON: NaN -> null
     assert row["result"]["wheels"]["FR"]["center_station_m"] == pytest.approx([0.78, 1.35, 0.33])
     assert row["passed"] is True
+
+
+FULL_DISK = textwrap.dedent("""
+    import json, sys
+    sys.path.insert(0, {tests!r})
+    from result_builder import make_result
+    from station.errors import StorageError
+    from station.history import History
+    d = sys.argv[1]
+    out = {{"stored": 0, "error": None}}
+    h = History(d + "/history.sqlite")
+    try:
+        for i in range(100000):
+            r = make_result(i, cycle=i + 1)
+            r["warnings"] = ["x" * 2000]  # fill the disk faster
+            h.store(r)
+            out["stored"] += 1
+    except StorageError as e:
+        out["error"] = str(e)
+    h.close()
+    with History(d + "/history.sqlite") as h2:
+        out["check"] = h2.check()
+        out["rows"] = len(h2.query())
+    print(json.dumps(out))
+""")
+
+
+def test_full_disk_is_a_clear_error_and_keeps_earlier_cycles(tmp_path):
+    import json as _json
+    import shutil
+    if shutil.which("unshare") is None:
+        pytest.skip("unshare is not installed")
+    script = tmp_path / "fill.py"
+    script.write_text(FULL_DISK.format(tests=str(TESTS)))
+    mnt = tmp_path / "mnt"
+    mnt.mkdir()
+    p = subprocess.run(["unshare", "-m", "sh", "-c",
+                        f"mount -t tmpfs -o size=512k tmpfs {mnt} && {sys.executable} {script} {mnt}"],
+                       capture_output=True, text=True, timeout=120)
+    if p.returncode != 0 and "mount" in p.stderr:
+        pytest.skip(f"cannot make a private mount here: {p.stderr.strip()[:200]}")
+    assert p.returncode == 0, p.stderr
+    out = _json.loads(p.stdout.strip().splitlines()[-1])
+    assert out["stored"] > 10 and out["error"] and "full" in out["error"]
+    assert out["check"] == "ok" and out["rows"] == out["stored"]  # nothing half-stored, nothing lost
