@@ -4,6 +4,7 @@ other devices' requests on the shared line (no answer), and the same tests throu
 
 import os
 import random
+import select
 import shutil
 import subprocess
 import sys
@@ -155,3 +156,24 @@ def test_station_serve_rtu_with_the_plc_simulator(pty_pair):
     assert sim.returncode == 0, sim.stdout + sim.stderr
     assert "3 cycles, 0 with problems" in sim.stdout
     assert serve.returncode == 0 and "served 3 cycles" in out, err
+
+
+def test_broadcast_trigger_is_not_executed(rtu):
+    bg, client, plc_side = rtu
+    fd = os.open(plc_side, os.O_RDWR | os.O_NOCTTY)
+    try:
+        os.write(fd, read_request(3, 100, 1))  # the raw frame path works: our id answers
+        answer = b""
+        deadline = time.monotonic() + 2
+        while len(answer) < 7 and time.monotonic() < deadline:
+            if select.select([fd], [], [], 0.1)[0]:
+                answer += os.read(fd, 64)
+        assert answer == bytes([3, 3, 2, 0, 0]) + crc16(bytes([3, 3, 2, 0, 0]))
+        time.sleep(0.06)
+        body = bytes([0, 6, 0, 0, 0, 1])  # broadcast: write command 1 (measure)
+        os.write(fd, body + crc16(body))
+        time.sleep(0.1)
+        assert not select.select([fd], [], [], 0)[0]  # and no answer to a broadcast
+    finally:
+        os.close(fd)
+    assert state(client) == 0 and bg.device.stats["started"] == 0
