@@ -22,6 +22,7 @@ import numpy as np
 
 from calibration.camera_model import CameraModel
 from simulators.rays import normalized_to_rays_station, pixel_grid_normalized, sample_rays_station
+from simulators.render_body import floor_shadow, trace_body
 from simulators.render_wheel import BARREL, FLANGE, TYRE, trace_wheel, wheel_outline_points
 from simulators.scene import Lighting, Scene
 from simulators.shading import LABEL_QUAD, LABEL_WHEEL, Hits
@@ -99,12 +100,14 @@ def _caliper_angle(vehicle, name: str, R: np.ndarray) -> float:
 
 
 def trace(o: np.ndarray, d: np.ndarray, scene: Scene, lighting: Lighting,
-          wheel_candidates: dict[int, np.ndarray]) -> Hits:
+          wheel_candidates: dict[int, np.ndarray], body: bool = True) -> Hits:
     """Nearest hits of rays d (N,3) from o (3,); wheel_candidates: wheel index -> ray indices."""
     hits = Hits(len(d))
     if scene.quads:
         trace_quads(o, d, hits, lighting, scene.quads)
     vehicle = scene.vehicle
+    if vehicle is not None and body:
+        trace_body(o, d, np.arange(len(d)), hits, lighting, vehicle)
     if vehicle is not None:
         frames = {name: vehicle.wheel_frame_station(name) for name in WHEELS}
         # nearest wheel first: its hits cull the rays of the wheels behind it
@@ -119,7 +122,8 @@ def trace(o: np.ndarray, d: np.ndarray, scene: Scene, lighting: Lighting,
     # objects stand on the floor inside the room: the floor and the walls are seen only by
     # the rays that hit nothing else
     rest = np.nonzero(np.isinf(hits.t))[0]
-    trace_floor(o, d, rest, hits, lighting, scene.floor_z_m)
+    shadow = floor_shadow(vehicle) if vehicle is not None and body else None
+    trace_floor(o, d, rest, hits, lighting, scene.floor_z_m, shadow)
     rest = rest[np.isinf(hits.t[rest])]
     trace_room(o, d, rest, hits, lighting)
     return hits
@@ -162,7 +166,7 @@ def _precise_area(label: np.ndarray) -> np.ndarray:
 
 
 def render_radiance(camera: CameraModel, scene: Scene, lighting: Lighting | None = None,
-                    supersample: int = 34) -> tuple[np.ndarray, np.ndarray]:
+                    supersample: int = 34, body: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Noise-free, unblurred radiance (H,W) float32 and the centre-sample labels (H,W) int32."""
     lighting = lighting or Lighting()
     H, W = camera.height, camera.width
@@ -175,7 +179,7 @@ def render_radiance(camera: CameraModel, scene: Scene, lighting: Lighting | None
         rows = np.arange(r0, r1)
         cols = np.arange(c0, c1)
         cand[i] = (rows[:, None] * W + cols[None, :]).ravel()
-    hits = trace(o, d, scene, lighting, cand)
+    hits = trace(o, d, scene, lighting, cand, body)
     label = hits.label.reshape(H, W)
     value = hits.value.reshape(H, W).copy()
     edges = _edge_mask(label, value) if supersample > 1 else np.zeros((H, W), bool)
@@ -195,7 +199,7 @@ def render_radiance(camera: CameraModel, scene: Scene, lighting: Lighting | None
             pcol = np.repeat(cc, S)
             for i, _, _, _, (c0, c1, r0, r1) in boxes:
                 scand[i] = np.nonzero((prow >= r0) & (prow < r1) & (pcol >= c0) & (pcol < c1))[0]
-            sh = trace(o, ds, scene, lighting, scand)
+            sh = trace(o, ds, scene, lighting, scand, body)
             value[rr, cc] = sh.value.reshape(-1, S).mean(axis=1)
     return value, label
 
@@ -213,14 +217,16 @@ def vignetting(camera: CameraModel, strength: float) -> np.ndarray:
 
 def render(camera: CameraModel, scene: Scene, lighting: Lighting | None = None,
            rng: np.random.Generator | None = None, noise_sigma: float = 2.0,
-           blur_sigma: float = 0.75, supersample: int = 34) -> np.ndarray:
+           blur_sigma: float = 0.75, supersample: int = 34, body: bool = True) -> np.ndarray:
     """The (H,W) uint8 image ``camera`` takes of ``scene`` under ``lighting``.
 
     rng: the sensor-noise stream (default: a fixed seed, so the call is deterministic).
     noise_sigma: Gaussian read noise in grey levels. blur_sigma: Gaussian PSF in px (0: none).
+    supersample: samples per edge pixel near measured features. body: draw the vehicle's body
+    (with wheel arches) and its floor shadow, not just its four wheels.
     """
     lighting = lighting or Lighting()
-    radiance, _ = render_radiance(camera, scene, lighting, supersample)
+    radiance, _ = render_radiance(camera, scene, lighting, supersample, body)
     image = radiance * (255.0 * lighting.gain) * vignetting(camera, lighting.vignetting)
     if blur_sigma > 0:
         image = cv2.GaussianBlur(image, (0, 0), blur_sigma, borderType=cv2.BORDER_REFLECT)

@@ -30,6 +30,7 @@ from simulators.vehicle import WheelGeometry
 
 # part numbers (label = LABEL_WHEEL + 40 * wheel index + part)
 FLANGE, BARREL, SPOKE, RING, HUB, HUB_SIDE, LUG, CALIPER, DISC, CAVITY, INNER = range(11)
+TYRE_TEXT = 13
 N_OUTER = 4  # segments of the tyre's outer sidewall profile
 TYRE = 12  # one label for the whole tyre (its shading is smooth across profile segments)
 
@@ -317,11 +318,31 @@ def trace_wheel(o: np.ndarray, d: np.ndarray, idx: np.ndarray, hits: Hits, light
         normal_w[m] = nrw[:, :1] * er[m] + nrw[:, 1:] * axis
         albedo[m] = g.tyre_albedo
         spec[m] = 0.04
+        # raised lettering on the outer sidewall: lighter rubber blocks in two arcs
+        text = m.copy()
+        text[m] = _lettering(np.arctan2(pw[m, 1], pw[m, 0]), r[m], a[m], g)
+        albedo[text] = np.minimum(2.4 * g.tyre_albedo, 0.45)
+        label_part[text] = TYRE_TEXT
     normal_w /= np.linalg.norm(normal_w, axis=1, keepdims=True)
     normals = rowmat(normal_w, R.T)
     dirs = d[idx[sel]]
     value = shade(albedo, normals, dirs, lighting, specular=spec)
     hits.store(idx[sel], t, LABEL_WHEEL + 40 * wheel_index + label_part, value)
+
+
+def _lettering(theta: np.ndarray, r: np.ndarray, seg: np.ndarray, g: WheelGeometry) -> np.ndarray:
+    """(N,) bool: the tyre point at angle theta, radius r (outer sidewall: seg < N_OUTER) is a letter."""
+    S = g.tyre_radius_m - g.rim_radius_m
+    r_a, r_b = g.rim_radius_m + 0.4 * S, g.rim_radius_m + 0.62 * S
+    cell = 0.022 / ((r_a + r_b) / 2)                  # ~22 mm per character
+    j = np.floor(theta / cell)
+    frac = theta / cell - j
+    phase = np.mod(theta, np.pi)                      # the brand name twice round the tyre
+    in_arc = phase < 0.55
+    h = np.abs(np.modf(np.sin(j * 12.9898 + 78.233) * 43758.5453)[0])
+    rr = (r - r_a) / (r_b - r_a)
+    glyph = (frac > 0.12) & (frac < 0.82) & ((h > 0.55) | (np.abs(rr - 0.5) < 0.12) | (rr < 0.18 + 0.3 * h))
+    return (seg < N_OUTER) & (r > r_a) & (r < r_b) & in_arc & (h > 0.12) & glyph
 
 
 def wheel_outline_points(center: np.ndarray, R_station_wheel: np.ndarray, g: WheelGeometry,

@@ -133,6 +133,10 @@ def trace_floor(o: np.ndarray, d: np.ndarray, idx: np.ndarray, hits: Hits, light
         t = (floor_z - o[2]) / dz
     keep = (dz < 0) & (t > 0)
     idx, t = idx[keep], t[keep]
+    px = o[0] + t * d[idx, 0]
+    py = o[1] + t * d[idx, 1]
+    inside = (np.abs(px) < ROOM_HALF_X_M) & (np.abs(py) < ROOM_HALF_Y_M)  # the floor ends at the walls
+    idx, t = idx[inside], t[inside]
     win = hits.take(idx, t)
     idx, t = idx[win], t[win]
     if idx.size == 0:

@@ -1,0 +1,118 @@
+"""A plain vehicle body around the wheels: a box with wheel arches, and the floor's shadows.
+
+The body makes the images look like a car on a lift rather than four loose wheels: the fender
+panel and its arch edge (a circle not concentric with the rim) sit above each wheel, the
+far wheels hide behind the body, the floor under the car is in shadow. Box in the vehicle
+frame (see simulators/vehicle.py): x across, y forward, z up. Arrays: rays (N,3), station frame.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from simulators.scene import Lighting
+from simulators.shading import LABEL_BODY, Hits, rowmat, shade
+from simulators.vehicle import WHEELS, Vehicle
+
+SILL_Z_M = 0.20          # lowest edge of the body panel (ground clearance)
+ROOF_Z_M = 1.45
+FRONT_OVERHANG_M = 0.85
+REAR_OVERHANG_M = 0.95
+ARCH_CLEARANCE_M = 0.045  # arch radius = tyre radius + this
+WELL_DEPTH_M = 0.38       # the wheel-well liner behind the arch opening
+PANEL, WELL, END, UNDER, CREASE, SILL = range(6)
+
+
+def body_box(vehicle: Vehicle) -> tuple[np.ndarray, np.ndarray]:
+    """(lo (3,), hi (3,)) corners of the body box in the vehicle frame (m)."""
+    g = vehicle.wheel
+    half_x = max(vehicle.track_front_m, vehicle.track_rear_m) / 2 + g.sidewall_bulge_m + 0.045
+    lo = np.array([-half_x, -vehicle.wheelbase_m / 2 - REAR_OVERHANG_M, SILL_Z_M])
+    hi = np.array([half_x, vehicle.wheelbase_m / 2 + FRONT_OVERHANG_M, ROOF_Z_M])
+    return lo, hi
+
+
+def paint_albedo(vehicle: Vehicle) -> float:
+    """Body colour as a grey level, varied between vehicles (hash of the geometry)."""
+    h = abs(np.modf(np.sin(vehicle.wheelbase_m * 97.1 + vehicle.wheel.tyre_radius_m * 53.3) * 43758.5453)[0])
+    return float(0.12 + 0.7 * h)
+
+
+def trace_body(o: np.ndarray, d: np.ndarray, idx: np.ndarray, hits: Hits, lighting: Lighting,
+               vehicle: Vehicle) -> None:
+    """Intersect rays d[idx] with the body box (slab method) minus the wheel arches."""
+    if idx.size == 0:
+        return
+    Rv = vehicle.R_station_vehicle
+    offset = np.array([vehicle.position_m[0], vehicle.position_m[1], 0.0])
+    ov = Rv.T @ (o - offset)
+    dv = rowmat(d[idx], Rv)
+    lo, hi = body_box(vehicle)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = 1.0 / dv
+        t_lo = (lo - ov) * inv
+        t_hi = (hi - ov) * inv
+    t_near = np.minimum(t_lo, t_hi)
+    t_far = np.maximum(t_lo, t_hi)
+    t_near = np.where(np.isnan(t_near), -np.inf, t_near)
+    t_far = np.where(np.isnan(t_far), np.inf, t_far)
+    axis = np.argmax(t_near, axis=1)
+    t_in = t_near[np.arange(len(idx)), axis]
+    t_out = t_far.min(axis=1)
+    hit = (t_in < t_out) & (t_in > 1e-6) & (t_in < hits.t[idx])
+    sel = np.nonzero(hit)[0]
+    if sel.size == 0:
+        return
+    t = t_in[sel]
+    ax = axis[sel]
+    p = ov + t[:, None] * dv[sel]
+    part = np.where(ax == 0, PANEL, np.where(ax == 1, END, UNDER))
+    # wheel arches: openings in the side panels, the dark well liner behind them
+    side = ax == 0
+    in_arch = np.zeros(len(sel), bool)
+    for name in WHEELS:
+        c = vehicle.wheel_center_vehicle(name)
+        r_arch = vehicle.wheel.tyre_radius_m + ARCH_CLEARANCE_M
+        in_arch |= side & (np.sign(p[:, 0]) == np.sign(c[0])) & (
+            (p[:, 1] - c[1]) ** 2 + (p[:, 2] - c[2] - 0.03) ** 2 < r_arch ** 2)
+    well_t = t + WELL_DEPTH_M / np.maximum(np.abs(dv[sel, 0]), 1e-9)
+    t = np.where(in_arch, well_t, t)
+    part = np.where(in_arch, WELL, part)
+    panel = part == PANEL
+    part = np.where(panel & (np.abs(p[:, 2] - 0.78) < 0.012), CREASE, part)
+    part = np.where(panel & (p[:, 2] < 0.30), SILL, part)
+    nearer = t < hits.t[idx[sel]]
+    sel, t, part, ax, p = sel[nearer], t[nearer], part[nearer], ax[nearer], p[nearer]
+    normals_v = np.zeros((len(sel), 3))
+    normals_v[np.arange(len(sel)), ax] = 1.0
+    normals = rowmat(normals_v, Rv.T)
+    paint = paint_albedo(vehicle)
+    albedo = np.select([part == WELL, part == SILL, part == CREASE, part == UNDER],
+                       [0.035, 0.06, paint * 0.55, 0.05], paint)
+    spec = np.where((part == PANEL) | (part == END), 0.35, 0.0)
+    value = shade(albedo, normals, d[idx[sel]], lighting, specular=spec, shininess=40.0)
+    hits.store(idx[sel], t, LABEL_BODY + part, value)
+
+
+def floor_shadow(vehicle: Vehicle):
+    """f(points (N,3) station) -> (N,) float32 light factor on the floor: the car's shadow."""
+    Rv = vehicle.R_station_vehicle
+    offset = np.array([vehicle.position_m[0], vehicle.position_m[1], 0.0])
+    lo, hi = body_box(vehicle)
+    contacts = np.array([vehicle.wheel_center_vehicle(w)[:2] for w in WHEELS])
+    g = vehicle.wheel
+
+    def factor(p: np.ndarray) -> np.ndarray:
+        q = rowmat(p - offset, Rv)
+        # soft-edged box shadow under the body: 0.45 of the light inside, 1 far outside
+        dx = np.maximum(np.abs(q[:, 0]) - hi[0], 0.0)
+        dy = np.maximum(np.maximum(lo[1] - q[:, 1], q[:, 1] - hi[1]), 0.0)
+        out = np.hypot(dx, dy)
+        f = 1.0 - 0.55 * np.exp(-(out / 0.12) ** 2)
+        # contact shadows: dark where the tyre meets the runway
+        for c in contacts:
+            r2 = ((q[:, 0] - c[0]) / (0.6 * g.tyre_width_m)) ** 2 + ((q[:, 1] - c[1]) / (0.35 * g.tyre_radius_m)) ** 2
+            f = f * (1.0 - 0.75 * np.exp(-r2))
+        return f.astype(np.float32)
+
+    return factor
