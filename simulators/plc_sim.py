@@ -240,6 +240,8 @@ def main(argv=None) -> int:
     ap.add_argument("--dry-run-check", action="store_true",
                     help="also check the angles against `station serve --dry-run`'s synthetic results")
     ap.add_argument("--fail-every", type=int, default=10, help="the dry run's --fail-every")
+    ap.add_argument("--poll-s", type=float, default=0.005,
+                    help="pause between state polls while the station is busy (s; 0: none)")
     ap.add_argument("--quiet", action="store_true", help="print only the summary")
     args = ap.parse_args(argv)
     try:
@@ -247,7 +249,7 @@ def main(argv=None) -> int:
     except ModbusFailure as e:
         print(f"plc_sim: {e}", file=sys.stderr)
         return 2
-    sim = PlcSimulator(client, device_id=args.device_id)
+    sim = PlcSimulator(client, device_id=args.device_id, poll_s=args.poll_s)
     expect = dry_run_expectation(args.fail_every) if args.dry_run_check else None
     print(f"PLC simulator: {args.cycles} cycles on {where}, device id {args.device_id}")
     if not args.quiet:
