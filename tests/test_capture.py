@@ -187,7 +187,7 @@ def test_station_capture_and_cameras_commands(tmp_path, capsys):
     assert main(["--config", str(config.path), "capture", "--out", str(out), "--timeout", "60"]) == 0
     meta = json.loads((out / "cycle.json").read_text())
     assert meta["complete"] and set(meta["cameras"]) == set(IDS) and (out / "truth.json").exists()
-    assert "captured 8 frames" in capsys.readouterr().out
+    assert "captured 8 frames in" in capsys.readouterr().out
     # the same --out again: refused, nothing overwritten
     assert main(["--config", str(config.path), "capture", "--out", str(out)]) == 2
     assert "already exists" in capsys.readouterr().err

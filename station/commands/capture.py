@@ -14,6 +14,7 @@ def add_arguments(parser):
 
 
 def run(args) -> int:
+    import time
     from pathlib import Path
 
     from drivers.registry import build_context
@@ -38,6 +39,7 @@ def run(args) -> int:
             from drivers.trigger_board import TriggerBoard
             board = TriggerBoard(port, config.trigger_board.baudrate).open()
         truth = context["truth"]() if "truth" in context else None
+        t0 = time.monotonic()
         try:
             frames, path = capture_and_save(cameras, timeout, out, trigger_board=board, truth=truth,
                                             extra={"station": config.name})
@@ -50,6 +52,7 @@ def run(args) -> int:
             board.close()
         close_cameras(cameras)
         context.get("close", lambda: None)()
-    lat = [f.metadata.get("latency_ms", 0.0) for f in frames.values()]
-    print(f"captured {len(frames)} frames in {max(lat):.0f} ms (trigger to last frame) -> {path}")
+    stamps = [f.timestamp_ns for f in frames.values()]
+    print(f"captured {len(frames)} frames in {time.monotonic() - t0:.2f} s, frame timestamps within "
+          f"{(max(stamps) - min(stamps)) / 1e6:.1f} ms -> {path}")
     return 0
