@@ -128,6 +128,8 @@ class CycleRecorder:
         self.error: StorageError | None = None
         self.warnings: list[str] = []
         self.bytes_written = 0
+        self._result_events: set[tuple[str, str]] = set()  # (level, text) of the result's warnings
+        self._sequencer_events: set[tuple[str, str]] = set()
         self._closed = False
         self._file = None
         self._part = self.path.with_name(f".{self.path.name}.{os.getpid()}.part")
@@ -289,24 +291,36 @@ class CycleRecorder:
                 self._log(f"/angles/{name}", rr.Scalars(value))
         else:
             failure = result.get("failure") or {}
-            self._log("/events", rr.TextLog(f"cycle failed: {failure.get('code')} {failure.get('message')}",
-                                            level="ERROR"))
+            self._result_event(str(failure.get("message") or f"cycle failed (error {failure.get('code')})"), "ERROR")
         passes = result.get("pass") or {}
         if passes:
             bad = [k for k, v in passes.items() if k != "overall" and v is False]
             text = "PASS" if passes.get("overall") else "FAIL" + (f": {', '.join(bad)}" if bad else "")
             self._log("/events", rr.TextLog(text, level="INFO" if passes.get("overall") else "WARN"))
         for w in result.get("warnings") or []:
-            self._log("/events", rr.TextLog(str(w), level="WARN"))
+            self._result_event(str(w), "WARN")
         self._log("/result", rr.TextDocument(json.dumps(jsonable(result), indent=1), media_type="text/plain"))
 
+    def _result_event(self, text: str, level: str) -> None:
+        """A warning or failure of the result: logged once even if also sent through log_event."""
+        if (level, text) not in self._result_events and (level, text) not in self._sequencer_events:
+            self._result_events.add((level, text))
+            self._log("/events", rr.TextLog(text, level=level))
+
     def log_event(self, text: str, level: str = "INFO") -> None:
-        """One sequencer event, stamped with the current time on the ``time`` timeline."""
+        """One sequencer event, stamped with the current time on the ``time`` timeline.
+
+        A warning or error identical to one the result already logged is not repeated.
+        """
         level = level.upper()
         if level == "WARNING":
             level = "WARN"
         if level not in _LEVELS:
             level = "INFO"
+        if (level, str(text)) in self._result_events:
+            return
+        if level in ("WARN", "ERROR"):
+            self._sequencer_events.add((level, str(text)))
         for rec in self._recs:
             rec.set_time("time", timestamp=time.time())
         self._log("/events", rr.TextLog(str(text), level=level))
