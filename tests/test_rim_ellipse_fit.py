@@ -45,7 +45,7 @@ def test_orthogonal_distance_matches_brute_force():
     for i in range(0, len(pts), 20):
         dd = ((pts[i:i + 20, None, :] - dense[None]) ** 2).sum(-1)
         mins[i:i + 20] = np.sqrt(dd.min(1))
-    np.testing.assert_allclose(np.abs(d), mins, atol=2e-4)
+    np.testing.assert_allclose(np.abs(d), mins, atol=2e-3)  # the dense polyline is 0.016 px coarse
     np.testing.assert_allclose(d, off, atol=1e-9)  # offset along the normal is the distance
 
 

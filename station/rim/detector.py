@@ -26,7 +26,7 @@ from station.errors import RimNotFound
 from station.rim import edges as edges_mod
 from station.rim import hough
 from station.rim.ellipse import Ellipse
-from station.rim.ellipse_fit import fit_geometric
+from station.rim.ellipse_fit import fit_geometric, ransac_ellipse
 from station.rim.preprocess import PixelMap, detection_scale, downscale, equalize, to_grey
 from station.rim.subpixel import edge_points
 
@@ -223,17 +223,57 @@ def _choose(sc: _Scene, cands: list[hough.Candidate], tag: str) -> tuple[hough.C
     return best["cand"], info
 
 
-def _refine(grey: np.ndarray, e_full: Ellipse, pmap: PixelMap, passes=((6.0, "peak"), (3.5, "erf"))):
+PASSES = (((-6.0, 6.0), "erf"), ((-3.0, 4.5), "kink"))
+PRIOR_PASSES = (((-10.0, 10.0), "peak"), ((-5.0, 5.0), "erf"), ((-3.0, 4.5), "kink"))
+
+
+def _consensus_threshold(d: np.ndarray) -> float:
+    """RANSAC threshold (px) from the points' own noise: 3 sigma, sigma from the second
+    differences of the offsets d (N,) of neighbouring points along the curve (any smooth
+    model error cancels), so that a compromise between two concentric edges, which passes
+    within a pixel or so of both, does not win the consensus."""
+    dd = np.diff(d, 2)
+    sigma = 1.4826 * np.median(np.abs(dd - np.median(dd))) / np.sqrt(6.0)
+    return float(np.clip(3.0 * sigma, 0.25, 1.5))
+
+
+def _outer_mode(d: np.ndarray, window: tuple[float, float], bin_px: float = 0.5, min_frac: float = 0.2) -> np.ndarray:
+    """(N,) bool: the points near the outermost well-supported mode of their signed offsets d
+    (N,) from the current ellipse. Where the rounded lip is shaded as dark as the tyre the
+    strongest bright-inside edge along a normal is the lip's inner edge, a concentric curve a
+    flange-width inside; the flange edge is the outermost metal edge before the tyre."""
+    edges = np.arange(window[0], window[1] + bin_px, bin_px)
+    hist = np.histogram(d, edges)[0].astype(float)
+    support = np.convolve(hist, np.ones(7), mode="same")  # +/- 1.5 px
+    centres = 0.5 * (edges[:-1] + edges[1:])
+    peaks = np.nonzero((support >= np.roll(support, 1)) & (support >= np.roll(support, -1))
+                       & (support >= min_frac * len(d)))[0]
+    if len(peaks) == 0:
+        return np.abs(d - np.median(d)) < 2.0
+    j = peaks.max()
+    sel = np.abs(d - centres[j]) < 2.0
+    return sel
+
+
+def _refine(grey: np.ndarray, e_full: Ellipse, pmap: PixelMap, passes=PASSES):
     """Sub-pixel points and geometric fit, once per (half-width, method) pass.
     Returns (fit, samples, inlier mask)."""
     fit = samples = None
     e = e_full
-    for hw, method in passes:
-        samples = edge_points(grey, e, pmap, half_width_px=hw, method=method)
+    for window, method in passes:
+        samples = edge_points(grey, e, pmap, window_px=window, method=method)
         ok = samples.ok
         if ok.sum() < MIN_POINTS:
             return None, samples, ok
         ideal = pmap.undistort(samples.points_px[ok])
+        if method in ("peak", "erf"):  # one curve, not a compromise between concentric edges
+            keep = ransac_ellipse(ideal, threshold_px=_consensus_threshold(e.distance(ideal)[0]), seed=len(ideal))
+            if keep is None:
+                return None, samples, ok
+            ok[np.nonzero(ok)[0][~keep]] = False
+            ideal = ideal[keep]
+            if len(ideal) < MIN_POINTS:
+                return None, samples, ok
         try:
             fit = fit_geometric(ideal, init=e)
         except (ValueError, np.linalg.LinAlgError):
@@ -257,7 +297,7 @@ def detect_rim(image: np.ndarray, *, camera=None, prior: Ellipse | None = None, 
     fit = None
     info: dict = {}
     if prior is not None:  # fast path: refine straight from the prior, fall back to the search
-        fit, samples, mask = _refine(grey, prior, pmap, passes=((10.0, "peak"), (5.0, "peak"), (3.5, "erf")))
+        fit, samples, mask = _refine(grey, prior, pmap, passes=PRIOR_PASSES)
         if fit is not None and (np.linalg.norm(fit.ellipse.center_px - prior.center_px) > 0.15 * prior.axes_px[0]
                                 or abs(fit.ellipse.axes_px[0] / prior.axes_px[0] - 1) > 0.15
                                 or _coverage(samples, mask) < 0.8):

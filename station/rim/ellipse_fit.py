@@ -133,3 +133,43 @@ def fit_geometric(pts: np.ndarray, init: Ellipse | None = None, iterations: int 
     factor = COV_CORRELATION_FACTOR if corr is None else corr
     cov = np.linalg.pinv(J.T @ J) * s2 * factor
     return GeometricFit(e, cov, inl, d, rms, it)
+
+
+def _sampson(Q: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """|Sampson distance| of points (x, y) (N,) to conics Q (M,6): (M,N)."""
+    A, B, C, D, E, F = (Q[:, i:i + 1] for i in range(6))
+    f = A * x * x + B * x * y + C * y * y + D * x + E * y + F
+    gx = 2 * A * x + B * y + D
+    gy = B * x + 2 * C * y + E
+    return np.abs(f) / np.sqrt(gx * gx + gy * gy + 1e-30)
+
+
+def ransac_ellipse(pts: np.ndarray, threshold_px: float, iterations: int = 160,
+                   seed: int = 0) -> np.ndarray | None:
+    """(N,) bool inliers of the ellipse with the largest support among 5-point conics.
+
+    Two concentric edges (the flange edge on one arc, the lip's inner edge on another) make a
+    least-squares fit a compromise that matches neither; the consensus of minimal samples
+    picks one curve. Vectorised: all minimal conics and all distances at once. None if no
+    sample gives an ellipse."""
+    pts = np.asarray(pts, float)
+    n = len(pts)
+    if n < 10:
+        return None
+    mean = pts.mean(axis=0)
+    scale = np.sqrt(((pts - mean) ** 2).sum(axis=1).mean()) + 1e-12
+    x, y = ((pts - mean) / scale).T
+    rng = np.random.default_rng(seed)
+    idx = np.argsort(rng.random((iterations, n)), axis=1)[:, :5] if n < 2000 else rng.integers(0, n, (iterations, 5))
+    xs, ys = x[idx], y[idx]
+    M = np.stack([xs * xs, xs * ys, ys * ys, xs, ys, np.ones_like(xs)], axis=2)  # (I,5,6)
+    _, _, Vt = np.linalg.svd(M)
+    Q = Vt[:, -1, :]                                                             # (I,6) null vectors
+    ellipse = Q[:, 1] ** 2 - 4 * Q[:, 0] * Q[:, 2] < 0
+    if not ellipse.any():
+        return None
+    Q = Q[ellipse]
+    d = _sampson(Q, x, y) * scale
+    support = (d < threshold_px).sum(axis=1)
+    best = int(np.argmax(support))
+    return d[best] < threshold_px

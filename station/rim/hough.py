@@ -33,6 +33,7 @@ import numpy as np
 
 from station.rim.edges import EdgeSet
 from station.rim.ellipse import Ellipse
+from station.rim.ellipse_fit import ransac_ellipse
 
 N_DIR_BINS = 64             # gradient-direction bins for pairing (5.6 degrees)
 MIN_CHORD_COS = 0.77        # chord within 40 degrees of the gradient (b/a >= 0.5)
@@ -233,21 +234,29 @@ def find_candidates(edges: EdgeSet, r_min: float, r_max: float, max_centres: int
 
 
 def _refine(e0: Ellipse, edges: EdgeSet, height: float) -> Candidate | None:
-    """Algebraic refit of a voted ellipse to its own polarity-consistent inliers (twice)."""
+    """Fit a voted ellipse to its own polarity-consistent edge pixels: consensus (RANSAC) on a
+    wide band first, so that two concentric contours (flange edge, lip's inner edge) are not
+    merged into a compromise, then an algebraic fit of the consensus set."""
+    idx = polarity_inliers(e0, edges, max(3.0, 0.05 * e0.axes_px[0]))
+    if len(idx) < 12:
+        return None
+    inl = ransac_ellipse(edges.points[idx], threshold_px=1.0, seed=len(idx))
+    if inl is None or inl.sum() < 12:
+        return None
     e = e0
-    for tol in (max(2.5, 0.02 * e0.axes_px[0]), 1.5):
-        idx = polarity_inliers(e, edges, tol)
-        if len(idx) < 12:
+    for tol in (None, 1.5):
+        sel = idx[inl] if tol is None else polarity_inliers(e, edges, tol)
+        if len(sel) < 12:
             return None
         try:
-            (cx, cy), (d1, d2), ang = cv2.fitEllipseDirect(edges.points[idx].astype(np.float32))
+            (cx, cy), (d1, d2), ang = cv2.fitEllipseDirect(edges.points[sel].astype(np.float32))
         except cv2.error:
             return None
         if not (np.isfinite(d1) and np.isfinite(d2)) or min(d1, d2) <= 0:
             return None
         e_new = Ellipse((cx, cy), (d1 / 2, d2 / 2), np.radians(ang))
-        if np.linalg.norm(e_new.center_px - e.center_px) > 0.3 * e.axes_px[1] or \
-                abs(e_new.axes_px[0] / e.axes_px[0] - 1) > 0.3 or e_new.axes_px[1] / e_new.axes_px[0] < MIN_AXIS_RATIO:
+        if np.linalg.norm(e_new.center_px - e0.center_px) > 0.3 * e0.axes_px[1] or \
+                abs(e_new.axes_px[0] / e0.axes_px[0] - 1) > 0.3 or e_new.axes_px[1] / e_new.axes_px[0] < MIN_AXIS_RATIO:
             return None
         e = e_new
     idx = polarity_inliers(e, edges, 1.5)

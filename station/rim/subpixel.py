@@ -25,6 +25,7 @@ from station.rim.preprocess import PixelMap
 
 SQRT2 = np.sqrt(2.0)
 TWO_OVER_SQRT_PI = 2.0 / np.sqrt(np.pi)
+INTERPOLATION = cv2.INTER_LINEAR
 
 
 @dataclass
@@ -49,7 +50,7 @@ def sample_profiles(grey: np.ndarray, base_px: np.ndarray, normal_px: np.ndarray
     coords = base_px[:, None, :] + s[None, :, None] * normal_px[:, None, :]
     mx = np.ascontiguousarray(coords[..., 0], dtype=np.float32)
     my = np.ascontiguousarray(coords[..., 1], dtype=np.float32)
-    return cv2.remap(grey, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).astype(np.float64)
+    return cv2.remap(grey, mx, my, INTERPOLATION, borderMode=cv2.BORDER_REPLICATE).astype(np.float64)
 
 
 def fit_steps(prof: np.ndarray, s: np.ndarray, polarity: float = -1.0, iterations: int = 8):
@@ -113,14 +114,83 @@ def fit_steps(prof: np.ndarray, s: np.ndarray, polarity: float = -1.0, iteration
     return p, rms, converged
 
 
-def edge_points(grey: np.ndarray, ellipse: Ellipse, pmap: PixelMap | None = None, n: int | None = None,
-                half_width_px: float = 4.0, step_px: float = 0.5, spacing_px: float = 1.5,
-                method: str = "erf") -> EdgeSamples:
-    """Sub-pixel rim points along ``ellipse`` (in ideal pinhole pixels when ``pmap`` has a
-    camera, else image pixels), searched within +/- ``half_width_px`` along the normals.
+def _kink_basis(x: np.ndarray, sigma: float) -> np.ndarray:
+    """(..., S, 4) basis of the blurred step-and-kink at offsets x = s - s0 (..., S):
+    [1, Phi, x, x Phi + sigma phi] for (A, h, B, k) in I = A + h Phi + B x + k (x Phi + sigma phi)."""
+    z = x / sigma
+    Phi = 0.5 * (1 + erf(z / SQRT2))
+    phi = np.exp(-0.5 * z * z) / np.sqrt(2 * np.pi)
+    return np.stack([np.ones_like(x), Phi, x, x * Phi + sigma * phi], axis=-1)
 
-    method: "erf" - the blurred-step fit (final pass); "peak" - the parabolic peak of the
-    profile derivative only (a cheaper first pass from a coarse ellipse)."""
+
+def fit_kinks(prof: np.ndarray, s: np.ndarray, sigma: float, polarity: float = -1.0,
+              grid_step: float = 0.25, margin: float = 1.0):
+    """Locate the edge in each profile (N,S) by a blurred step-and-kink model.
+
+    The profile is one straight line on the metal side and another on the tyre side, meeting
+    at ``s0`` with a jump ``h``, blurred by a Gaussian of ``sigma`` (the image's PSF with the
+    pixel box): I(s) = A + h Phi(x/sigma) + B x + k (x Phi + sigma phi), x = s - s0.
+    Unlike a plain step it stays unbiased when the rim's rounded lip is shaded as a ramp up to
+    the edge, and it locates the edge even when the jump is small. The four linear
+    coefficients are eliminated (variable projection); s0 is searched on a grid over the
+    window, then refined by two parabolic steps. Only jumps of the given polarity count.
+
+    Returns s0 (N,), h (N,), residual rms (N,), ok (N,) bool.
+    """
+    n, S = prof.shape
+    grid = np.arange(s[0] + margin, s[-1] - margin + 1e-9, grid_step)
+    B = _kink_basis(s[None, :] - grid[:, None], sigma)             # (G,S,4)
+    Q, R = np.linalg.qr(B)                                           # (G,S,4), (G,4,4)
+    proj = np.einsum("ns,gsk->ngk", prof, Q)                         # (N,G,4)
+    ss = (prof * prof).sum(axis=1)
+    res = ss[:, None] - (proj * proj).sum(axis=2)                    # (N,G) residual sum of squares
+    coef = np.linalg.solve(R[None], proj[..., None])[..., 0]         # (N,G,4)
+    res = np.where(coef[:, :, 1] * polarity > 0, res, np.inf)
+    g = np.argmin(res, axis=1)
+    ok = np.isfinite(res[np.arange(n), g])
+    g = np.clip(g, 1, len(grid) - 2)
+    r = np.arange(n)
+    y0, y1, y2 = res[r, g - 1], res[r, g], res[r, g + 1]
+    s0 = grid[g] + _parabola(y0, y1, y2) * grid_step
+    for step in (0.06, 0.015):  # refine with per-profile bases around the current estimate
+        cand = s0[:, None] + np.array([-step, 0.0, step])[None, :]          # (N,3)
+        Bc = _kink_basis(s[None, None, :] - cand[:, :, None], sigma)      # (N,3,S,4)
+        Bt = np.swapaxes(Bc, 2, 3)
+        c = np.linalg.solve(Bt @ Bc + 1e-9 * np.eye(4), Bt @ prof[:, None, :, None])  # (N,3,4,1)
+        rr = ((prof[:, None, :] - (Bc @ c)[..., 0]) ** 2).sum(axis=2)   # (N,3)
+        s0 = s0 + _parabola(rr[:, 0], rr[:, 1], rr[:, 2]) * step
+        h = c[:, 1, 1, 0]
+        rms = np.sqrt(np.maximum(rr[:, 1], 0) / S)
+    ok &= (np.abs(s0) <= s[-1] - margin) & (s0 >= s[0] + margin) & (h * polarity > 0) & np.isfinite(s0)
+    return s0, h, rms, ok
+
+
+def _parabola(y0, y1, y2):
+    """Vertex offset (in grid steps, clipped to +/-1) of the parabola through three values."""
+    den = y0 - 2 * y1 + y2
+    off = np.where(den > 1e-12, 0.5 * (y0 - y2) / np.where(den > 1e-12, den, 1.0), 0.0)
+    return np.clip(off, -1, 1)
+
+
+def estimate_blur(prof: np.ndarray, s: np.ndarray, polarity: float = -1.0) -> float:
+    """The image's effective edge blur sigma (px), from the sharpest-contrast profiles (N,S):
+    the sigma of the step-and-kink model with the least total residual."""
+    sigmas = np.array([0.5, 0.65, 0.8, 1.0, 1.25, 1.55, 1.9, 2.4])
+    total = np.array([np.sum(np.minimum(fit_kinks(prof, s, sg, polarity)[2], 50.0) ** 2) for sg in sigmas])
+    j = int(np.clip(np.argmin(total), 1, len(sigmas) - 2))
+    off = _parabola(total[j - 1], total[j], total[j + 1])
+    return float(np.interp(j + off, np.arange(len(sigmas)), sigmas))
+
+
+def edge_points(grey: np.ndarray, ellipse: Ellipse, pmap: PixelMap | None = None, n: int | None = None,
+                window_px: tuple[float, float] = (-4.0, 4.0), step_px: float = 0.5, spacing_px: float = 1.5,
+                method: str = "kink", sigma: float | None = None) -> EdgeSamples:
+    """Sub-pixel rim points along ``ellipse`` (in ideal pinhole pixels when ``pmap`` has a
+    camera, else image pixels), searched in ``window_px`` (inside, outside) along the normals.
+
+    method: "kink" - the blurred step-and-kink model (final pass; ``sigma`` the image blur,
+    estimated from the profiles when None); "erf" - a blurred step on a sloping background;
+    "peak" - the parabolic peak of the profile derivative (a cheap first pass)."""
     pmap = pmap or PixelMap(None)
     if n is None:
         n = int(np.clip(ellipse.perimeter() / spacing_px, 64, 4096))
@@ -134,31 +204,36 @@ def edge_points(grey: np.ndarray, ellipse: Ellipse, pmap: PixelMap | None = None
         tip = pmap.distort(p_ideal + n_ideal)
         nrm = tip - base
         nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
-    s = np.arange(-half_width_px, half_width_px + step_px / 2, step_px)
+    s = np.arange(window_px[0], window_px[1] + step_px / 2, step_px)
     h, w = grey.shape
-    ends = [base + s[0] * nrm, base + s[-1] * nrm]
-    inside = np.ones(n, bool)
-    for e in ends:
+    inside = np.isfinite(base).all(axis=1)
+    for e in (base + s[0] * nrm, base + s[-1] * nrm):
         inside &= (e[:, 0] >= 0) & (e[:, 0] <= w - 1) & (e[:, 1] >= 0) & (e[:, 1] <= h - 1)
-    inside &= np.isfinite(base).all(axis=1)
     pts = np.full((n, 2), np.nan)
     contrast = np.zeros(n)
     width = np.zeros(n)
     rms = np.full(n, np.inf)
     ok = np.zeros(n, bool)
-    if inside.any():
-        prof = sample_profiles(grey, base[inside], nrm[inside], s)
+    idx = np.nonzero(inside)[0]
+    if len(idx):
+        prof = sample_profiles(grey, base[idx], nrm[idx], s)
         p, r, conv = fit_steps(prof, s, iterations=8 if method == "erf" else 0)
-        idx = np.nonzero(inside)[0]
-        pts[idx] = base[inside] + p[:, 3:4] * nrm[inside]
+        if method == "kink":
+            if sigma is None:
+                strong = np.argsort(-np.abs(p[:, 2]) + np.where(conv, 0, 1e9))[:min(200, len(idx))]
+                sigma = estimate_blur(prof[strong], s)
+            s0, hh, r, conv = fit_kinks(prof, s, sigma)
+            p[:, 3], p[:, 2], p[:, 4] = s0, hh / 2, sigma
+        pts[idx] = base[idx] + p[:, 3:4] * nrm[idx]
         contrast[idx] = np.abs(2 * p[:, 2])
         width[idx] = p[:, 4]
         rms[idx] = r
         ok[idx] = conv
-    # reject weak or badly fitting steps relative to the typical profile of this ellipse
+    # reject weak or badly fitting edges relative to the typical profile of this ellipse
     if ok.sum() >= 8:
         c_med = np.median(contrast[ok])
         r_med = np.median(rms[ok])
         w_med = np.median(width[ok])
-        ok &= (contrast > 0.35 * c_med) & (rms < 3.0 * r_med + 1e-6) & (width < 2.5 * w_med + 0.3) & (width > 0.25)
+        ok &= (contrast > 0.2 * c_med) & (contrast > 4 * r_med) & (rms < 3.0 * r_med + 1e-6) \
+            & (width < 2.5 * w_med + 0.3) & (width > 0.25)
     return EdgeSamples(pts, t, contrast, width, rms, ok)
