@@ -58,6 +58,7 @@ class PairResult:
     bundle: BundleResult
     cameras: dict = field(default_factory=dict)   # cam id -> CameraCalibration
     linear_fixture: dict = field(default_factory=dict)  # cam id -> (R, t) of the paper's closed form
+    linear_K: dict = field(default_factory=dict)        # cam id -> median K of the paper's closed form
 
 
 def _usable(det: BoxDetection | None) -> bool:
@@ -172,7 +173,8 @@ def calibrate_pair(wheel: str, left: str, right: str, sizes: dict, intrinsic_det
     prob = BundleProblem([intrinsics_vector(intr[c].K, intr[c].dist) for c in (left, right)], cam_rvec, cam_C,
                          view_rvec, view_t, obs, free_view=used & (np.arange(n_views + 1) != fixture_view))
     res = prob.solve()
-    result = PairResult(wheel, left, right, res, linear_fixture=pose0)
+    result = PairResult(wheel, left, right, res, linear_fixture=pose0,
+                        linear_K={c: np.median(np.array(intr[c].linear_K), axis=0) for c in (left, right)})
     for c, cam in enumerate((left, right)):
         w, h = sizes[cam]
         model = CameraModel(cam, w, h, res.K(c), res.dist(c), res.R_cam_station(c), res.t_cam_station(c))
