@@ -1,0 +1,76 @@
+"""`station calibrate` / `station box-print` at the command line: bad input gives one clear
+message, a non-zero exit, and never overwrites a saved calibration."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from station import cli
+
+CONFIG = Path(__file__).resolve().parent.parent / "config" / "station.yaml"
+
+
+def _config_copy(tmp_path, edit=None) -> Path:
+    raw = yaml.safe_load(CONFIG.read_text())
+    raw["data_dir"] = str(tmp_path / "var")
+    raw["vehicle_specs"] = str(CONFIG.parent / raw.get("vehicle_specs", "vehicles.yaml"))
+    raw["calibration"]["box"] = str(CONFIG.parent / raw["calibration"].get("box", "box.yaml"))
+    if edit:
+        edit(raw)
+    path = tmp_path / "station.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    return path
+
+
+def test_box_not_seen_refuses_and_keeps_the_saved_file(tmp_path, monkeypatch, capsys):
+    from simulators import world as world_mod
+    monkeypatch.setattr(world_mod.SimWorld, "render",
+                        lambda self, cam_id, rng=None, scene=None: np.full((1024, 1280), 90, np.uint8))
+    cfg = _config_copy(tmp_path)
+    saved = tmp_path / "var" / "calibration" / "station.calib.json"
+    saved.parent.mkdir(parents=True)
+    saved.write_text("previous good calibration")
+    rc = cli.main(["--config", str(cfg), "calibrate", "--poses", "3"])
+    err = capsys.readouterr().err
+    assert rc != 0
+    assert "cam3" in err and "found in only 0 of 3" in err and "Traceback" not in err
+    assert saved.read_text() == "previous good calibration"
+
+
+def test_nine_cameras_are_refused_with_a_clear_message(tmp_path, capsys):
+    def add(raw):
+        raw["cameras"]["cam9"] = dict(raw["cameras"]["cam1"], uri="sim://cam9")
+    rc = cli.main(["--config", str(_config_copy(tmp_path, add)), "calibrate"])
+    err = capsys.readouterr().err
+    assert rc != 0 and "exactly 8 cameras" in err and "cam9" in err
+
+
+def test_too_few_poses_refused(tmp_path, capsys):
+    rc = cli.main(["--config", str(_config_copy(tmp_path)), "calibrate", "--poses", "2"])
+    assert rc != 0 and "at least 3" in capsys.readouterr().err
+
+
+def test_box_print_writes_true_scale_faces(tmp_path, capsys):
+    import cv2
+    rc = cli.main(["box-print", "--out", str(tmp_path / "print"), "--dpi", "100"])
+    assert rc == 0
+    img = cv2.imread(str(tmp_path / "print" / "box-px.png"), cv2.IMREAD_GRAYSCALE)
+    # 0.50 x 0.60 m at 100 dpi
+    assert abs(img.shape[1] - 0.5 / 0.0254 * 100) <= 1 and abs(img.shape[0] - 0.6 / 0.0254 * 100) <= 1
+    data = (tmp_path / "print" / "box-px.png").read_bytes()
+    assert b"pHYs" in data[:64]
+    from calibration.box_detect import BoxDetector
+    from calibration.box_target import load_box
+    box = load_box(CONFIG.parent / "box.yaml")
+    padded = cv2.copyMakeBorder(img, 30, 30, 30, 30, cv2.BORDER_CONSTANT, value=255)
+    det = BoxDetector(box).detect(padded)
+    assert det.faces.get("px", 0) == 11 * 13
+
+
+def test_box_print_bad_dpi(tmp_path, capsys):
+    assert cli.main(["box-print", "--out", str(tmp_path), "--dpi", "5"]) != 0
+    assert "--dpi" in capsys.readouterr().err
