@@ -100,7 +100,11 @@ def build_report(job_id: str, results: list[dict], spec: VehicleSpec | None = No
     def meta(r: dict) -> str:
         return (f"{e(str(r.get('time_utc', '')))} &middot; cycle {e(str(r.get('cycle_id', '')))}")
 
-    warnings = [w for r in (before, after) for w in (r.get("warnings") or [])]
+    warnings = []  # (which cycle, text), each text once
+    for which, r in ((("before", before), ("after", after)) if not same else (("", after),)):
+        for w in r.get("warnings") or []:
+            if str(w) not in {t for _, t in warnings}:
+                warnings.append((which, str(w)))
     failed = [r for r in results if not r.get("valid")]
     drawings = ("" if same else top_view_svg(xb, vb, "Before")) + top_view_svg(xa, va, "After" if not same else "Measured")
     cycles = "".join(
@@ -132,7 +136,7 @@ line to the right. Front toe is measured against the geometric centreline. Colou
 <span class="none">&nbsp;no figure in the spec&nbsp;</span>.</p>
 <h2>Top view</h2>
 <div class="drawings">{drawings}</div>
-{'<h2>Warnings</h2><ul>' + ''.join(f'<li class="warn">{e(str(w))}</li>' for w in warnings) + '</ul>' if warnings else ''}
+{'<h2>Warnings</h2><ul>' + ''.join(f'<li class="warn">{e(which + ": ") if which else ""}{e(w)}</li>' for which, w in warnings) + '</ul>' if warnings else ''}
 <h2>Cycles of this job</h2>
 <table><tr><th>cycle</th><th>time (UTC)</th><th>state</th></tr>{cycles}</table>
 {f'<p class="warn">{len(failed)} cycle(s) of this job failed and are not used above.</p>' if failed else ''}

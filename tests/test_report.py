@@ -106,3 +106,19 @@ def test_chromium_renders_pdf_and_png(tmp_path):
     reds = ((img[:, :, 2] > 180) & (img[:, :, 1] < 120) & (img[:, :, 0] < 120)).sum()
     greens = ((img[:, :, 1] > 110) & (img[:, :, 2] < 80) & (img[:, :, 0] < 100)).sum()
     assert reds > 200 and greens > 200
+
+
+def test_off_scale_angles_are_clamped_and_dashed():
+    svg = top_view_svg({"FL.toe": 80.0, "FR.toe": 0.1, "RL.camber": -30.0}, {}, "t")
+    rots = [float(x) for x in re.findall(r"rotate\(([-0-9.]+)\)", svg)]
+    assert max(abs(r) for r in rots) == pytest.approx(25.0)
+    assert svg.count('stroke-dasharray="5 3"') == 1 and svg.count('stroke-dasharray="4 2"') == 1
+    assert "toe +80.00\u00b0" in svg  # the true number is still printed
+
+
+def test_warnings_listed_once_with_their_cycle():
+    results = job_results()
+    results[0]["warnings"] = ["pair FR drift", "glare on cam3"]
+    results[-1]["warnings"] = ["pair FR drift"]
+    html = build_report("J", results, CARAVAN)
+    assert html.count("pair FR drift") == 1 and "before: glare on cam3" in html

@@ -60,14 +60,14 @@ def run(args) -> int:
         return 0
     head = ["time (UTC)", "cycle", "job", "vehicle", "result",
             "FL toe", "FR toe", "RL toe", "RR toe", "FL cmb", "FR cmb", "RL cmb", "RR cmb", "thrust"]
-    print(f"{head[0]:<20} {head[1]:<22} {head[2]:<18} {head[3]:<20} {head[4]:<6} " + " ".join(f"{h:>7}" for h in head[5:]))
+    print(f"{head[0]:<20} {head[1]:<24} {head[2]:<18} {head[3]:<20} {head[4]:<6} " + " ".join(f"{h:>7}" for h in head[5:]))
     for r in rows:
         a = r["angles"]
         verdict = "FAIL*" if not r["valid"] else {True: "pass", False: "FAIL", None: "-"}[r["passed"]]
         vals = [a["FL.toe"], a["FR.toe"], a["RL.toe"], a["RR.toe"],
                 a["FL.camber"], a["FR.camber"], a["RL.camber"], a["RR.camber"], a["thrust"]]
         job = (r["job_id"] or "-").replace("\n", " ")[:18]
-        print(f"{r['time_utc'][:19]:<20} {r['cycle_id'][:22]:<22} {job:<18} {(r['vehicle_spec'] or '-')[:20]:<20} "
+        print(f"{r['time_utc'][:19]:<20} {r['cycle_id'][:24]:<24} {job:<18} {(r['vehicle_spec'] or '-')[:20]:<20} "
               f"{verdict:<6} " + " ".join(_fmt(v) for v in vals))
     if any(not r["valid"] for r in rows):
         print("FAIL*: the cycle itself failed (no angles); see `station review CYCLE`")
