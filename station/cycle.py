@@ -93,6 +93,16 @@ class Station:
         self.cycle_count += 1
         return result
 
+    def calibration_check(self) -> dict:
+        """A PLC's calibration check: one cycle whose verdict is whether every pair still fits
+        its calibration (the epipolar residual of the rim points within the configured limit)."""
+        result = self.measure(job_id="calibration-check", record=True, store=True)
+        drift = [w for w in result.get("warnings", []) if "epipolar residual" in w]
+        if result["valid"] and drift:
+            from station.errors import CalibrationMismatch
+            raise CalibrationMismatch("; ".join(drift), hint="recalibrate with `station calibrate`")
+        return result
+
     def _base(self, cycle_id, job_id, vehicle_spec) -> dict:
         from calibration.calib_file import software_version
         return {"cycle_id": cycle_id,

@@ -80,6 +80,41 @@ class PlcError(StationError):
     area = "plc"
 
 
+class PlcBusy(PlcError):
+    """A command arrived while a cycle is running; it is refused, not queued."""
+    code = 501
+
+
+class PlcNotAcknowledged(PlcError):
+    """A trigger arrived before the previous cycle's result (or fault) was acknowledged."""
+    code = 502
+
+
+class PlcNothingToAcknowledge(PlcError):
+    """Acknowledge or reset arrived with no finished cycle or fault to clear."""
+    code = 503
+
+
+class PlcUnknownCommand(PlcError):
+    """The command register was written with a value that is not a command."""
+    code = 504
+
+
+class PlcCycleTimeout(PlcError):
+    """The cycle did not finish within the cycle timeout."""
+    code = 505
+
+
+class PlcBadJobId(PlcError):
+    """The job id or vehicle spec registers do not hold printable ASCII."""
+    code = 506
+
+
+class PlcInternal(PlcError):
+    """The station's own cycle reported an event the table does not allow (a late cycle)."""
+    code = 507
+
+
 class StorageError(StationError):
     code = 600
     area = "storage"

@@ -182,24 +182,34 @@ def test_dry_run_is_deterministic_per_job_and_fails_on_purpose():
     assert job_number("WVWZZZ1KZAW000017") == 17 and job_number("ABC") == job_number("ABC")
 
 
-def test_measurement_runner_calls_the_pipeline_with_the_plc_request(monkeypatch):
-    import station.measure
+def test_measurement_runner_keeps_one_station_and_passes_the_plc_request(monkeypatch):
+    import station.cycle
     from station.errors import CalibrationError
     from station.plc.runner import measurement_runner
 
-    calls = []
+    built, calls = [], []
 
-    def fake_run_measurement(config, *, job_id, vehicle_spec, seed):
-        calls.append((config, job_id, vehicle_spec, seed))
-        return {"valid": True}
+    class FakeStation:
+        def __init__(self, config, *, seed=None, progress=None):
+            built.append((config, seed))
 
-    monkeypatch.setattr(station.measure, "run_measurement", fake_run_measurement, raising=False)
-    monkeypatch.delattr(station.measure, "run_calibration_check", raising=False)
-    run = measurement_runner("CONFIG")
+        def measure(self, *, job_id, vehicle_spec):
+            calls.append((job_id, vehicle_spec))
+            if job_id == "BAD-CAL":
+                raise CalibrationError("calibration does not match")
+            return {"valid": True}
+
+        def calibration_check(self):
+            return {"valid": True, "check": True}
+
+    monkeypatch.setattr(station.cycle, "Station", FakeStation)
+    run = measurement_runner("CONFIG", seed=5)
     assert run(CycleRequest("measure", "VIN1", "spec-a", 12)) == {"valid": True}
-    assert calls == [("CONFIG", "VIN1", "spec-a", 12)]
-    with pytest.raises(CalibrationError, match="calibration check"):
-        run(CycleRequest("calibration_check", None, None, 13))
-    monkeypatch.delattr(station.measure, "run_measurement")
-    with pytest.raises(PlcError, match="measurement pipeline is not available"):
-        measurement_runner("CONFIG")
+    assert run(CycleRequest("measure", "VIN2", None, 13)) == {"valid": True}
+    assert calls == [("VIN1", "spec-a"), ("VIN2", None)]
+    assert built == [("CONFIG", 5)], "the station is assembled once, not per cycle"
+    assert run(CycleRequest("calibration_check", None, None, 14))["check"]
+    with pytest.raises(CalibrationError):
+        run(CycleRequest("measure", "BAD-CAL", None, 15))
+    run(CycleRequest("measure", "VIN3", None, 16))
+    assert len(built) == 2, "a calibration problem makes the next command assemble the station again"

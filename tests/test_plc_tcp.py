@@ -400,16 +400,33 @@ def test_station_serve_reports_bad_setups_without_traceback(capsys, tmp_path):
     assert "cannot open tcp 127.0.0.1" in capsys.readouterr().err
 
 
-def _pipeline_available() -> bool:
+def test_serve_on_an_uncalibrated_station_faults_the_cycle_and_keeps_serving(tmp_path):
+    """A real `station serve` (no dry run) with no calibration file: the PLC's trigger ends in
+    fault 300 with the reason, and the server keeps answering."""
+    from tests.station_fixtures import small_station_config
+
+    cfg = small_station_config(tmp_path)
+    port = _free_port()
+    proc = subprocess.Popen([sys.executable, "-m", "station.cli", "--config", str(cfg.path), "serve",
+                             "--port", str(port), "--cycles", "1"], stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)
     try:
-        from station.measure import run_measurement  # noqa: F401
-    except ImportError:
-        return False
-    return True
-
-
-@pytest.mark.skipif(_pipeline_available(), reason="the measurement pipeline is installed")
-def test_serve_without_the_pipeline_says_so(capsys):
-    assert cli_main(["serve", "--port", str(_free_port())]) == 2
-    err = capsys.readouterr().err
-    assert "measurement pipeline is not available" in err and "--dry-run" in err
+        client = ModbusTcpClient("127.0.0.1", port=port)
+        deadline = time.monotonic() + 30
+        while not client.connect():
+            assert time.monotonic() < deadline, "server did not start"
+            time.sleep(0.2)
+        client.write_register(rm.COMMAND, rm.COMMAND_CODES["measure"], device_id=1)
+        deadline = time.monotonic() + 60
+        while True:
+            regs = client.read_holding_registers(rm.FIELDS["fault_code"].address, count=1, device_id=1).registers
+            if regs[0]:
+                break
+            assert time.monotonic() < deadline, "no fault reported"
+            time.sleep(0.1)
+        assert regs[0] == 300
+        assert client.read_holding_registers(rm.FIELDS["state"].address, count=1, device_id=1).registers[0] == rm.STATE_CODES["fault"]
+        client.close()
+    finally:
+        proc.terminate()
+        proc.wait(10)

@@ -26,6 +26,8 @@ def add_arguments(parser):
     parser.add_argument("--fail-every", type=int, default=10, metavar="N",
                         help="with --dry-run: jobs whose number is a multiple of N fail with fault "
                              "401, so the PLC's fault branch is exercised (0: never; default 10)")
+    parser.add_argument("--seed", type=int, default=None,
+                        help="simulated station only: which random vehicle stands on the lift")
     parser.add_argument("--cycles", type=int, metavar="N",
                         help="stop after N cycles have been acknowledged (tests, demos)")
     parser.add_argument("--heartbeat-s", type=float, default=0.1, help="heartbeat period (s)")
@@ -92,7 +94,7 @@ def run(args) -> int:
     from station.plc.server import parse_allowed
 
     parse_allowed(plc.allowed_clients)  # a bad entry fails before anything opens
-    runner = dry_run_runner(args.fail_every) if args.dry_run else measurement_runner(config)
+    runner = dry_run_runner(args.fail_every) if args.dry_run else measurement_runner(config, seed=args.seed)
     logging.basicConfig(level=getattr(logging, args.log_level.upper()), stream=sys.stderr,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     logging.getLogger("pymodbus").setLevel(logging.CRITICAL)  # its errors are ours, reported above

@@ -42,40 +42,9 @@ class Event(Enum):
 PLC_EVENTS = (Event.MEASURE, Event.CALIBRATION_CHECK, Event.RESET_FAULT, Event.ACKNOWLEDGE)
 
 
-# --- refusals: stable codes in the PLC area (5xx) of station/errors.py ------------------------
-class PlcBusy(PlcError):
-    """A command arrived while a cycle is running; it is refused, not queued."""
-    code = 501
-
-
-class PlcNotAcknowledged(PlcError):
-    """A trigger arrived before the previous cycle's result (or fault) was acknowledged."""
-    code = 502
-
-
-class PlcNothingToAcknowledge(PlcError):
-    """Acknowledge or reset arrived with no finished cycle or fault to clear."""
-    code = 503
-
-
-class PlcUnknownCommand(PlcError):
-    """The command register was written with a value that is not a command."""
-    code = 504
-
-
-class PlcCycleTimeout(PlcError):
-    """The cycle did not finish within the cycle timeout."""
-    code = 505
-
-
-class PlcBadJobId(PlcError):
-    """The job id or vehicle spec registers do not hold printable ASCII."""
-    code = 506
-
-
-class PlcInternal(PlcError):
-    """The station's own cycle reported an event the table does not allow (a late cycle)."""
-    code = 507
+# --- refusals: stable codes in the PLC area (5xx), defined in station/errors.py ---------------
+from station.errors import (PlcBadJobId, PlcBusy, PlcCycleTimeout, PlcInternal,  # noqa: E402
+                            PlcNothingToAcknowledge, PlcNotAcknowledged, PlcUnknownCommand)
 
 
 _B = State.BUSY

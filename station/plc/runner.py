@@ -7,7 +7,7 @@ the heartbeat and Modbus serving go on during a cycle.
 
 Two runners:
 
-* :func:`measurement_runner` - the real station (``station.measure.run_measurement``), imported
+* :func:`measurement_runner` - the real station (``station.cycle.Station``), assembled
   only when built, with a clear error when the pipeline is not installed;
 * :func:`dry_run_runner` - synthetic, deterministic results computed from the job id, for
   commissioning the PLC program without cameras (``station serve --dry-run``), for the tests
@@ -40,28 +40,32 @@ CycleRunner = Callable[[CycleRequest], dict]
 
 
 # --- the real station ---------------------------------------------------------------------------
-def measurement_runner(config) -> CycleRunner:
+def measurement_runner(config, seed: int | None = None) -> CycleRunner:
     """The runner for ``station serve``: the measurement pipeline on the configured station.
-    Raises PlcError at once (not at the first trigger) when the pipeline is not available."""
-    try:
-        from station.measure import run_measurement
-    except ImportError as e:
-        raise PlcError(f"the measurement pipeline is not available in this installation "
-                       f"(station.measure.run_measurement: {e})",
-                       hint="use `station serve --dry-run` to commission the PLC with synthetic "
-                            "results, or install the full station") from None
+
+    The station (cameras, calibration) is assembled once, at the first command, and kept; a
+    failure to assemble it (no calibration, a missing camera) faults that cycle with its code,
+    and the next command tries again. ``seed``: the simulated vehicle on the lift (sim:// only).
+    """
+    from station.cycle import Station
+
+    holder: dict = {}
+
+    def station() -> Station:
+        if "station" not in holder:
+            holder["station"] = Station(config, seed=seed, progress=lambda msg: None)
+        return holder["station"]
 
     def run(request: CycleRequest) -> dict:
         if request.command == "calibration_check":
-            try:
-                from station.measure import run_calibration_check
-            except ImportError:
-                raise CalibrationError("calibration check from the PLC is not available in this "
-                                       "installation; run `station calibrate` at the station") from None
-            return run_calibration_check(config)
-        return run_measurement(config, job_id=request.job_id, vehicle_spec=request.vehicle_spec,
-                               seed=request.cycle)
+            return station().calibration_check()
+        try:
+            return station().measure(job_id=request.job_id, vehicle_spec=request.vehicle_spec)
+        except CalibrationError:
+            holder.pop("station", None)
+            raise
 
+    run.close = lambda: holder.pop("station").close() if "station" in holder else None  # type: ignore[attr-defined]
     return run
 
 
