@@ -19,7 +19,7 @@ from html import escape
 from pathlib import Path
 
 from station.errors import StorageError
-from station.report_svg import COLORS, FILL, top_view_svg
+from station.report_svg import top_view_svg
 from station.vehicle_specs import ANGLE_NAMES, VehicleSpec, angle_value, evaluate
 
 _LABELS = {"toe": "toe", "camber": "camber", "total_toe": "total toe"}

@@ -1,7 +1,6 @@
 """Rerun recordings: read back with Rerun's own reader and check what is inside; write faults."""
 
 import json
-import os
 import shutil
 import subprocess
 import sys
