@@ -124,8 +124,10 @@ class TriggerBoard:
             raise TriggerBoardError(f"trigger board on {self.port}: malformed FIRED reply {words}") from None
         if fired != mask:
             dead = [str(i) for i in range(self.n_lines) if (mask & ~fired) >> i & 1]
-            raise TriggerBoardError(f"trigger board on {self.port}: line(s) {', '.join(dead)} did not fire",
+            err = TriggerBoardError(f"trigger board on {self.port}: line(s) {', '.join(dead)} did not fire",
                                     hint="check the trigger cable of the camera on that line")
+            err.dead_lines = [int(i) for i in dead]
+            raise err
         return FireReport(seq, board_us, fired, host_ns)
 
     # --- the line protocol ------------------------------------------------------------------

@@ -39,7 +39,9 @@ _cycle_counter = itertools.count(1)
 def _failure_error(what: str, failures: dict[str, BaseException], frames: dict | None = None) -> StationError:
     """One error naming every failed camera; its class follows the kind of failure."""
     kinds = [type(e) for e in failures.values()]
-    if any(issubclass(k, CameraMissing) for k in kinds):
+    if len(set(kinds)) == 1 and issubclass(kinds[0], StationError):
+        cls = kinds[0]
+    elif any(issubclass(k, CameraMissing) for k in kinds):
         cls = CameraMissing
     elif all(issubclass(k, CameraTimeout) for k in kinds):
         cls = CameraTimeout
@@ -83,6 +85,16 @@ def _run_parallel(items: dict[str, Callable[[], object]], deadline: float, what:
             failures[key] = CameraTimeout(f"{key}: no answer before the deadline ({what} still waiting)",
                                           hint="check the camera's power and cable")
     return results, failures
+
+
+def board_line(cam_id: str, cam: Camera) -> int | None:
+    """The trigger board output wired to a camera: the camera's ``line`` if its driver has an
+    integer one (sim://camN?line=K), else the documented default: camN on output N-1."""
+    line = getattr(cam, "line", None)
+    if isinstance(line, int):
+        return line
+    digits = "".join(ch for ch in cam_id if ch.isdigit())
+    return int(digits) - 1 if digits else None
 
 
 # --- opening ---------------------------------------------------------------------------------
@@ -188,17 +200,24 @@ def capture_cycle(cameras: dict[str, Camera], timeout_s: float, trigger_board=No
     collector = threading.Thread(target=collect, daemon=True)
     collector.start()
     trigger_ns = time.monotonic_ns()
+    board_failures: dict[str, BaseException] = {}
     if trigger_board is not None:
         try:
             board_report = trigger_board.fire()
         except StationError as e:
-            go.set()
-            collector.join(max(0.0, deadline - time.monotonic()) + 0.5)
-            raise _failure_error("the trigger board", {cid: e for cid in cameras}) from e
+            dead = getattr(e, "dead_lines", None)
+            hw = {cid: c for cid, c in ready.items() if c.settings.trigger == "hardware"}
+            if dead is None:  # the board did not fire at all: every hardware-triggered camera
+                board_failures = {cid: e for cid in hw}
+            else:  # it fired, but not on every output: name the cameras on the dead lines
+                board_failures = {cid: type(e)(f"trigger line {board_line(cid, c)} did not fire (cut trigger "
+                                               "cable?)", hint=e.hint)
+                                  for cid, c in hw.items() if board_line(cid, c) in dead}
     go.set()
     collector.join(max(0.0, deadline - time.monotonic()) + 0.5)
     frames, grab_fail = box.get("r", ({}, {cid: CameraTimeout(f"{cid}: no frame") for cid in ready}))
     failures.update(grab_fail)
+    failures.update(board_failures)  # the board's reason beats "no frame"
 
     deadline_ns = trigger_ns + int(timeout_s * 1e9)
     for cid, f in list(frames.items()):

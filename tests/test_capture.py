@@ -53,9 +53,16 @@ def test_hardware_trigger_through_the_board(config, world):
         stamps = {f.timestamp_ns for f in frames.values()}
         assert len(stamps) == 1  # one edge on every wire
         sim.fault_mask = 1 << 4  # cam5's wire
-        with pytest.raises(DriverError, match="line\\(s\\) 4 did not fire") as e:
-            capture_cycle(cams, 2.0, trigger_board=board)
-        assert "cam5" in e.value.failures
+        with pytest.raises(DriverError, match=r"\(cam5\): cam5: trigger line 4 did not fire") as e:
+            capture_cycle(cams, 1.0, trigger_board=board)
+        assert set(e.value.failures) == {"cam5"} and e.value.code == 204
+        assert set(e.value.frames) == set(IDS) - {"cam5"}  # the others fired and are kept
+        sim.fault_mask = 0
+        sim.mute = True  # the board does not answer: every hardware-triggered camera is named
+        with pytest.raises(DriverError, match="no answer to FIRE") as e:
+            capture_cycle(cams, 1.0, trigger_board=board)
+        assert set(e.value.failures) == set(IDS)
+        sim.mute = False
         sim.fault_mask = 0
         assert len(capture_cycle(cams, 3.0, trigger_board=board)) == 8  # the next cycle works
 
