@@ -77,6 +77,11 @@ def angle_values(result: dict) -> dict[str, float]:
     return out
 
 
+def recording_id_for(job_id: str | None) -> str | None:
+    """A stable recording id for a job (UUID 5 of the job id), so the viewer merges the job's cycles."""
+    return None if not job_id else str(uuid.uuid5(uuid.NAMESPACE_URL, f"station-job:{job_id}"))
+
+
 def _cycle_number(stem: str) -> int:
     """``20261122T221500Z-0007`` -> 7 (the cycle counter ending a cycle id); 0 when there is none."""
     m = re.search(r"-(\d+)$", stem)

@@ -160,6 +160,12 @@ def test_images_round_trip(recorded, tmp_path):
     assert abs(w.mean() - (40000 >> 8)) < 2
 
 
+def test_job_recording_ids_are_stable():
+    from station.recording import recording_id_for
+    assert recording_id_for("VIN 1") == recording_id_for("VIN 1") != recording_id_for("VIN 2")
+    assert recording_id_for(None) is None
+
+
 def test_invalid_cycle_logs_failure_not_angles(tmp_path):
     r = make_result(0, cycle=3, valid=False)
     path = tmp_path / "c.rrd"
