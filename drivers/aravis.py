@@ -2,7 +2,8 @@
 
 URI: ``aravis://ADDRESS[?line=Line0&buffers=4&packet_resend=1]``. ADDRESS is the camera's IP
 (opened by unicast, never by discovery: discovery broadcasts on every interface, see
-docs/cameras.md) or an Aravis device id. Options: ``line`` the hardware trigger input used
+docs/cameras.md) or an Aravis device id (which makes Aravis search, i.e. broadcast for GigE:
+use IP addresses for GigE cameras). Options: ``line`` the hardware trigger input used
 in hardware-trigger mode (default Line0), ``buffers`` the size of the buffer pool (default 4),
 ``packet_resend=0`` to switch GigE Vision packet resend off (a lossy link then gives corrupt
 buffers, reported as FrameError, instead of late ones), ``frame_retention_ms`` how long Aravis
