@@ -253,6 +253,33 @@ def scenario_open_missing(fakes: FakeCameras) -> dict:
     return out
 
 
+def scenario_cli(fakes: FakeCameras) -> dict:
+    """`station cameras` and `station capture` on a station of eight GigE cameras."""
+    import contextlib
+    import io
+
+    from station.cli import main
+    tmp = Path(tempfile.mkdtemp())
+    config = _station_config(tmp, {f"cam{i}": f"aravis://127.0.0.{i + 1}" for i in range(1, 9)}, 640, 480)
+    for i in range(2, 10):
+        fakes.start(f"127.0.0.{i}")
+    out = {}
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        out["cameras_rc"] = main(["--config", str(config.path), "cameras", "--json"])
+    out["cameras"] = json.loads(buf.getvalue())
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        out["capture_rc"] = main(["--config", str(config.path), "capture", "--out", str(tmp / "set")])
+    out["capture_out"] = buf.getvalue()
+    meta = json.loads((tmp / "set" / "cycle.json").read_text())
+    out["saved"] = sorted(meta["cameras"])
+    out["complete"] = meta["complete"]
+    out["address"] = meta["cameras"]["cam3"].get("address")
+    shutil.rmtree(tmp, ignore_errors=True)
+    return out
+
+
 SCENARIOS = {name[9:]: fn for name, fn in globals().items() if name.startswith("scenario_")}
 
 if __name__ == "__main__":

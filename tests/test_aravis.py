@@ -93,3 +93,14 @@ def test_synchronised_capture_of_eight_emulated_cameras():
     assert r["drop_s"] < 2.5  # the 1.5 s deadline held (not 2.5 s of GVCP retries)
     assert r["back"]["type"] is None, r["back"]
     assert r["open_missing"]["type"] == "CameraMissing" and "(cam6)" in r["open_missing"]["msg"]
+
+
+def test_station_commands_on_eight_gige_cameras():
+    r = probe("cli", 8)
+    assert r["cameras_rc"] == 0
+    rows = r["cameras"]
+    assert [row["serial"] for row in rows] == [f"FAKE{i}" for i in range(2, 10)]
+    assert all(row["open"] and row["vendor"] == "Aravis" and row["resolution"] == "640x480" for row in rows)
+    assert r["capture_rc"] == 0 and "captured 8 frames" in r["capture_out"]
+    assert r["saved"] == [f"cam{i}" for i in range(1, 9)] and r["complete"]
+    assert r["address"] == "127.0.0.4"
