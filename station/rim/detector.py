@@ -223,7 +223,7 @@ def _choose(sc: _Scene, cands: list[hough.Candidate], tag: str) -> tuple[hough.C
     return best["cand"], info
 
 
-PASSES = (((-6.0, 6.0), "erf"), ((-3.0, 4.5), "kink"))
+PASSES = (((-6.0, 6.0), "kink"), ((-3.0, 4.5), "kink"))
 PRIOR_PASSES = (((-10.0, 10.0), "peak"), ((-5.0, 5.0), "erf"), ((-3.0, 4.5), "kink"))
 
 
@@ -260,13 +260,14 @@ def _refine(grey: np.ndarray, e_full: Ellipse, pmap: PixelMap, passes=PASSES):
     Returns (fit, samples, inlier mask)."""
     fit = samples = None
     e = e_full
+    sigma = None  # the image's edge blur, estimated once
     for window, method in passes:
-        samples = edge_points(grey, e, pmap, window_px=window, method=method)
+        samples, _ = edge_points(grey, e, pmap, window_px=window, method=method)
         ok = samples.ok
         if ok.sum() < MIN_POINTS:
             return None, samples, ok
         ideal = pmap.undistort(samples.points_px[ok])
-        if method in ("peak", "erf"):  # one curve, not a compromise between concentric edges
+        if window[1] - window[0] > 8:  # first passes: one curve, not a compromise between concentric edges
             keep = ransac_ellipse(ideal, threshold_px=_consensus_threshold(e.distance(ideal)[0]), seed=len(ideal))
             if keep is None:
                 return None, samples, ok

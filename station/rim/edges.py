@@ -46,7 +46,7 @@ def canny_thresholds(mag: np.ndarray, high_percentile: float = 90.0) -> tuple[fl
     return 0.4 * high, high
 
 
-def detect_edges(grey_u8: np.ndarray, blur_sigma: float = 1.0, max_points: int = 40000,
+def detect_edges(grey_u8: np.ndarray, blur_sigma: float = 1.0, max_points: int = 16000,
                  high_percentile: float = 90.0) -> EdgeSet:
     """Canny on a (H,W) uint8 image. Returns an :class:`EdgeSet` (at most ``max_points``
     strongest edge pixels, so the voting time stays bounded on a cluttered image)."""

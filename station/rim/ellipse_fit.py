@@ -160,7 +160,7 @@ def ransac_ellipse(pts: np.ndarray, threshold_px: float, iterations: int = 160,
     scale = np.sqrt(((pts - mean) ** 2).sum(axis=1).mean()) + 1e-12
     x, y = ((pts - mean) / scale).T
     rng = np.random.default_rng(seed)
-    idx = np.argsort(rng.random((iterations, n)), axis=1)[:, :5] if n < 2000 else rng.integers(0, n, (iterations, 5))
+    idx = rng.integers(0, n, (iterations, 5))  # (a repeated index gives a degenerate conic that loses)
     xs, ys = x[idx], y[idx]
     M = np.stack([xs * xs, xs * ys, ys * ys, xs, ys, np.ones_like(xs)], axis=2)  # (I,5,6)
     _, _, Vt = np.linalg.svd(M)

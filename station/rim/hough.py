@@ -8,8 +8,9 @@ hundreds of millions of cells. We decompose the five parameters instead:
    gradient direction gives the tangent: edge pixels are binned by gradient direction, and each
    pixel is paired only with pixels in the *opposite* bin (antiparallel gradients). A pair votes
    only if the partner lies in the direction of the gradient (bright inside: the polarity of the
-   rim flange against the dark tyre) and the chord is within 40 degrees of the gradient (true for
-   every ellipse with b/a >= 0.5). The midpoints go into a 2-D accumulator (2 px cells): a single
+   rim flange against the dark tyre) and the chord is within 33 degrees of the gradient (true for
+   every ellipse with b/a >= 0.55, a wheel seen up to ~55 degrees off its axis). Only the
+   MAX_VOTERS strongest edge pixels vote. The midpoints go into a 2-D accumulator (2 px cells): a single
    O(sum_k n_k n_{k+K/2}) pass, with no per-point loop. Every concentric contour of the wheel
    with the same polarity votes for the same centre.
 2. **Shape (theta, b/a): one linear solve.** With the centre known, write the ellipse as
@@ -36,10 +37,11 @@ from station.rim.ellipse import Ellipse
 from station.rim.ellipse_fit import ransac_ellipse
 
 N_DIR_BINS = 64             # gradient-direction bins for pairing (5.6 degrees)
-MIN_CHORD_COS = 0.77        # chord within 40 degrees of the gradient (b/a >= 0.5)
+MIN_CHORD_COS = 0.84        # chord within 33 degrees of the gradient (b/a >= 0.55)
+MAX_VOTERS = 6000           # strongest edge pixels that vote for centres (time ~ N^2)
 CELL_PX = 2.0               # centre accumulator cell
 NORMAL_COS = 0.9            # gradient within 25 degrees of the ellipse normal
-MIN_AXIS_RATIO = 0.45
+MIN_AXIS_RATIO = 0.55
 
 
 @dataclass
@@ -208,7 +210,14 @@ def find_candidates(edges: EdgeSet, r_min: float, r_max: float, max_centres: int
     """All plausible bright-inside ellipses with semi-major axis in [r_min, r_max] (px)."""
     if len(edges) < 20:
         return []
-    mid, ia, ib = pair_midpoints(edges, 2 * r_min * MIN_AXIS_RATIO, 2 * r_max)
+    voters = edges
+    if len(edges) > MAX_VOTERS:
+        keep = np.sort(np.argpartition(-edges.mag, MAX_VOTERS)[:MAX_VOTERS])
+        voters = edges.subset(keep)
+    else:
+        keep = np.arange(len(edges))
+    mid, ia, ib = pair_midpoints(voters, 2 * r_min * MIN_AXIS_RATIO, 2 * r_max)
+    ia, ib = keep[ia], keep[ib]
     if len(mid) == 0:
         return []
     out: list[Candidate] = []

@@ -139,30 +139,49 @@ def fit_kinks(prof: np.ndarray, s: np.ndarray, sigma: float, polarity: float = -
     """
     n, S = prof.shape
     grid = np.arange(s[0] + margin, s[-1] - margin + 1e-9, grid_step)
-    B = _kink_basis(s[None, :] - grid[:, None], sigma)             # (G,S,4)
-    Q, R = np.linalg.qr(B)                                           # (G,S,4), (G,4,4)
-    proj = np.einsum("ns,gsk->ngk", prof, Q)                         # (N,G,4)
+    G = len(grid)
+    Q, R = _kink_projector(s, grid, sigma)                           # (S,G*4), (G,4,4)^-1 rows
+    proj = (prof @ Q).reshape(n, G, 4)                               # (N,G,4) one BLAS call
     ss = (prof * prof).sum(axis=1)
     res = ss[:, None] - (proj * proj).sum(axis=2)                    # (N,G) residual sum of squares
-    coef = np.linalg.solve(R[None], proj[..., None])[..., 0]         # (N,G,4)
-    res = np.where(coef[:, :, 1] * polarity > 0, res, np.inf)
+    h_all = np.einsum("gk,ngk->ng", R[:, 1, :], proj)                # jump coefficient at each s0
+    res = np.where(h_all * polarity > 0, res, np.inf)
     g = np.argmin(res, axis=1)
-    ok = np.isfinite(res[np.arange(n), g])
-    g = np.clip(g, 1, len(grid) - 2)
     r = np.arange(n)
+    ok = np.isfinite(res[r, g])
+    g = np.clip(g, 1, G - 2)
     y0, y1, y2 = res[r, g - 1], res[r, g], res[r, g + 1]
-    s0 = grid[g] + _parabola(y0, y1, y2) * grid_step
-    for step in (0.06, 0.015):  # refine with per-profile bases around the current estimate
-        cand = s0[:, None] + np.array([-step, 0.0, step])[None, :]          # (N,3)
-        Bc = _kink_basis(s[None, None, :] - cand[:, :, None], sigma)      # (N,3,S,4)
-        Bt = np.swapaxes(Bc, 2, 3)
-        c = np.linalg.solve(Bt @ Bc + 1e-9 * np.eye(4), Bt @ prof[:, None, :, None])  # (N,3,4,1)
-        rr = ((prof[:, None, :] - (Bc @ c)[..., 0]) ** 2).sum(axis=2)   # (N,3)
-        s0 = s0 + _parabola(rr[:, 0], rr[:, 1], rr[:, 2]) * step
-        h = c[:, 1, 1, 0]
-        rms = np.sqrt(np.maximum(rr[:, 1], 0) / S)
-    ok &= (np.abs(s0) <= s[-1] - margin) & (s0 >= s[0] + margin) & (h * polarity > 0) & np.isfinite(s0)
+    s0 = grid[g] + _parabola(np.where(np.isfinite(y0), y0, y1), y1, np.where(np.isfinite(y2), y2, y1)) * grid_step
+    # one refinement with per-profile bases at s0 - d, s0, s0 + d and a parabola
+    step = 0.05
+    cand = s0[:, None] + np.array([-step, 0.0, step])[None, :]          # (N,3)
+    Bc = _kink_basis(s[None, None, :] - cand[:, :, None], sigma)      # (N,3,S,4)
+    Bt = np.swapaxes(Bc, 2, 3)
+    c = np.linalg.solve(Bt @ Bc + 1e-9 * np.eye(4), Bt @ prof[:, None, :, None])  # (N,3,4,1)
+    rr = ((prof[:, None, :] - (Bc @ c)[..., 0]) ** 2).sum(axis=2)   # (N,3)
+    s0 = s0 + _parabola(rr[:, 0], rr[:, 1], rr[:, 2]) * step
+    h = c[:, 1, 1, 0]
+    rms = np.sqrt(np.maximum(rr[:, 1], 0) / S)
+    ok &= (s0 <= s[-1] - margin) & (s0 >= s[0] + margin) & (h * polarity > 0) & np.isfinite(s0)
     return s0, h, rms, ok
+
+
+_PROJ_CACHE: dict = {}
+
+
+def _kink_projector(s: np.ndarray, grid: np.ndarray, sigma: float):
+    """Orthonormal bases of the kink model at every grid s0, stacked (S, G*4), and R^-1 (G,4,4)
+    (cached: the same window and blur serve every profile of an image and the next image)."""
+    key = (s.tobytes(), grid.tobytes(), round(float(sigma), 6))
+    hit = _PROJ_CACHE.get(key)
+    if hit is None:
+        B = _kink_basis(s[None, :] - grid[:, None], sigma)           # (G,S,4)
+        Q, R = np.linalg.qr(B)
+        hit = (np.ascontiguousarray(Q.transpose(1, 0, 2).reshape(len(s), -1)), np.linalg.inv(R))
+        if len(_PROJ_CACHE) > 64:
+            _PROJ_CACHE.clear()
+        _PROJ_CACHE[key] = hit
+    return hit
 
 
 def _parabola(y0, y1, y2):
@@ -175,7 +194,7 @@ def _parabola(y0, y1, y2):
 def estimate_blur(prof: np.ndarray, s: np.ndarray, polarity: float = -1.0) -> float:
     """The image's effective edge blur sigma (px), from the sharpest-contrast profiles (N,S):
     the sigma of the step-and-kink model with the least total residual."""
-    sigmas = np.array([0.5, 0.65, 0.8, 1.0, 1.25, 1.55, 1.9, 2.4])
+    sigmas = np.array([0.45, 0.6, 0.8, 1.05, 1.4, 1.9, 2.5])
     total = np.array([np.sum(np.minimum(fit_kinks(prof, s, sg, polarity)[2], 50.0) ** 2) for sg in sigmas])
     j = int(np.clip(np.argmin(total), 1, len(sigmas) - 2))
     off = _parabola(total[j - 1], total[j], total[j + 1])
@@ -184,13 +203,14 @@ def estimate_blur(prof: np.ndarray, s: np.ndarray, polarity: float = -1.0) -> fl
 
 def edge_points(grey: np.ndarray, ellipse: Ellipse, pmap: PixelMap | None = None, n: int | None = None,
                 window_px: tuple[float, float] = (-4.0, 4.0), step_px: float = 0.5, spacing_px: float = 1.5,
-                method: str = "kink", sigma: float | None = None) -> EdgeSamples:
+                method: str = "kink", sigma: float | None = None) -> tuple[EdgeSamples, float | None]:
     """Sub-pixel rim points along ``ellipse`` (in ideal pinhole pixels when ``pmap`` has a
     camera, else image pixels), searched in ``window_px`` (inside, outside) along the normals.
 
     method: "kink" - the blurred step-and-kink model (final pass; ``sigma`` the image blur,
     estimated from the profiles when None); "erf" - a blurred step on a sloping background;
-    "peak" - the parabolic peak of the profile derivative (a cheap first pass)."""
+    "peak" - the parabolic peak of the profile derivative (a cheap first pass).
+    Returns (samples, sigma used or None)."""
     pmap = pmap or PixelMap(None)
     if n is None:
         n = int(np.clip(ellipse.perimeter() / spacing_px, 64, 4096))
@@ -220,7 +240,7 @@ def edge_points(grey: np.ndarray, ellipse: Ellipse, pmap: PixelMap | None = None
         p, r, conv = fit_steps(prof, s, iterations=8 if method == "erf" else 0)
         if method == "kink":
             if sigma is None:
-                strong = np.argsort(-np.abs(p[:, 2]) + np.where(conv, 0, 1e9))[:min(200, len(idx))]
+                strong = np.argsort(-np.abs(p[:, 2]) + np.where(conv, 0, 1e9))[:min(150, len(idx))]
                 sigma = estimate_blur(prof[strong], s)
             s0, hh, r, conv = fit_kinks(prof, s, sigma)
             p[:, 3], p[:, 2], p[:, 4] = s0, hh / 2, sigma
@@ -236,4 +256,4 @@ def edge_points(grey: np.ndarray, ellipse: Ellipse, pmap: PixelMap | None = None
         w_med = np.median(width[ok])
         ok &= (contrast > 0.2 * c_med) & (contrast > 4 * r_med) & (rms < 3.0 * r_med + 1e-6) \
             & (width < 2.5 * w_med + 0.3) & (width > 0.25)
-    return EdgeSamples(pts, t, contrast, width, rms, ok)
+    return EdgeSamples(pts, t, contrast, width, rms, ok), sigma
