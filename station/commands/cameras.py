@@ -94,5 +94,6 @@ def _print_table(rows):
     for t in table:
         print("  ".join(v.ljust(w) for v, w in zip(t, widths)))
     for r in rows:
-        if r.get("error"):
-            print(f"{r['id']}: {r['error']}")
+        err = r.get("error")
+        if err:
+            print(err if err.startswith(f"{r['id']}: ") else f"{r['id']}: {err}")
