@@ -124,7 +124,8 @@ class Station:
         if store:
             try:
                 from station.history import History
-                History(self.config.data_path("history.sqlite")).store(result)
+                with History(self.config.data_path("history.sqlite")) as history:
+                    history.store(result)
             except StorageError as e:
                 result.setdefault("warnings", []).append(str(e))
         result.setdefault("timing_s", {})["record_and_store"] = time.perf_counter() - t0
@@ -138,9 +139,10 @@ def _apply_spec(cfg: StationConfig, result: dict, key: str) -> None:
 
 
 def _record(path: Path, station: Station, result: dict, images: dict, observations: dict) -> None:
-    from station.recording import CycleRecorder
+    from station.recording import CycleRecorder, recording_id_for
 
-    rec = CycleRecorder(path, jpeg_quality=station.config.recording.jpeg_quality)
+    rec = CycleRecorder(path, jpeg_quality=station.config.recording.jpeg_quality,
+                        recording_id=recording_id_for(result.get("job_id")))
     with rec:
         rec.log_cameras(station.models)
         if images:
@@ -154,12 +156,6 @@ def _record(path: Path, station: Station, result: dict, images: dict, observatio
         if frame:
             rec.log_car_frame(frame["origin_station_m"], frame["R_station_align"])
         rec.log_result(result)
-        for w in result.get("warnings", []):
-            rec.log_event(w, level="WARN")
-        if result.get("failure"):
-            rec.log_event(result["failure"]["message"], level="ERROR")
-    if rec.error is not None:
-        raise rec.error
 
 
 def write_json(result: dict, path: str | Path) -> Path:
