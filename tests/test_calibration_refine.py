@@ -161,3 +161,23 @@ def test_one_face_only_is_refused_as_coplanar(box):
         dets.append(BoxDetection(np.arange(len(P)), P, cam.project(P), np.zeros(len(P), int), np.full((8, 2), np.nan)))
     with pytest.raises(CalibrationError, match="coplanar"):
         calibrate_intrinsics("cam5", 1280, 1024, dets)
+
+
+def test_levenberg_marquardt_reaches_the_same_minimum_as_scipy(box):
+    rng = np.random.default_rng(9)
+    K = np.array([[1800.0, 0, 645.0], [0, 1800.0, 509.0], [0, 0, 1]])
+    dist = np.array([-0.12, 0.05, 1e-4, -2e-4, 0.0])
+    obs, rv, tv = [], [], []
+    for v, (R, t) in enumerate(_views(rng, 4)):
+        cam = CameraModel("c", 1280, 1024, K, dist, R, t)
+        uv = cam.project(box.points_box)
+        ok = cam.in_image(uv) & (box.points_box[:, 2] < 0.59)
+        obs.append(Observation(0, v, box.points_box[ok], uv[ok] + rng.normal(0, 0.1, (ok.sum(), 2))))
+        rv.append(cv2.Rodrigues(R)[0].ravel() + 0.01)
+        tv.append(t + 0.01)
+    args = ([intrinsics_vector(K * [[1.01], [1.01], [1]], np.zeros(5))], [[0, 0, 0]], [[0, 0, 0]], rv, tv, obs)
+    a = BundleProblem(*args, free_cam_pose=[False], solver="lm").solve()
+    b = BundleProblem(*args, free_cam_pose=[False], solver="scipy").solve()
+    # the same minimum: differences far below the parameters' own uncertainty
+    assert np.all(np.abs(a.intrinsics - b.intrinsics) < 1e-3 * a.std_intrinsics)
+    assert np.allclose(a.std_intrinsics, b.std_intrinsics, rtol=1e-3)
