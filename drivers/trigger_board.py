@@ -81,7 +81,7 @@ class TriggerBoard:
                 self._serial = None
 
     def __enter__(self):
-        return self.open()
+        return self if self._serial is not None else self.open()
 
     def __exit__(self, *exc):
         self.close()

@@ -155,6 +155,20 @@ def open_station_cameras(config, context: dict | None = None,
     return {cid: cams[cid] for cid in ids}
 
 
+def open_trigger_board(config, context: dict | None = None):
+    """The configured trigger board, open (drivers.trigger_board.TriggerBoard), or None when the
+    cameras trigger themselves (``trigger_board.port: null``). ``trigger_board.port: sim`` uses
+    the simulated board that ``build_context`` started (``context["trigger_board_port"]``)."""
+    port = (context or {}).get("trigger_board_port", config.trigger_board.port)
+    if not port:
+        return None
+    if port == "sim":
+        raise DriverError("trigger_board.port is 'sim' but no simulated board was started",
+                          hint="sim needs sim:// cameras (drivers.registry.build_context starts the board)")
+    from drivers.trigger_board import TriggerBoard
+    return TriggerBoard(port, config.trigger_board.baudrate).open()
+
+
 def close_cameras(cameras: dict[str, Camera]) -> None:
     for c in cameras.values():
         c.close()

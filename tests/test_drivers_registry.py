@@ -56,10 +56,15 @@ def test_sim_station_with_a_simulated_trigger_board(tmp_path):
     config.path.write_text(text)
     from station.config import load_config
     config = load_config(config.path)
+    from station.capture import open_trigger_board
+    with pytest.raises(DriverError, match="no simulated board was started"):
+        open_trigger_board(config, {})
     ctx = build_context([c.uri for c in config.cameras.values()], config)
     try:
         cams = open_station_cameras(config, ctx)
-        with TriggerBoard(ctx["trigger_board_port"]) as board:
+        board = open_trigger_board(config, ctx)
+        assert isinstance(board, TriggerBoard) and board.model == "TB8-SIM"
+        with board:
             frames = capture_cycle(cams, 60.0, trigger_board=board)
         assert len(frames) == 8 and len({f.timestamp_ns for f in frames.values()}) == 1
         close_cameras(cams)

@@ -18,7 +18,8 @@ def run(args) -> int:
     from pathlib import Path
 
     from drivers.registry import build_context
-    from station.capture import capture_and_save, close_cameras, new_cycle_id, open_station_cameras
+    from station.capture import (capture_and_save, close_cameras, new_cycle_id, open_station_cameras,
+                                 open_trigger_board)
     from station.config import load_config
     from station.errors import StationError
 
@@ -34,10 +35,7 @@ def run(args) -> int:
     cameras: dict = {}
     try:
         cameras = open_station_cameras(config, context)
-        port = context.get("trigger_board_port", config.trigger_board.port)
-        if port:
-            from drivers.trigger_board import TriggerBoard
-            board = TriggerBoard(port, config.trigger_board.baudrate).open()
+        board = open_trigger_board(config, context)
         truth = context["truth"]() if "truth" in context else None
         t0 = time.monotonic()
         try:
