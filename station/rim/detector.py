@@ -150,7 +150,8 @@ def _ring_darkness(sc: _Scene, e: Ellipse, n_angles: int = 96) -> float:
                       for f in (0.95, 0.975)]).mean(axis=0)
     outer = np.stack([sc.sample_coarse(Ellipse(e.center_px, e.axes_px * f, e.angle_rad).point_at(t))
                       for f in (1.03, 1.06, 1.10)])
-    outer = np.nanmax(outer, axis=0) if np.isfinite(outer).any() else outer[0]
+    with np.errstate(all="ignore"):
+        outer = np.where(np.isfinite(outer).any(axis=0), np.nanmax(np.where(np.isfinite(outer), outer, -np.inf), axis=0), np.nan)
     contrast = inner - outer
     vis = np.isfinite(contrast)
     if vis.sum() < n_angles // 4:

@@ -82,7 +82,7 @@ def _jacobian(e: Ellipse, t: np.ndarray) -> np.ndarray:
     return -np.einsum("nk,npk->np", n, dx)
 
 
-def fit_geometric(pts: np.ndarray, init: Ellipse | None = None, iterations: int = 20,
+def fit_geometric(pts: np.ndarray, init: Ellipse | None = None, iterations: int = 12,
                   huber_k: float = 1.5, reject_sigma: float = 3.5,
                   corr: float | None = None) -> GeometricFit:
     """Robust orthogonal-distance ellipse fit of pts (N,2) (N >= 6), from ``init`` or the
@@ -122,7 +122,7 @@ def fit_geometric(pts: np.ndarray, init: Ellipse | None = None, iterations: int 
         lam = max(lam * 0.1, 1e-7)
         e, d, t = e_new, d_new, t_new
         p = e.params
-        if np.all(np.abs(step[:4]) < 1e-7) and abs(step[4]) < 1e-9:
+        if np.all(np.abs(step[:4]) < 1e-5) and abs(step[4]) < 1e-8:  # 1e-5 px: far below the noise
             break
     sig = 1.4826 * np.median(np.abs(d[inl])) + 1e-9
     inl = np.abs(d) < reject_sigma * sig

@@ -249,7 +249,7 @@ def _refine(e0: Ellipse, edges: EdgeSet, height: float) -> Candidate | None:
     idx = polarity_inliers(e0, edges, max(3.0, 0.05 * e0.axes_px[0]))
     if len(idx) < 12:
         return None
-    inl = ransac_ellipse(edges.points[idx], threshold_px=1.0, seed=len(idx))
+    inl = ransac_ellipse(edges.points[idx], threshold_px=1.0, iterations=96, seed=len(idx))
     if inl is None or inl.sum() < 12:
         return None
     e = e0

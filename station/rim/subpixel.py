@@ -186,9 +186,12 @@ def _kink_projector(s: np.ndarray, grid: np.ndarray, sigma: float):
 
 def _parabola(y0, y1, y2):
     """Vertex offset (in grid steps, clipped to +/-1) of the parabola through three values."""
-    den = y0 - 2 * y1 + y2
-    off = np.where(den > 1e-12, 0.5 * (y0 - y2) / np.where(den > 1e-12, den, 1.0), 0.0)
-    return np.clip(off, -1, 1)
+    with np.errstate(invalid="ignore", over="ignore"):
+        y0 = np.where(np.isfinite(y0), y0, y1)
+        y2 = np.where(np.isfinite(y2), y2, y1)
+        den = y0 - 2 * y1 + y2
+        off = np.where(den > 1e-12, 0.5 * (y0 - y2) / np.where(den > 1e-12, den, 1.0), 0.0)
+    return np.clip(np.nan_to_num(off), -1, 1)
 
 
 def estimate_blur(prof: np.ndarray, s: np.ndarray, polarity: float = -1.0) -> float:
