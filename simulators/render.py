@@ -65,6 +65,27 @@ def lattice_offsets(n: int) -> np.ndarray:
     return uv - 0.5
 
 
+def wheel_masks(camera: CameraModel, scene: Scene, margin_px: int = 5) -> dict[int, np.ndarray]:
+    """{wheel index: (H,W) bool} pixels that may see the wheel: the convex hull of its bounding
+    cylinder's projected rims (and middle circle), grown by ``margin_px``."""
+    out = {}
+    for i, _, _, _, box in wheel_boxes(camera, scene, 0.0):
+        c0, c1, r0, r1 = box
+        mask = np.zeros((camera.height, camera.width), np.uint8)
+        vehicle = scene.vehicle
+        center, R = vehicle.wheel_frame_station(WHEELS[i])
+        uv = camera.project(wheel_outline_points(center, R, vehicle.wheel))
+        if np.isfinite(uv).all() and np.abs(uv).max() < 1e5:
+            hull = cv2.convexHull(np.round(uv * 16).astype(np.int32))
+            cv2.fillConvexPoly(mask, hull, 1, lineType=cv2.LINE_8, shift=4)
+            k = 2 * margin_px + 1
+            mask = cv2.dilate(mask, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k)))
+        else:
+            mask[:] = 1
+        out[i] = mask.astype(bool)
+    return out
+
+
 def wheel_boxes(camera: CameraModel, scene: Scene, margin_px: float = 4.0) -> list[tuple]:
     """[(wheel index, name, centre (3,), R (3,3), (c0, c1, r0, r1) pixel box)] for visible wheels."""
     out = []
@@ -173,12 +194,8 @@ def render_radiance(camera: CameraModel, scene: Scene, lighting: Lighting | None
     o = camera.center_station
     grid = pixel_grid_normalized(camera)
     d = _pixel_rays(camera, grid)
-    boxes = wheel_boxes(camera, scene)
-    cand = {}
-    for i, _, _, _, (c0, c1, r0, r1) in boxes:
-        rows = np.arange(r0, r1)
-        cols = np.arange(c0, c1)
-        cand[i] = (rows[:, None] * W + cols[None, :]).ravel()
+    masks = wheel_masks(camera, scene)
+    cand = {i: np.flatnonzero(m) for i, m in masks.items()}
     hits = trace(o, d, scene, lighting, cand, body)
     label = hits.label.reshape(H, W)
     value = hits.value.reshape(H, W).copy()
@@ -197,8 +214,8 @@ def render_radiance(camera: CameraModel, scene: Scene, lighting: Lighting | None
             scand = {}
             prow = np.repeat(rr, S)
             pcol = np.repeat(cc, S)
-            for i, _, _, _, (c0, c1, r0, r1) in boxes:
-                scand[i] = np.nonzero((prow >= r0) & (prow < r1) & (pcol >= c0) & (pcol < c1))[0]
+            for i, m in masks.items():
+                scand[i] = np.flatnonzero(m[prow, pcol])
             sh = trace(o, ds, scene, lighting, scand, body)
             value[rr, cc] = sh.value.reshape(-1, S).mean(axis=1)
     return value, label

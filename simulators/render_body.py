@@ -48,23 +48,29 @@ def trace_body(o: np.ndarray, d: np.ndarray, idx: np.ndarray, hits: Hits, lighti
     ov = Rv.T @ (o - offset)
     dv = rowmat(d[idx], Rv)
     lo, hi = body_box(vehicle)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inv = 1.0 / dv
-        t_lo = (lo - ov) * inv
-        t_hi = (hi - ov) * inv
-    t_near = np.minimum(t_lo, t_hi)
-    t_far = np.maximum(t_lo, t_hi)
-    t_near = np.where(np.isnan(t_near), -np.inf, t_near)
-    t_far = np.where(np.isnan(t_far), np.inf, t_far)
-    axis = np.argmax(t_near, axis=1)
-    t_in = t_near[np.arange(len(idx)), axis]
-    t_out = t_far.min(axis=1)
-    hit = (t_in < t_out) & (t_in > 1e-6) & (t_in < hits.t[idx])
-    sel = np.nonzero(hit)[0]
+    # a convex box seen from outside: only the (at most three) faces turned toward the camera
+    # can be entered, each a plane test
+    t_best = hits.t[idx].copy()
+    t_face = np.full(len(idx), np.inf)
+    axis_of = np.zeros(len(idx), np.int8)
+    for k in range(3):
+        for bound, outside in ((hi[k], ov[k] > hi[k]), (lo[k], ov[k] < lo[k])):
+            if not outside:
+                continue
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t = (bound - ov[k]) / dv[:, k]
+            ok = (t > 1e-6) & (t < t_best)
+            for j in (j for j in range(3) if j != k):
+                c = ov[j] + t * dv[:, j]
+                ok &= (c >= lo[j]) & (c <= hi[j])
+            t_best = np.where(ok, t, t_best)
+            t_face = np.where(ok, t, t_face)
+            axis_of[ok] = k
+    sel = np.nonzero(np.isfinite(t_face))[0]
     if sel.size == 0:
         return
-    t = t_in[sel]
-    ax = axis[sel]
+    t = t_face[sel]
+    ax = axis_of[sel].astype(np.int64)
     p = ov + t[:, None] * dv[sel]
     part = np.where(ax == 0, PANEL, np.where(ax == 1, END, UNDER))
     # wheel arches: openings in the side panels, the dark well liner behind them

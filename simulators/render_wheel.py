@@ -347,13 +347,14 @@ def _lettering(theta: np.ndarray, r: np.ndarray, seg: np.ndarray, g: WheelGeomet
 
 def wheel_outline_points(center: np.ndarray, R_station_wheel: np.ndarray, g: WheelGeometry,
                          n: int = 72) -> np.ndarray:
-    """(2n, 3) station points on the tyre's bounding cylinder's rims (for image bounding boxes)."""
+    """(3n, 3) station points on the tyre's bounding cylinder: both rims and the middle circle
+    (for image bounding regions)."""
     a = np.linspace(0, 2 * np.pi, n, endpoint=False)
     r = g.tyre_radius_m * 1.02
     w_out = g.sidewall_bulge_m + 0.002
     w_in = g.sidewall_bulge_m - g.tyre_width_m - 0.002
     pts = []
-    for w in (w_out, w_in):
+    for w in (w_out, (w_out + w_in) / 2, w_in):
         local = np.stack([r * np.cos(a), r * np.sin(a), np.full(n, w)], axis=1)
         pts.append(local @ R_station_wheel.T + center)
     return np.vstack(pts)

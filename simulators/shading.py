@@ -59,16 +59,18 @@ def shade(albedo, normals: np.ndarray, dirs: np.ndarray, lighting: Lighting,
     surface. albedo, specular: scalars or (N,). Normals are flipped to face the camera.
     """
     L = key_direction(lighting)
-    ndotd = np.einsum("ij,ij->i", normals, dirs)
-    flip = np.where(ndotd > 0, -1.0, 1.0)
-    ndotl = flip * (normals @ L)                      # with the camera-facing normal
-    value = np.asarray(albedo, np.float32) * np.float32(lighting.ambient) + (
-        np.asarray(albedo, np.float32) * np.float32(lighting.key_strength)
-        * np.maximum(0.0, -ndotl).astype(np.float32))
+    nx, ny, nz = normals[:, 0], normals[:, 1], normals[:, 2]
+    dx, dy, dz = dirs[:, 0], dirs[:, 1], dirs[:, 2]
+    ndotd = nx * dx + ny * dy + nz * dz
+    # camera-facing normal: n.L flips sign with n (no BLAS calls: see rowmat)
+    ndotl = np.copysign(1.0, -ndotd) * (nx * L[0] + ny * L[1] + nz * L[2])
+    alb = np.asarray(albedo, np.float32)
+    value = alb * np.float32(lighting.ambient) + alb * np.float32(lighting.key_strength) * np.maximum(
+        0.0, -ndotl).astype(np.float32)
     if np.any(specular):
         # R.(-d) = -(L.d) + 2 (L.n)(n.d) with the camera-facing normal (n.d = -|n.d|)
-        cos_r = np.maximum(0.0, -(dirs @ L) - 2.0 * ndotl * np.abs(ndotd)).astype(np.float32)
-        value = value + np.asarray(specular, np.float32) * np.float32(lighting.key_strength) * cos_r ** shininess
+        cos_r = np.maximum(0.0, -(dx * L[0] + dy * L[1] + dz * L[2]) - 2.0 * ndotl * np.abs(ndotd)).astype(np.float32)
+        value = value + np.asarray(specular, np.float32) * np.float32(lighting.key_strength) * cos_r ** np.float32(shininess)
     return value.astype(np.float32, copy=False)
 
 
