@@ -20,15 +20,10 @@ import logging
 import time
 from dataclasses import dataclass
 
-from station.errors import DriverError
+from station.errors import DriverError, TriggerBoardError
 
 log = logging.getLogger("station.drivers.trigger_board")
 
-
-class TriggerBoardError(DriverError):
-    """A trigger-board fault (code 204: the camera area, next free code)."""
-
-    code = 204
 
 
 @dataclass(frozen=True)

@@ -41,6 +41,11 @@ class Station:
         uris = [c.uri for c in config.cameras.values()]
         self.context = build_context(uris, config, seed=seed)
         self.cameras = capture.open_station_cameras(config, self.context)
+        try:
+            self.trigger_board = capture.open_trigger_board(config, self.context)
+        except StationError:
+            capture.close_cameras(self.cameras)
+            raise
         self.timeout_s = max(config.capture.timeout_s, float(self.context.get("capture_timeout_s", 0)))
         self.cycle_count = 0
 
@@ -52,6 +57,9 @@ class Station:
 
     def close(self) -> None:
         capture.close_cameras(self.cameras)
+        if self.trigger_board is not None:
+            self.trigger_board.close()
+        self.context.get("close", lambda: None)()
 
     # --- one cycle --------------------------------------------------------------------------
     def measure(self, *, job_id: str | None = None, vehicle_spec: str | None = None,
@@ -67,9 +75,9 @@ class Station:
         try:
             if cfg.capture.keep_captures:
                 frames, _ = capture.capture_and_save(self.cameras, self.timeout_s, captures_dir, truth=truth,
-                                                     extra={"job_id": job_id})
+                                                     trigger_board=self.trigger_board, extra={"job_id": job_id})
             else:
-                frames = capture.capture_cycle(self.cameras, self.timeout_s)
+                frames = capture.capture_cycle(self.cameras, self.timeout_s, self.trigger_board)
         except StationError as e:
             saved = getattr(e, "saved_to", None)
             result = self._base(cycle_id, job_id, vehicle_spec)

@@ -27,6 +27,12 @@ class StationError(Exception):
         return text
 
 
+class IllegalCommand(StationError):
+    """A command the sequencer's current state does not accept (code 2, station area)."""
+
+    code = 2
+
+
 class ConfigError(StationError):
     code = 100
     area = "config"
@@ -47,6 +53,12 @@ class CameraMissing(DriverError):
 
 class FrameError(DriverError):
     code = 203
+
+
+class TriggerBoardError(DriverError):
+    """A trigger-board fault (code 204: the camera area, next free code)."""
+
+    code = 204
 
 
 class CalibrationError(StationError):

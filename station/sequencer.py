@@ -19,7 +19,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
-from station.errors import StationError
+from station.errors import StationError, IllegalCommand
 
 log = logging.getLogger("station.sequencer")
 
@@ -45,11 +45,6 @@ TRANSITIONS: dict[tuple[str, str], str] = {
 }
 BUSY = ("capturing", "measuring", "reporting")
 
-
-class IllegalCommand(StationError):
-    """A command the sequencer's current state does not accept (code 2, station area)."""
-
-    code = 2
 
 
 @dataclass
