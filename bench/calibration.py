@@ -133,6 +133,34 @@ def evaluate(config, world, results):
     return rows, pair_rows
 
 
+def evaluate_file(config, world, path) -> None:
+    """Compare a saved calibration (e.g. from `station calibrate`, fully rendered) with the truth."""
+    from calibration.calib_file import load_calibration  # noqa: E402
+    calib = load_calibration(path, config)
+    print(f"{path}: calibration {calib.calibration_id} of {calib.created_utc}, against station seed "
+          f"{config.simulation.station_seed}")
+    print("cam   focal(%)   pp(px)  pos(mm)  rot(deg)  rms(px)  check(px RMS)")
+    for cam_id, c in calib.cameras.items():
+        m, true = c.model, world.cameras[cam_id]
+        grid = wheel_grid(config, config.cameras[cam_id].wheel)
+        d = m.project(grid) - true.project(grid)
+        print(f"{cam_id:5s} {100 * (m.K[0, 0] - true.K[0, 0]) / true.K[0, 0]:8.4f} "
+              f"{np.linalg.norm(m.K[:2, 2] - true.K[:2, 2]):8.3f} "
+              f"{1000 * np.linalg.norm(m.center_station - true.center_station):8.3f} "
+              f"{rot_err_deg(m.R_cam_station, true.R_cam_station):9.5f} {c.reprojection_rms_px:8.3f} "
+              f"{np.sqrt(np.nanmean(np.sum(d ** 2, axis=1))):10.4f}")
+    print("wheel baseline(mm)  triangulation(mm RMS)")
+    for wheel in calib.pairs:
+        p = calib.pair(wheel)
+        tp = StereoPair(wheel, world.cameras[p.left.name], world.cameras[p.right.name])
+        grid = wheel_grid(config, wheel)
+        uv_l, uv_r = tp.left.project(grid), tp.right.project(grid)
+        ok = tp.left.in_image(uv_l) & tp.right.in_image(uv_r)
+        X = p.triangulate_station(uv_l[ok], uv_r[ok])
+        print(f"{wheel:5s} {1000 * (p.baseline_m - tp.baseline_m):11.4f} "
+              f"{1000 * np.sqrt(np.mean(np.sum((X - grid[ok]) ** 2, axis=1))):14.4f}")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seeds", type=int, nargs="+", default=[7, 8, 9])
@@ -141,9 +169,15 @@ def main(argv=None) -> int:
     ap.add_argument("--detections", choices=("projected", "rendered"), default="projected")
     ap.add_argument("--sigma", type=float, default=None, help="corner noise (px per axis) instead of measuring it")
     ap.add_argument("--sigma-images", type=int, default=2)
+    ap.add_argument("--evaluate", metavar="FILE", help="only compare this calibration file with the truth "
+                    "of the first --seeds value")
     args = ap.parse_args(argv)
     config = load_config()
     box = load_box(config.box_path)
+    if args.evaluate:
+        config.tree.simulation.station_seed = args.seeds[0]
+        evaluate_file(config, SimWorld.from_config(config, noise_sigma=args.noise), args.evaluate)
+        return 0
     all_rows, all_pairs = [], []
     sigma = args.sigma
     for seed in args.seeds:

@@ -50,6 +50,7 @@ def _views(rng, n):
     return out
 
 
+@pytest.mark.slow
 def test_refined_intrinsics_at_least_as_good_as_opencv_on_the_same_detections(box):
     """Rendered images (noise sigma 2 grey levels), detected corners, then both calibrations."""
     rng = np.random.default_rng(11)
@@ -163,6 +164,7 @@ def test_one_face_only_is_refused_as_coplanar(box):
         calibrate_intrinsics("cam5", 1280, 1024, dets)
 
 
+@pytest.mark.slow
 def test_levenberg_marquardt_reaches_the_same_minimum_as_scipy(box):
     rng = np.random.default_rng(9)
     K = np.array([[1800.0, 0, 645.0], [0, 1800.0, 509.0], [0, 0, 1]])
