@@ -100,6 +100,22 @@ def pixel_grid_normalized(camera: CameraModel) -> np.ndarray:
     return grid
 
 
+def grid_start(grid: np.ndarray, rows: np.ndarray, cols: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """(M*S,2) Newton starts for S sub-pixel offsets (S,2) around M pixel centres (rows, cols).
+
+    First-order expansion of the exact (H,W,2) grid with central differences: good to ~1e-8,
+    so one Newton step finishes the job.
+    """
+    H, W = grid.shape[:2]
+    c1, c0 = np.minimum(cols + 1, W - 1), np.maximum(cols - 1, 0)
+    r1, r0 = np.minimum(rows + 1, H - 1), np.maximum(rows - 1, 0)
+    d_u = (grid[rows, c1] - grid[rows, c0]) / (c1 - c0)[:, None]
+    d_v = (grid[r1, cols] - grid[r0, cols]) / (r1 - r0)[:, None]
+    start = (grid[rows, cols][:, None, :] + offsets[None, :, :1] * d_u[:, None, :]
+             + offsets[None, :, 1:] * d_v[:, None, :])
+    return start.reshape(-1, 2)
+
+
 def normalized_to_rays_station(camera: CameraModel, xy: np.ndarray) -> np.ndarray:
     """(N,2) undistorted normalised -> (N,3) unit ray directions in the station frame."""
     d = np.empty((len(xy), 3))

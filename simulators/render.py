@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 from calibration.camera_model import CameraModel
-from simulators.rays import normalized_to_rays_station, pixel_grid_normalized, sample_rays_station
+from simulators.rays import grid_start, normalized_to_rays_station, pixel_grid_normalized, sample_rays_station
 from simulators.render_body import floor_shadow, trace_body
 from simulators.render_wheel import BARREL, FLANGE, TYRE, trace_wheel, wheel_outline_points
 from simulators.scene import Lighting, Scene
@@ -209,7 +209,7 @@ def render_radiance(camera: CameraModel, scene: Scene, lighting: Lighting | None
             uv = np.empty((rr.size * S, 2))
             uv[:, 0] = (cc[:, None] + offsets[None, :, 0]).ravel()
             uv[:, 1] = (rr[:, None] + offsets[None, :, 1]).ravel()
-            start = np.repeat(grid[rr, cc], S, axis=0)
+            start = grid_start(grid, rr, cc, offsets)
             ds = sample_rays_station(camera, uv, start)
             scand = {}
             prow = np.repeat(rr, S)

@@ -61,7 +61,7 @@ def tyre_profile(g: WheelGeometry) -> np.ndarray:
     S = tr - rr
     shoulder = min(0.035, 0.2 * W)
     outer = np.array([  # N_OUTER segments
-        [rr, 0.0], [rr + 0.06 * S, 0.7 * b], [rr + 0.3 * S, b], [tr - 0.1 * S, 0.6 * b - 0.3 * shoulder],
+        [rr, 0.0], [rr + 0.03 * S, 0.6 * b], [rr + 0.3 * S, b], [tr - 0.1 * S, 0.6 * b - 0.3 * shoulder],
         [tr, b - shoulder]])
     w_mid = b - W / 2
     inner = outer[::-1].copy()
@@ -205,9 +205,13 @@ def trace_wheel(o: np.ndarray, d: np.ndarray, idx: np.ndarray, hits: Hits, light
         if a is not None:
             aux[wi] = a[win]
 
+    # only rays that pass through the tyre's annulus (not just through the rim opening)
+    tyre_rays = rays.reaching(everything, best_t, profile[:, 1].min(), profile[:, 1].max(),
+                              g.rim_radius_m, g.tyre_radius_m)
+
     def tyre_segment(k):
         (r0, w0), (r1, w1) = profile[k], profile[k + 1]
-        sub = rays.reaching(everything, best_t, min(w0, w1), max(w0, w1), min(r0, r1), max(r0, r1))
+        sub = rays.reaching(tyre_rays, best_t, min(w0, w1), max(w0, w1), min(r0, r1), max(r0, r1))
         if sub.size == 0:
             return
         if abs(w1 - w0) < 1e-12:
