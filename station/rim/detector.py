@@ -268,22 +268,22 @@ def _refine(grey: np.ndarray, e_full: Ellipse, pmap: PixelMap, passes=PASSES):
         if ok.sum() < MIN_POINTS:
             return None, samples, ok
         ideal = pmap.undistort(samples.points_px[ok])
-        if window[1] - window[0] > 8:  # first passes: one curve, not a compromise between concentric edges
-            keep = ransac_ellipse(ideal, threshold_px=_consensus_threshold(e.distance(ideal)[0]), seed=len(ideal))
-            if keep is None:
-                return None, samples, ok
-            ok[np.nonzero(ok)[0][~keep]] = False
-            ideal = ideal[keep]
-            if len(ideal) < MIN_POINTS:
-                return None, samples, ok
+        # one curve, not a compromise between concentric edges: consensus first, then the
+        # robust fit of ALL points from the consensus ellipse (a tight consensus band alone
+        # would bias the fit toward the minimal sample that defined it)
+        keep = ransac_ellipse(ideal, threshold_px=_consensus_threshold(e.distance(ideal)[0]), seed=len(ideal))
+        if keep is None or keep.sum() < MIN_POINTS:
+            return None, samples, ok
         try:
-            fit = fit_geometric(ideal, init=e)
+            e_cons = fit_geometric(ideal[keep], init=e).ellipse
+            fit = fit_geometric(ideal, init=e_cons)
         except (ValueError, np.linalg.LinAlgError):
             return None, samples, ok
         e = fit.ellipse
-    mask = samples.ok.copy()
-    mask[np.nonzero(samples.ok)[0][~fit.inliers]] = False
-    return fit, samples, mask
+        ok_idx = np.nonzero(ok)[0]
+        ok[ok_idx[~fit.inliers]] = False
+        samples.ok = ok
+    return fit, samples, samples.ok.copy()
 
 
 def detect_rim(image: np.ndarray, *, camera=None, prior: Ellipse | None = None, camera_id: str = "",

@@ -26,6 +26,8 @@ from station.rim.preprocess import PixelMap
 SQRT2 = np.sqrt(2.0)
 TWO_OVER_SQRT_PI = 2.0 / np.sqrt(np.pi)
 INTERPOLATION = cv2.INTER_LINEAR
+METAL_CURVATURE = False  # optional quadratic term for a shaded rounded lip (measured: noisier and blur-sensitive)
+TYRE_CURVATURE = False   # the same on the tyre side (measured: worse)
 
 
 @dataclass
@@ -120,11 +122,16 @@ def _kink_basis(x: np.ndarray, sigma: float) -> np.ndarray:
     z = x / sigma
     Phi = 0.5 * (1 + erf(z / SQRT2))
     phi = np.exp(-0.5 * z * z) / np.sqrt(2 * np.pi)
-    return np.stack([np.ones_like(x), Phi, x, x * Phi + sigma * phi], axis=-1)
+    cols = [np.ones_like(x), Phi, x, x * Phi + sigma * phi]
+    if METAL_CURVATURE:  # blurred x^2 on the metal side (x < 0): E[u^2 1(u<0)], u ~ N(x, sigma^2)
+        cols.append((x * x + sigma * sigma) * (1 - Phi) - x * sigma * phi)
+        if TYRE_CURVATURE:  # and on the tyre side: E[u^2 1(u>0)]
+            cols.append((x * x + sigma * sigma) * Phi + x * sigma * phi)
+    return np.stack(cols, axis=-1)
 
 
 def fit_kinks(prof: np.ndarray, s: np.ndarray, sigma: float, polarity: float = -1.0,
-              grid_step: float = 0.25, margin: float = 1.0):
+              grid_step: float = 0.25, margin: float = 1.0, refine: bool = True):
     """Locate the edge in each profile (N,S) by a blurred step-and-kink model.
 
     The profile is one straight line on the metal side and another on the tyre side, meeting
@@ -141,7 +148,8 @@ def fit_kinks(prof: np.ndarray, s: np.ndarray, sigma: float, polarity: float = -
     grid = np.arange(s[0] + margin, s[-1] - margin + 1e-9, grid_step)
     G = len(grid)
     Q, R = _kink_projector(s, grid, sigma)                           # (S,G*4), (G,4,4)^-1 rows
-    proj = (prof @ Q).reshape(n, G, 4)                               # (N,G,4) one BLAS call
+    nb = R.shape[-1]
+    proj = (prof @ Q).reshape(n, G, nb)                              # (N,G,nb) one BLAS call
     ss = (prof * prof).sum(axis=1)
     res = ss[:, None] - (proj * proj).sum(axis=2)                    # (N,G) residual sum of squares
     h_all = np.einsum("gk,ngk->ng", R[:, 1, :], proj)                # jump coefficient at each s0
@@ -152,12 +160,14 @@ def fit_kinks(prof: np.ndarray, s: np.ndarray, sigma: float, polarity: float = -
     g = np.clip(g, 1, G - 2)
     y0, y1, y2 = res[r, g - 1], res[r, g], res[r, g + 1]
     s0 = grid[g] + _parabola(np.where(np.isfinite(y0), y0, y1), y1, np.where(np.isfinite(y2), y2, y1)) * grid_step
+    if not refine:  # the grid's best residual only (for the blur estimate)
+        return s0, h_all[r, g], np.sqrt(np.maximum(res[r, g], 0) / S), ok
     # one refinement with per-profile bases at s0 - d, s0, s0 + d and a parabola
     step = 0.05
     cand = s0[:, None] + np.array([-step, 0.0, step])[None, :]          # (N,3)
     Bc = _kink_basis(s[None, None, :] - cand[:, :, None], sigma)      # (N,3,S,4)
     Bt = np.swapaxes(Bc, 2, 3)
-    c = np.linalg.solve(Bt @ Bc + 1e-9 * np.eye(4), Bt @ prof[:, None, :, None])  # (N,3,4,1)
+    c = np.linalg.solve(Bt @ Bc + 1e-9 * np.eye(nb), Bt @ prof[:, None, :, None])  # (N,3,nb,1)
     rr = ((prof[:, None, :] - (Bc @ c)[..., 0]) ** 2).sum(axis=2)   # (N,3)
     s0 = s0 + _parabola(rr[:, 0], rr[:, 1], rr[:, 2]) * step
     h = c[:, 1, 1, 0]
@@ -172,13 +182,13 @@ _PROJ_CACHE: dict = {}
 def _kink_projector(s: np.ndarray, grid: np.ndarray, sigma: float):
     """Orthonormal bases of the kink model at every grid s0, stacked (S, G*4), and R^-1 (G,4,4)
     (cached: the same window and blur serve every profile of an image and the next image)."""
-    key = (s.tobytes(), grid.tobytes(), round(float(sigma), 6))
+    key = (s.tobytes(), grid.tobytes(), round(float(sigma), 6), METAL_CURVATURE, TYRE_CURVATURE)
     hit = _PROJ_CACHE.get(key)
     if hit is None:
         B = _kink_basis(s[None, :] - grid[:, None], sigma)           # (G,S,4)
         Q, R = np.linalg.qr(B)
         hit = (np.ascontiguousarray(Q.transpose(1, 0, 2).reshape(len(s), -1)), np.linalg.inv(R))
-        if len(_PROJ_CACHE) > 64:
+        if len(_PROJ_CACHE) > 16:
             _PROJ_CACHE.clear()
         _PROJ_CACHE[key] = hit
     return hit
@@ -197,11 +207,20 @@ def _parabola(y0, y1, y2):
 def estimate_blur(prof: np.ndarray, s: np.ndarray, polarity: float = -1.0) -> float:
     """The image's effective edge blur sigma (px), from the sharpest-contrast profiles (N,S):
     the sigma of the step-and-kink model with the least total residual."""
+    def total(sg):
+        return float(np.sum(np.minimum(fit_kinks(prof, s, sg, polarity, refine=False)[2], 50.0) ** 2))
+
     sigmas = np.array([0.45, 0.6, 0.8, 1.05, 1.4, 1.9, 2.5])
-    total = np.array([np.sum(np.minimum(fit_kinks(prof, s, sg, polarity)[2], 50.0) ** 2) for sg in sigmas])
-    j = int(np.clip(np.argmin(total), 1, len(sigmas) - 2))
-    off = _parabola(total[j - 1], total[j], total[j + 1])
-    return float(np.interp(j + off, np.arange(len(sigmas)), sigmas))
+    tot = np.array([total(sg) for sg in sigmas])
+    j = int(np.clip(np.argmin(tot), 1, len(sigmas) - 2))
+    lo, hi = sigmas[j - 1], sigmas[j + 1]
+    for _ in range(7):  # golden-section search between the neighbours of the best grid value
+        m1, m2 = hi - 0.618 * (hi - lo), lo + 0.618 * (hi - lo)
+        if total(m1) < total(m2):
+            hi = m2
+        else:
+            lo = m1
+    return float(0.5 * (lo + hi))
 
 
 def edge_points(grey: np.ndarray, ellipse: Ellipse, pmap: PixelMap | None = None, n: int | None = None,
@@ -243,7 +262,7 @@ def edge_points(grey: np.ndarray, ellipse: Ellipse, pmap: PixelMap | None = None
         p, r, conv = fit_steps(prof, s, iterations=8 if method == "erf" else 0)
         if method == "kink":
             if sigma is None:
-                strong = np.argsort(-np.abs(p[:, 2]) + np.where(conv, 0, 1e9))[:min(150, len(idx))]
+                strong = np.argsort(-np.abs(p[:, 2]) + np.where(conv, 0, 1e9))[:min(100, len(idx))]
                 sigma = estimate_blur(prof[strong], s)
             s0, hh, r, conv = fit_kinks(prof, s, sigma)
             p[:, 3], p[:, 2], p[:, 4] = s0, hh / 2, sigma
