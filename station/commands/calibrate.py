@@ -18,9 +18,10 @@ import numpy as np
 from calibration.box_detect import BoxDetector
 from calibration.box_target import load_box
 from calibration.calib_file import save_calibration
+from calibration.refine import INTRINSIC_NAMES
 from calibration.station_calibration import assemble, calibrate_pair, check_limits, fixture_poses
-from drivers.base import CameraSettings
-from drivers.registry import create_camera
+from drivers.registry import build_context
+from station.capture import close_cameras, open_station_cameras
 from station.config import load_config
 from station.errors import CalibrationError, CalibrationRejected
 from station.operator import TerminalOperator
@@ -39,33 +40,27 @@ def _progress(text: str) -> None:
     print(f"[{time.strftime('%H:%M:%S')}] {text}", file=sys.stderr, flush=True)
 
 
-def _open_cameras(config, context):
-    cams = {}
-    for cam_id, c in config.cameras.items():
-        settings = CameraSettings(width=c.width, height=c.height, pixel_format=c.pixel_format,
-                                  exposure_us=c.exposure_us, gain_db=c.gain_db, trigger="software")
-        cams[cam_id] = create_camera(cam_id, c.uri, settings, context).open()
-    return cams
-
-
 def run(args) -> int:
     config = load_config(args.config)
     box = load_box(config.box_path)
     n_poses = args.poses or config.calibration.intrinsic_poses
     if n_poses < 3:
         raise CalibrationError(f"--poses {n_poses}: at least 3 box poses are needed for the intrinsics")
-    simulated = all(c.uri.startswith("sim://") for c in config.cameras.values())
-    context = {}
-    if simulated:
-        from simulators.sim_operator import SimOperator  # assembled here only: the station runs on sim
-        from simulators.world import SimWorld
-        world = SimWorld.from_config(config)
-        context = {"sim_world": world}
+    # Assemble once, through the driver registry: sim:// brings its simulated world in the context.
+    context = build_context([c.uri for c in config.cameras.values()], config)
+    world = context.get("sim_world")
+    if world is not None:
+        # the simulated operator moves the box in the simulated world; real stations have a person
+        from simulators.sim_operator import SimOperator
         operator = SimOperator(world, box, config, seed=args.seed)
     else:
         operator = TerminalOperator()
-    cameras = _open_cameras(config, context)
-    timeout = max(float(config.capture.timeout_s), 600.0 if simulated else 0.0)
+    try:
+        cameras = open_station_cameras(config, context)
+    except BaseException:
+        context.get("close", lambda: None)()
+        raise
+    timeout = max(float(config.capture.timeout_s), float(context.get("capture_timeout_s", 0)))
     detector = BoxDetector(box)
 
     def take(cam_ids, what):
@@ -94,8 +89,8 @@ def run(args) -> int:
             results[wheel] = calibrate_pair(wheel, *ids, sizes, dets, fixture_dets, fixtures[wheel], _progress)
         operator.done()
     finally:
-        for cam in cameras.values():
-            cam.close()
+        close_cameras(cameras)
+        context.get("close", lambda: None)()
     calib = assemble(config, results, box)
     print_tables(calib)
     reasons = check_limits(calib, config.calibration.limits)
@@ -121,6 +116,13 @@ def print_tables(calib) -> None:
         print(f"{cam_id:7s} {m.K[0, 0]:9.2f} {m.K[1, 1]:9.2f} {m.K[0, 2]:8.2f} {m.K[1, 2]:8.2f} {k1:8.4f} {k2:8.4f} "
               f"{k3:8.4f} {p1:9.2e} {p2:9.2e} {c.reprojection_rms_px:7.3f} {c.n_points:6d}  {s.get('fx', np.nan):6.3f}"
               f"  {s.get('cx', np.nan):6.3f}  {s.get('cy', np.nan):6.3f}  {s.get('k1', np.nan):7.5f}  {pos:10.4f}  {rot:11.5f}")
+    print("standard deviations")
+    print("camera  " + " ".join(f"{n:>9s}" for n in INTRINSIC_NAMES) + "  pos x,y,z (mm)         rot x,y,z (deg)")
+    for cam_id, c in calib.cameras.items():
+        s = c.std
+        pos = " ".join(f"{v * 1000:6.4f}" for v in s.get("position_m", [np.nan] * 3))
+        rot = " ".join(f"{v:7.5f}" for v in s.get("rotation_deg", [np.nan] * 3))
+        print(f"{cam_id:7s} " + " ".join(f"{s.get(n, np.nan):9.2e}" for n in INTRINSIC_NAMES) + f"  {pos}  {rot}")
     print("pair  left  right  baseline(mm)")
     for wheel in calib.pairs:
         p = calib.pair(wheel)
