@@ -40,64 +40,56 @@ def paint_albedo(vehicle: Vehicle) -> float:
 
 def trace_body(o: np.ndarray, d: np.ndarray, idx: np.ndarray, hits: Hits, lighting: Lighting,
                vehicle: Vehicle) -> None:
-    """Intersect rays d[idx] with the body box (slab method) minus the wheel arches."""
+    """Intersect rays d[idx] (N,3) with the body box minus the wheel arches (camera outside)."""
     if idx.size == 0:
         return
     Rv = vehicle.R_station_vehicle
     offset = np.array([vehicle.position_m[0], vehicle.position_m[1], 0.0])
     ov = Rv.T @ (o - offset)
-    dv = rowmat(d[idx], Rv)
+    dirs = d[idx]
+    # direction components in the vehicle frame, (N,) each (explicit: no BLAS, see rowmat)
+    dv = [dirs[:, 0] * Rv[0, k] + dirs[:, 1] * Rv[1, k] + dirs[:, 2] * Rv[2, k] for k in range(3)]
     lo, hi = body_box(vehicle)
-    # a convex box seen from outside: only the (at most three) faces turned toward the camera
-    # can be entered, each a plane test
-    t_best = hits.t[idx].copy()
-    t_face = np.full(len(idx), np.inf)
-    axis_of = np.zeros(len(idx), np.int8)
+    paint = paint_albedo(vehicle)
+    r_arch = vehicle.wheel.tyre_radius_m + ARCH_CLEARANCE_M
+    arches = [vehicle.wheel_center_vehicle(name) for name in WHEELS]
+    # a convex box seen from outside: only the faces turned toward the camera can be entered,
+    # each a plane test; they do not overlap in the image
     for k in range(3):
-        for bound, outside in ((hi[k], ov[k] > hi[k]), (lo[k], ov[k] < lo[k])):
-            if not outside:
+        for bound, sign in ((hi[k], 1.0), (lo[k], -1.0)):
+            if not sign * (ov[k] - bound) > 0:
                 continue
             with np.errstate(divide="ignore", invalid="ignore"):
-                t = (bound - ov[k]) / dv[:, k]
-            ok = (t > 1e-6) & (t < t_best)
-            for j in (j for j in range(3) if j != k):
-                c = ov[j] + t * dv[:, j]
-                ok &= (c >= lo[j]) & (c <= hi[j])
-            t_best = np.where(ok, t, t_best)
-            t_face = np.where(ok, t, t_face)
-            axis_of[ok] = k
-    sel = np.nonzero(np.isfinite(t_face))[0]
-    if sel.size == 0:
-        return
-    t = t_face[sel]
-    ax = axis_of[sel].astype(np.int64)
-    p = ov + t[:, None] * dv[sel]
-    part = np.where(ax == 0, PANEL, np.where(ax == 1, END, UNDER))
-    # wheel arches: openings in the side panels, the dark well liner behind them
-    side = ax == 0
-    in_arch = np.zeros(len(sel), bool)
-    for name in WHEELS:
-        c = vehicle.wheel_center_vehicle(name)
-        r_arch = vehicle.wheel.tyre_radius_m + ARCH_CLEARANCE_M
-        in_arch |= side & (np.sign(p[:, 0]) == np.sign(c[0])) & (
-            (p[:, 1] - c[1]) ** 2 + (p[:, 2] - c[2] - 0.03) ** 2 < r_arch ** 2)
-    well_t = t + WELL_DEPTH_M / np.maximum(np.abs(dv[sel, 0]), 1e-9)
-    t = np.where(in_arch, well_t, t)
-    part = np.where(in_arch, WELL, part)
-    panel = part == PANEL
-    part = np.where(panel & (np.abs(p[:, 2] - 0.78) < 0.012), CREASE, part)
-    part = np.where(panel & (p[:, 2] < 0.30), SILL, part)
-    nearer = t < hits.t[idx[sel]]
-    sel, t, part, ax, p = sel[nearer], t[nearer], part[nearer], ax[nearer], p[nearer]
-    normals_v = np.zeros((len(sel), 3))
-    normals_v[np.arange(len(sel)), ax] = 1.0
-    normals = rowmat(normals_v, Rv.T)
-    paint = paint_albedo(vehicle)
-    albedo = np.select([part == WELL, part == SILL, part == CREASE, part == UNDER],
-                       [0.035, 0.06, paint * 0.55, 0.05], paint)
-    spec = np.where((part == PANEL) | (part == END), 0.35, 0.0)
-    value = shade(albedo, normals, d[idx[sel]], lighting, specular=spec, shininess=40.0)
-    hits.store(idx[sel], t, LABEL_BODY + part, value)
+                t = (bound - ov[k]) / dv[k]
+            ok = (t > 1e-6) & (t < hits.t[idx])
+            j1, j2 = [j for j in range(3) if j != k]
+            c1 = ov[j1] + t * dv[j1]
+            c2 = ov[j2] + t * dv[j2]
+            ok &= (c1 >= lo[j1]) & (c1 <= hi[j1]) & (c2 >= lo[j2]) & (c2 <= hi[j2])
+            sel = np.flatnonzero(ok)
+            if sel.size == 0:
+                continue
+            t, c1, c2 = t[sel], c1[sel], c2[sel]
+            if k == 0:   # side panel: (c1, c2) = (y, z); wheel arches open onto the dark well
+                part = np.full(sel.size, PANEL, np.int32)
+                in_arch = np.zeros(sel.size, bool)
+                for c in arches:
+                    if np.sign(c[0]) == sign:
+                        in_arch |= (c1 - c[1]) ** 2 + (c2 - c[2] - 0.03) ** 2 < r_arch ** 2
+                part[np.abs(c2 - 0.78) < 0.012] = CREASE
+                part[c2 < 0.30] = SILL
+                part[in_arch] = WELL
+                t = np.where(in_arch, t + WELL_DEPTH_M / np.maximum(np.abs(dv[0][sel]), 1e-9), t)
+                nearer = t < hits.t[idx[sel]]
+                sel, t, part = sel[nearer], t[nearer], part[nearer]
+            else:
+                part = np.full(sel.size, END if k == 1 else UNDER, np.int32)
+            albedo = np.select([part == WELL, part == SILL, part == CREASE, part == UNDER],
+                               [0.035, 0.06, paint * 0.55, 0.05], paint)
+            spec = np.where((part == PANEL) | (part == END), 0.35, 0.0)
+            normal = sign * Rv[:, k]
+            value = shade(albedo, normal, dirs[sel], lighting, specular=spec, shininess=40.0)
+            hits.store(idx[sel], t, LABEL_BODY + part, value)
 
 
 def floor_shadow(vehicle: Vehicle):

@@ -52,14 +52,15 @@ def key_direction(lighting: Lighting) -> np.ndarray:
 
 def shade(albedo, normals: np.ndarray, dirs: np.ndarray, lighting: Lighting,
           specular=0.0, shininess: float = 24.0) -> np.ndarray:
-    """Radiance (N,) float32 of surfaces with unit normals (N,3) seen along unit rays dirs (N,3).
+    """Radiance (N,) float32 of surfaces with unit normals (N,3) or (3,) seen along unit rays dirs (N,3).
 
     Lambert ``albedo * (ambient + key * max(0, -n.L))`` plus a Phong lobe for metal,
     ``specular * key * max(0, R.(-d))^shininess`` with R the key direction mirrored at the
     surface. albedo, specular: scalars or (N,). Normals are flipped to face the camera.
     """
     L = key_direction(lighting)
-    nx, ny, nz = normals[:, 0], normals[:, 1], normals[:, 2]
+    normals = np.asarray(normals)
+    nx, ny, nz = normals[..., 0], normals[..., 1], normals[..., 2]   # (3,): one normal for all
     dx, dy, dz = dirs[:, 0], dirs[:, 1], dirs[:, 2]
     ndotd = nx * dx + ny * dy + nz * dz
     # camera-facing normal: n.L flips sign with n (no BLAS calls: see rowmat)
