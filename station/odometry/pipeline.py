@@ -97,23 +97,25 @@ def run_odometry(seq: StereoSequence, methods: tuple[str | Variant, ...] = ("rob
     runs = {m: MethodRun(m) for m in methods}
     n = len(seq) if max_steps is None else min(len(seq), max_steps + 1)
     frames: dict[str, StereoFrame] = {}
-    last_left = None
+    last = None
     for i in range(n):
         active = [m for m in methods if runs[m].error is None]
         if not active:
             break
         try:
             left_img, right_img = seq.load(i)
-            if last_left is not None and np.array_equal(left_img, last_left):
-                raise OdometryError(f"step {i}: image {i} repeats image {i - 1} exactly "
-                                    "(a stalled camera or a duplicated file)",
-                                    hint="remove the duplicate or re-record the sequence")
+            if last is not None:
+                for side, img, before in (("left", left_img, last[0]), ("right", right_img, last[1])):
+                    if np.array_equal(img, before):
+                        raise OdometryError(f"step {i}: the {side} image {i} repeats image {i - 1} "
+                                            "exactly (a stalled camera or a duplicated file)",
+                                            hint="remove the duplicate or re-record the sequence")
         except OdometryError as e:
             msg = str(e) if str(e).startswith("step") else f"step {i}: {e}"
             for m in active:
                 runs[m].error = OdometryError(msg, hint=e.hint)
             break
-        last_left = left_img
+        last = (left_img, right_img)
         det_l = detect(left_img)
         det_r = detect(right_img)
         pairs: dict[float, tuple] = {}             # left-right matches, shared by the methods
