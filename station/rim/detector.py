@@ -26,7 +26,7 @@ from station.errors import RimNotFound
 from station.rim import edges as edges_mod
 from station.rim import hough
 from station.rim.ellipse import Ellipse
-from station.rim.ellipse_fit import fit_geometric, ransac_ellipse
+from station.rim.ellipse_fit import fit_direct, fit_geometric, ransac_ellipse
 from station.rim.preprocess import PixelMap, detection_scale, downscale, equalize, to_grey
 from station.rim.subpixel import edge_points
 
@@ -262,7 +262,8 @@ def _refine(grey: np.ndarray, e_full: Ellipse, pmap: PixelMap, passes=PASSES):
     fit = samples = None
     e = e_full
     sigma = None  # the image's edge blur, estimated once
-    for window, method in passes:
+    for k, (window, method) in enumerate(passes):
+        final = k == len(passes) - 1
         samples, _ = edge_points(grey, e, pmap, window_px=window, method=method)
         ok = samples.ok
         if ok.sum() < MIN_POINTS:
@@ -275,8 +276,8 @@ def _refine(grey: np.ndarray, e_full: Ellipse, pmap: PixelMap, passes=PASSES):
         if keep is None or keep.sum() < MIN_POINTS:
             return None, samples, ok
         try:
-            e_cons = fit_geometric(ideal[keep], init=e).ellipse
-            fit = fit_geometric(ideal, init=e_cons)
+            e_cons = fit_direct(ideal[keep])
+            fit = fit_geometric(ideal, init=e_cons, iterations=12 if final else 5)
         except (ValueError, np.linalg.LinAlgError):
             return None, samples, ok
         e = fit.ellipse

@@ -169,7 +169,7 @@ def ransac_ellipse(pts: np.ndarray, threshold_px: float, iterations: int = 160,
     if not ellipse.any():
         return None
     Q = Q[ellipse]
-    d = _sampson(Q, x, y) * scale
-    support = (d < threshold_px).sum(axis=1)
+    probe = rng.choice(n, min(n, 400), replace=False)  # score the hypotheses on a sample
+    support = (_sampson(Q, x[probe], y[probe]) * scale < threshold_px).sum(axis=1)
     best = int(np.argmax(support))
-    return d[best] < threshold_px
+    return _sampson(Q[best:best + 1], x, y)[0] * scale < threshold_px
