@@ -68,7 +68,13 @@ def run(args) -> int:
     methods = ("paper", "robust") if args.method == "both" else (args.method,)
     print(f"{directory}: {len(seq)} stereo images ({seq.layout} layout), "
           f"{seq.left.width}x{seq.left.height}, baseline {abs(seq.right.t_cam_station[0]):.3f} m")
-    runs = run_odometry(seq, methods, max_steps=args.max_steps)
+    progress = None
+    if sys.stderr.isatty():
+        def progress(method, step, run):
+            print(f"\r{method}: step {step}/{len(seq) - 1}", end="", file=sys.stderr, flush=True)
+    runs = run_odometry(seq, methods, max_steps=args.max_steps, on_step=progress)
+    if progress:
+        print(file=sys.stderr)
 
     B_true = None if seq.truth is None else seq.truth[:, :3, 3]
     if not args.quiet:

@@ -116,8 +116,9 @@ def run_odometry(seq: StereoSequence, methods: tuple[str | Variant, ...] = ("rob
                 runs[m].error = OdometryError(msg, hint=e.hint)
             break
         last = (left_img, right_img)
-        det_l = detect(left_img)
-        det_r = detect(right_img)
+        max_features = max(variants[m].matching.max_features for m in active)
+        det_l = detect(left_img, max_features)
+        det_r = detect(right_img, max_features)
         pairs: dict[float, tuple] = {}             # left-right matches, shared by the methods
         for m in active:
             v = variants[m]
