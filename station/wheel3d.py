@@ -209,13 +209,41 @@ def _normal_from(params, n0, e1, e2):
     return n / np.linalg.norm(n)
 
 
+def edge_visibility(cam: CameraModel, xy: np.ndarray, circle: WheelFit) -> np.ndarray:
+    """(N,) how safely each rim point is seen past the tyre: the cosine between the viewing ray
+    at the point and the rim's outward radial direction there.
+
+    The tyre's sidewall stands outside the flange edge and bulges toward the cameras. A ray that
+    reaches the edge travelling radially outward has passed over the rim, never the tyre; one
+    travelling inward has passed over the sidewall, which may hide the edge (oblique views, the
+    side of the rim nearer the camera). xy: (N,2) normalised points of ``cam``.
+    """
+    C = cam.center_station
+    d = np.concatenate([xy, np.ones((len(xy), 1))], axis=1) @ cam.R_cam_station  # rays, station frame
+    n, c = circle.axis_station, circle.center_station
+    s = ((c - C) @ n) / (d @ n)
+    P = C + s[:, None] * d                     # where each ray meets the rim plane
+    rho = (P - c) - np.outer((P - c) @ n, n)
+    rho /= np.linalg.norm(rho, axis=1, keepdims=True)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    return np.einsum("ij,ij->i", d, rho)
+
+
 def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: CameraModel,
-                  cam_r: CameraModel, init: WheelFit, loss_scale_px: float = 0.3) -> WheelFit:
-    """Fit one 3-D circle to both views' rim points by minimising image distance (px)."""
+                  cam_r: CameraModel, init: WheelFit, loss_scale_px: float = 0.3,
+                  visibility_margin: float | None = None) -> WheelFit:
+    """Fit one 3-D circle to both views' rim points by minimising image distance (px).
+
+    Points where the tyre's sidewall may hide the flange edge (:func:`edge_visibility` below
+    ``visibility_margin``) are left out; None keeps every point.
+    """
     views = []
     for cam, pts in ((cam_l, points_l_px), (cam_r, points_r_px)):
         xy = cam.pixels_to_normalized(pts)
-        views.append((cam, xy[np.all(np.isfinite(xy), axis=1)], 0.5 * (cam.K[0, 0] + cam.K[1, 1])))
+        xy = xy[np.all(np.isfinite(xy), axis=1)]
+        if visibility_margin is not None:
+            xy = xy[edge_visibility(cam, xy, init) > visibility_margin]
+        views.append((cam, xy, 0.5 * (cam.K[0, 0] + cam.K[1, 1])))
     n0 = init.axis_station / np.linalg.norm(init.axis_station)
     e1 = np.cross(n0, [0.0, 0.0, 1.0])
     e1 /= np.linalg.norm(e1)
