@@ -11,15 +11,20 @@ over 11 steps; the target for the robust variant is a mean <= 0.025 m and drift 
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from pathlib import Path
 
-from simulators.odometry_scene import write_sequence
-from station.odometry.features import PAPER_MATCHING, MatchSettings
-from station.odometry.pipeline import Variant, run_odometry
-from station.odometry.robust_vo import RobustSettings
-from station.odometry.sequence_io import open_sequence
-from station.odometry.trajectory import summarize
+# Run as a script, Python puts bench/ first on the path, where bench/calibration.py would
+# shadow the calibration package: the repository root goes first.
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from simulators.odometry_scene import write_sequence  # noqa: E402
+from station.odometry.features import PAPER_MATCHING, MatchSettings  # noqa: E402
+from station.odometry.pipeline import Variant, run_odometry  # noqa: E402
+from station.odometry.robust_vo import RobustSettings  # noqa: E402
+from station.odometry.sequence_io import open_sequence  # noqa: E402
+from station.odometry.trajectory import summarize  # noqa: E402
 
 VARIANTS = (
     Variant("paper", "paper", PAPER_MATCHING),
