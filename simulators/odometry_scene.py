@@ -186,12 +186,17 @@ def _clip_near(poly: np.ndarray, near: float = 1e-3) -> np.ndarray:
 
 def render(room: Room, cam: CameraModel, rng: np.random.Generator | None = None,
            noise_grey: float = 1.0) -> np.ndarray:
-    """Ray cast ``room`` through pinhole ``cam`` (no distortion): (H, W) uint8."""
+    """Ray cast ``room`` through ``cam`` (pinhole + its lens distortion): (H, W) uint8."""
     W, H = cam.width, cam.height
     K = cam.K
     uu, vv = np.meshgrid(np.arange(W, dtype=float), np.arange(H, dtype=float))
     Rt = cam.R_cam_station.T                            # world <- camera
-    xc, yc = (uu - K[0, 2]) / K[0, 0], (vv - K[1, 2]) / K[1, 1]
+    distorted = bool(np.any(cam.dist))
+    if distorted:                                       # each pixel's undistorted ray
+        xy = cam.pixels_to_normalized(np.stack([uu.ravel(), vv.ravel()], axis=1))
+        xc, yc = xy[:, 0].reshape(H, W), xy[:, 1].reshape(H, W)
+    else:
+        xc, yc = (uu - K[0, 2]) / K[0, 0], (vv - K[1, 2]) / K[1, 1]
     dx, dy, dz = (Rt[k, 0] * xc + Rt[k, 1] * yc + Rt[k, 2] for k in range(3))  # (H,W) each
     C = cam.center_station
     depth = np.full((H, W), np.inf)
@@ -207,9 +212,17 @@ def render(room: Room, cam: CameraModel, rng: np.random.Generator | None = None,
         poly = _clip_near(cam.station_to_cam(corners))
         if len(poly) < 3:
             continue
-        uv = poly[:, :2] / poly[:, 2:] * [K[0, 0], K[1, 1]] + K[:2, 2]
-        c0, r0 = np.floor(uv.min(0)).astype(int) - 1
-        c1, r1 = np.ceil(uv.max(0)).astype(int) + 1
+        if distorted:   # the pixels whose rays fall in the polygon's pinhole bounding box
+            lo, hi = (poly[:, :2] / poly[:, 2:]).min(0), (poly[:, :2] / poly[:, 2:]).max(0)
+            m = (xc >= lo[0]) & (xc <= hi[0]) & (yc >= lo[1]) & (yc <= hi[1])
+            rows, cols = np.flatnonzero(m.any(1)), np.flatnonzero(m.any(0))
+            if not len(rows):
+                continue
+            c0, r0, c1, r1 = cols[0] - 1, rows[0] - 1, cols[-1] + 1, rows[-1] + 1
+        else:
+            uv = poly[:, :2] / poly[:, 2:] * [K[0, 0], K[1, 1]] + K[:2, 2]
+            c0, r0 = np.floor(uv.min(0)).astype(int) - 1
+            c1, r1 = np.ceil(uv.max(0)).astype(int) + 1
         c0, r0, c1, r1 = max(c0, 0), max(r0, 0), min(c1, W - 1), min(r1, H - 1)
         if c0 > c1 or r0 > r1:
             continue
@@ -271,6 +284,7 @@ class Rig:
     f_px: float = 480.0
     width: int = WIDTH
     height: int = HEIGHT
+    dist: tuple[float, float, float, float, float] = (0.0, 0.0, 0.0, 0.0, 0.0)  # both cameras
 
     def K(self) -> np.ndarray:
         return np.array([[self.f_px, 0, (self.width - 1) / 2], [0, self.f_px, (self.height - 1) / 2],
@@ -278,8 +292,9 @@ class Rig:
 
     def cameras_rig(self) -> tuple[CameraModel, CameraModel]:
         """The pair in the rig frame (= left camera frame): x_right = I x_left + (-b, 0, 0)."""
-        left = CameraModel("left", self.width, self.height, self.K())
-        right = CameraModel("right", self.width, self.height, self.K(), np.zeros(5), np.eye(3),
+        dist = np.array(self.dist, float)
+        left = CameraModel("left", self.width, self.height, self.K(), dist)
+        right = CameraModel("right", self.width, self.height, self.K(), dist, np.eye(3),
                             np.array([-self.baseline_m, 0.0, 0.0]))
         return left, right
 

@@ -160,3 +160,19 @@ def test_unwritable_output_is_a_clear_error(small_seq, tmp_path, capsys):
     err = capsys.readouterr().err
     assert rc == cli.EXIT_ERROR
     assert "cannot write the trajectory" in err and "Traceback" not in err
+
+
+def test_lens_distortion_is_undone(tmp_path):
+    rig = Rig(width=360, height=240, f_px=240.0, dist=(-0.12, 0.03, 5e-4, -3e-4, 0.0))
+    d = write_sequence(tmp_path / "dist", "short", seed=0, rig=rig, poses_xy_yaw=path("short")[:N_IMAGES])
+    seq = open_sequence(d)
+    assert np.allclose(seq.left.dist, rig.dist)
+    good = summarize(run_odometry(seq, ("robust",))["robust"].trajectory.positions, seq.truth[:, :3, 3])
+    assert good.mean_m < 0.01
+    spec = json.loads((d / "stereo.json").read_text())
+    for side in ("left", "right"):
+        spec[side]["dist"] = [0.0] * 5             # pretend the lens were a pinhole
+    (d / "stereo.json").write_text(json.dumps(spec))
+    seq = open_sequence(d)
+    bad = summarize(run_odometry(seq, ("robust",))["robust"].trajectory.positions, seq.truth[:, :3, 3])
+    assert bad.mean_m > 1.5 * good.mean_m
