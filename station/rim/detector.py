@@ -203,6 +203,17 @@ def _choose(sc: _Scene, cands: list[hough.Candidate], tag: str) -> tuple[hough.C
             if (o is not r and 0.5 < ratio < 0.87 and np.linalg.norm(eo.center_px - e.center_px) < 0.08 * e.axes_px[0]
                     and o["cand"].coverage > 0.7 and o["ring"] > 0.9):
                 r["score"] *= 0.5
+                r["tyre_outline"] = True
+                break
+    # a closed, tyre-bordered contour much larger and concentric: this one is the hub or disc
+    for r in rows:
+        e = r["cand"].ellipse
+        for o in rows:
+            eo = o["cand"].ellipse
+            if (o is not r and not o.get("tyre_outline") and eo.axes_px[0] > 1.3 * e.axes_px[0]
+                    and np.linalg.norm(eo.center_px - e.center_px) < 0.08 * eo.axes_px[0]
+                    and o["cand"].coverage > 0.8 and o["ring"] > 0.8):
+                r["score"] *= 0.5
                 break
     rows.sort(key=lambda r: -r["score"])
     if not rows or rows[0]["cand"].coverage < MIN_COVERAGE or rows[0]["score"] < MIN_SCORE:
@@ -264,7 +275,7 @@ def _refine(grey: np.ndarray, e_full: Ellipse, pmap: PixelMap, passes=PASSES):
     sigma = None  # the image's edge blur, estimated once
     for k, (window, method) in enumerate(passes):
         final = k == len(passes) - 1
-        samples, _ = edge_points(grey, e, pmap, window_px=window, method=method)
+        samples, _ = edge_points(grey, e, pmap, window_px=window, method=method, precise_blur=final)
         ok = samples.ok
         if ok.sum() < MIN_POINTS:
             return None, samples, ok
