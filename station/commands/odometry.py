@@ -12,6 +12,8 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+import numpy as np
+
 from station.errors import OdometryError
 
 HELP = "stereo visual odometry of an image sequence (paper section 3.3)"
@@ -67,7 +69,7 @@ def run(args) -> int:
     seq = open_sequence(directory, args.poses)
     methods = ("paper", "robust") if args.method == "both" else (args.method,)
     print(f"{directory}: {len(seq)} stereo images ({seq.layout} layout), "
-          f"{seq.left.width}x{seq.left.height}, baseline {abs(seq.right.t_cam_station[0]):.3f} m")
+          f"{seq.left.width}x{seq.left.height}, baseline {float(np.linalg.norm(seq.right.t_cam_station)):.3f} m")
     progress = None
     if sys.stderr.isatty():
         def progress(method, step, run):
