@@ -23,7 +23,7 @@ import numpy as np
 from calibration.camera_model import CameraModel
 from simulators.rays import grid_start, normalized_to_rays_station, pixel_grid_normalized, sample_rays_station
 from simulators.render_body import floor_shadow, trace_body
-from simulators.render_wheel import BARREL, FLANGE, TYRE, trace_wheel, wheel_outline_points
+from simulators.render_wheel import BARREL, FLANGE, trace_wheel, wheel_outline_points
 from simulators.scene import Lighting, Scene
 from simulators.shading import LABEL_QUAD, LABEL_WHEEL, Hits
 from simulators.vehicle import WHEELS
@@ -31,7 +31,7 @@ from simulators.workshop import trace_floor, trace_quads, trace_room
 
 EDGE_RADIANCE_STEP = 0.04   # radiance jump between neighbours that also counts as an edge (~10 grey)
 CLUTTER_SAMPLES = 13        # samples per edge pixel away from measured features (1/26 px)
-PRECISE_PARTS = (FLANGE, BARREL, TYRE)  # wheel parts whose edges are measured: full supersampling
+PRECISE_PARTS = (FLANGE, BARREL)  # wheel parts next to the measured edge: full supersampling
 
 
 _RAY_CACHE: dict = {}
@@ -121,11 +121,16 @@ def _caliper_angle(vehicle, name: str, R: np.ndarray) -> float:
 
 
 def trace(o: np.ndarray, d: np.ndarray, scene: Scene, lighting: Lighting,
-          wheel_candidates: dict[int, np.ndarray], body: bool = True) -> Hits:
-    """Nearest hits of rays d (N,3) from o (3,); wheel_candidates: wheel index -> ray indices."""
+          wheel_candidates: dict[int, np.ndarray], body: bool = True,
+          quad_candidates: dict[int, np.ndarray] | None = None) -> Hits:
+    """Nearest hits of rays d (N,3) from o (3,).
+
+    wheel_candidates / quad_candidates: {index: ray indices} that may see that wheel / quad
+    (a wheel missing from the dict is not traced; quads default to all rays).
+    """
     hits = Hits(len(d))
     if scene.quads:
-        trace_quads(o, d, hits, lighting, scene.quads)
+        trace_quads(o, d, hits, lighting, scene.quads, quad_candidates)
     vehicle = scene.vehicle
     if vehicle is not None and body:
         trace_body(o, d, np.arange(len(d)), hits, lighting, vehicle)
@@ -178,6 +183,31 @@ def _edge_mask(label: np.ndarray, value: np.ndarray) -> np.ndarray:
     return diff
 
 
+def _near(label: np.ndarray, lo: int, hi: int) -> np.ndarray:
+    """(H,W) bool: pixels with a label in [lo, hi) in their 3x3 neighbourhood."""
+    m = ((label >= lo) & (label < hi)).astype(np.uint8)
+    return cv2.dilate(m, np.ones((3, 3), np.uint8)).astype(bool)
+
+
+def quad_masks(camera: CameraModel, scene: Scene, margin_px: int = 3) -> dict[int, np.ndarray | None]:
+    """{quad index: (H,W) bool pixels that may see it, or None (all)}: the convex hull of its
+    densely projected outline (distortion bends the edges), grown by ``margin_px``."""
+    out = {}
+    s = np.linspace(0, 1, 16, endpoint=False)[:, None]
+    for i, q in enumerate(scene.quads):
+        c = np.asarray(q.corners_station, float)
+        outline = np.vstack([c[k] + s * (c[(k + 1) % 4] - c[k]) for k in range(4)])
+        uv = camera.project(outline)
+        if not (np.isfinite(uv).all() and np.abs(uv).max() < 1e5):
+            out[i] = None
+            continue
+        mask = np.zeros((camera.height, camera.width), np.uint8)
+        cv2.fillConvexPoly(mask, cv2.convexHull(np.round(uv * 16).astype(np.int32)), 1, cv2.LINE_8, 4)
+        k = 2 * margin_px + 1
+        out[i] = cv2.dilate(mask, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))).astype(bool)
+    return out
+
+
 def _precise_area(label: np.ndarray) -> np.ndarray:
     """(H,W) bool: printed quads and the rim flange's surroundings, dilated by one pixel."""
     part = np.mod(label - LABEL_WHEEL, 40)
@@ -196,7 +226,9 @@ def render_radiance(camera: CameraModel, scene: Scene, lighting: Lighting | None
     d = _pixel_rays(camera, grid)
     masks = wheel_masks(camera, scene)
     cand = {i: np.flatnonzero(m) for i, m in masks.items()}
-    hits = trace(o, d, scene, lighting, cand, body)
+    qmasks = quad_masks(camera, scene)
+    qcand = {i: np.flatnonzero(m) for i, m in qmasks.items() if m is not None}
+    hits = trace(o, d, scene, lighting, cand, body, qcand)
     label = hits.label.reshape(H, W)
     value = hits.value.reshape(H, W).copy()
     edges = _edge_mask(label, value) if supersample > 1 else np.zeros((H, W), bool)
@@ -211,12 +243,14 @@ def render_radiance(camera: CameraModel, scene: Scene, lighting: Lighting | None
             uv[:, 1] = (rr[:, None] + offsets[None, :, 1]).ravel()
             start = grid_start(grid, rr, cc, offsets)
             ds = sample_rays_station(camera, uv, start)
-            scand = {}
-            prow = np.repeat(rr, S)
-            pcol = np.repeat(cc, S)
-            for i, m in masks.items():
-                scand[i] = np.flatnonzero(m[prow, pcol])
-            sh = trace(o, ds, scene, lighting, scand, body)
+            # a sample can only see a wheel or quad that a pixel centre of its 3x3
+            # neighbourhood sees (thinner slivers are below what the edge test resolves)
+            offs = np.arange(S)
+            scand = {i: (np.flatnonzero(_near(label, LABEL_WHEEL + 40 * i, LABEL_WHEEL + 40 * (i + 1))[rr, cc])[:, None] * S
+                         + offs).ravel() for i in masks}
+            sq = {i: (np.flatnonzero(_near(label, LABEL_QUAD + i, LABEL_QUAD + i + 1)[rr, cc])[:, None] * S
+                      + offs).ravel() for i in range(len(scene.quads))}
+            sh = trace(o, ds, scene, lighting, scand, body, sq)
             value[rr, cc] = sh.value.reshape(-1, S).mean(axis=1)
     return value, label
 

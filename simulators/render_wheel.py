@@ -81,14 +81,15 @@ def _profile_normals(profile: np.ndarray) -> np.ndarray:
 class _Rays:
     """Rays in the wheel frame with the terms shared by every part; parts work on index subsets.
 
-    o: (3,) origin, d: (N,3) unit directions, both in the wheel frame.
+    o: (3,) origin; du, dv, dw: (N,) unit direction components, all in the wheel frame.
     """
 
-    def __init__(self, o_w: np.ndarray, d_w: np.ndarray):
+    def __init__(self, o_w: np.ndarray, dirs: np.ndarray, R: np.ndarray):
+        """o_w: (3,) wheel frame; dirs: (N,3) station frame; R: R_station_wheel (3,3)."""
         self.o = o_w
-        self.du = np.ascontiguousarray(d_w[:, 0])
-        self.dv = np.ascontiguousarray(d_w[:, 1])
-        self.dw = np.ascontiguousarray(d_w[:, 2])
+        # d_wheel = R^T d, one component at a time (no BLAS, no (N,3) temporaries)
+        self.du, self.dv, self.dw = (dirs[:, 0] * R[0, k] + dirs[:, 1] * R[1, k] + dirs[:, 2] * R[2, k]
+                                     for k in range(3))
         self.a2 = self.du * self.du + self.dv * self.dv
         self.b1 = o_w[0] * self.du + o_w[1] * self.dv
         self.c0 = o_w[0] ** 2 + o_w[1] ** 2
@@ -177,7 +178,7 @@ def trace_wheel(o: np.ndarray, d: np.ndarray, idx: np.ndarray, hits: Hits, light
     if idx.size == 0:
         return
     R = R_station_wheel
-    rays = _Rays(R.T @ (o - center), rowmat(d[idx], R))
+    rays = _Rays(R.T @ (o - center), d[idx], R)
     n = idx.size
     r_in = g.rim_radius_m - g.flange_width_m
     D = g.rim_face_depth_m

@@ -158,33 +158,41 @@ def trace_floor(o: np.ndarray, d: np.ndarray, idx: np.ndarray, hits: Hits, light
 
 
 def trace_quads(o: np.ndarray, d: np.ndarray, hits: Hits, lighting: Lighting,
-                quads: tuple[TexturedQuad, ...]) -> None:
-    """Textured parallelograms (bilinear texture); nearest hit wins, so closed boxes work."""
+                quads: tuple[TexturedQuad, ...], candidates: dict[int, np.ndarray] | None = None) -> None:
+    """Textured parallelograms (bilinear texture); nearest hit wins, so closed boxes work.
+
+    candidates: {quad index: ray indices that may see it}; missing: all rays.
+    """
+    candidates = candidates or {}
     for qi, quad in enumerate(quads):
         c = np.asarray(quad.corners_station, float)
         e1 = c[1] - c[0]                     # texture +x (width)
         e2 = c[3] - c[0]                     # texture +y (height)
         n = np.cross(e1, e2)
         n /= np.linalg.norm(n)
-        denom = d @ n
+        sub = candidates.get(qi)
+        ds = d if sub is None else d[sub]
+        denom = ds[:, 0] * n[0] + ds[:, 1] * n[1] + ds[:, 2] * n[2]
         with np.errstate(divide="ignore", invalid="ignore"):
             t = ((c[0] - o) @ n) / denom
-        cand = np.nonzero(np.isfinite(t) & (t > 0))[0]
+        cand = np.flatnonzero(np.isfinite(t) & (t > 0))
+        t = t[cand]
+        if sub is not None:
+            cand = sub[cand]
         if cand.size == 0:
             continue
-        t = t[cand]
-        p = o + t[:, None] * d[cand] - c[0]
-        # dual basis: a = p.g1, b = p.g2 with p = a e1 + b e2
+        # texture coordinates by the dual basis: a = p.g1, b = p.g2 with p = a e1 + b e2
         G = np.linalg.pinv(np.stack([e1, e2], axis=1))  # (2,3)
-        ab = rowmat(p, G.T)
-        inside = (ab[:, 0] >= 0) & (ab[:, 0] <= 1) & (ab[:, 1] >= 0) & (ab[:, 1] <= 1)
+        oc = o - c[0]
+        dc = d[cand]
+        a = oc @ G[0] + t * (dc[:, 0] * G[0, 0] + dc[:, 1] * G[0, 1] + dc[:, 2] * G[0, 2])
+        b = oc @ G[1] + t * (dc[:, 0] * G[1, 0] + dc[:, 1] * G[1, 1] + dc[:, 2] * G[1, 2])
+        inside = (a >= 0) & (a <= 1) & (b >= 0) & (b <= 1)
         inside &= hits.take(cand, t)
         idx = cand[inside]
         if idx.size == 0:
             continue
-        ab = ab[inside]
         tex = quad.texture
         th, tw = tex.shape
-        value = bilinear(tex, ab[:, 0] * tw, ab[:, 1] * th) * (quad.albedo / 255.0)
-        normals = np.broadcast_to(n, (idx.size, 3))
-        hits.store(idx, t[inside], LABEL_QUAD + qi, shade(value, normals, d[idx], lighting))
+        value = bilinear(tex, a[inside] * tw, b[inside] * th) * (quad.albedo / 255.0)
+        hits.store(idx, t[inside], LABEL_QUAD + qi, shade(value, n, dc[inside], lighting))
