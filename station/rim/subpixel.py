@@ -232,6 +232,22 @@ def estimate_blur(prof: np.ndarray, s: np.ndarray, polarity: float = -1.0, refin
     return float(0.5 * (lo + hi))
 
 
+def _tyre_side_flat(prof: np.ndarray, s: np.ndarray, s0: np.ndarray, h: np.ndarray, sigma: float,
+                    max_rise: float = 0.4) -> np.ndarray:
+    """(N,) bool: beyond the step the profile does not climb back by more than ``max_rise`` of
+    the jump. Where the lit tyre bead is brighter than a lip shaded dark at its edge, the only
+    bright-inside feature along the normal is the lip's shading ramp, not the flange edge."""
+    x = s[None, :] - s0[:, None]
+    near = (x > 1.5 * sigma) & (x < 1.5 * sigma + 1.01)
+    far = x > 1.5 * sigma
+    with np.errstate(invalid="ignore"):
+        low = np.where(near, prof, np.nan)
+        low = np.nanmean(np.where(near.any(axis=1, keepdims=True), low, prof[:, -1:]), axis=1)
+        top = np.max(np.where(far, prof, -np.inf), axis=1)
+    top = np.where(np.isfinite(top), top, low)
+    return (top - low) < max_rise * np.abs(h)
+
+
 def edge_points(grey: np.ndarray, ellipse: Ellipse, pmap: PixelMap | None = None, n: int | None = None,
                 window_px: tuple[float, float] = (-4.0, 4.0), step_px: float = 0.5, spacing_px: float = 1.5,
                 method: str = "kink", sigma: float | None = None,
@@ -275,6 +291,7 @@ def edge_points(grey: np.ndarray, ellipse: Ellipse, pmap: PixelMap | None = None
                 strong = np.argsort(-np.abs(p[:, 2]) + np.where(conv, 0, 1e9))[:min(100, len(idx))]
                 sigma = estimate_blur(prof[strong], s, refine_steps=7 if precise_blur else 2)
             s0, hh, r, conv = fit_kinks(prof, s, sigma)
+            conv &= _tyre_side_flat(prof, s, s0, hh, sigma)
             p[:, 3], p[:, 2], p[:, 4] = s0, hh / 2, sigma
         pts[idx] = base[idx] + p[:, 3:4] * nrm[idx]
         contrast[idx] = np.abs(2 * p[:, 2])
