@@ -42,6 +42,7 @@ class BoxDetection:
     face: np.ndarray
     vertex_pixels: np.ndarray
     faces: dict = field(default_factory=dict)
+    vertices_box: np.ndarray = field(default_factory=lambda: np.full((8, 3), np.nan))  # (8,3) B_k
 
     @property
     def n_points(self) -> int:
@@ -53,7 +54,7 @@ class BoxDetection:
 
     def select(self, mask: np.ndarray) -> "BoxDetection":
         return BoxDetection(self.ids[mask], self.points_box[mask], self.pixels[mask], self.face[mask],
-                            self.vertex_pixels, dict(self.faces))
+                            self.vertex_pixels, dict(self.faces), self.vertices_box)
 
 
 def _to_gray(image: np.ndarray) -> np.ndarray:
@@ -114,7 +115,7 @@ class BoxDetector:
             ids_all, px_all = np.zeros(0, int), np.zeros((0, 2))
         points = self.box.points_for_ids(ids_all) if len(ids_all) else np.zeros((0, 3))
         return BoxDetection(ids_all, points, px_all, ids_all // POINT_ID_STRIDE,
-                            self._vertices(homographies), faces)
+                            self._vertices(homographies), faces, self.box.vertices.copy())
 
     def _refine(self, gray: np.ndarray, px: np.ndarray, uv_face: np.ndarray, H: np.ndarray) -> np.ndarray:
         """cornerSubPix with a window that fits inside the white gap around each corner."""
@@ -143,19 +144,39 @@ class BoxDetector:
         return out
 
     def _vertices(self, homographies: dict) -> np.ndarray:
-        acc = np.zeros((8, 2))
-        n = np.zeros(8)
-        for f in self.box.faces:
-            H = homographies.get(f.index)
-            if H is None:
-                continue
-            w, h = f.size_m
-            uv = np.array([[0, 0], [w, 0], [w, h], [0, h]], float)
-            px = cv2.perspectiveTransform(uv.reshape(-1, 1, 2), H).reshape(-1, 2)
-            k = self.box.face_vertex_indices(f)
-            acc[k] += px
-            n[k] += 1
-        with np.errstate(invalid="ignore"):
-            out = acc / n[:, None]
-        out[n == 0] = np.nan
-        return out
+        return vertices_from_homographies(self.box, homographies)
+
+
+def face_homographies(box: BoxTarget, ids: np.ndarray, pixels: np.ndarray) -> dict:
+    """face index -> 3x3 homography face plane (m) -> image, from a face's detected corners."""
+    out = {}
+    faces = ids // POINT_ID_STRIDE
+    for f in box.faces:
+        sel = faces == f.index
+        if sel.sum() < MIN_FACE_CORNERS:
+            continue
+        H, _ = cv2.findHomography(f.charuco_uv_m[ids[sel] % POINT_ID_STRIDE], pixels[sel], 0)
+        if H is not None:
+            out[f.index] = H
+    return out
+
+
+def vertices_from_homographies(box: BoxTarget, homographies: dict) -> np.ndarray:
+    """(8,2) vertex pixels: each face's corners placed by its homography, averaged over the
+    faces sharing a vertex; NaN for vertices on no detected face."""
+    acc = np.zeros((8, 2))
+    n = np.zeros(8)
+    for f in box.faces:
+        H = homographies.get(f.index)
+        if H is None:
+            continue
+        w, h = f.size_m
+        uv = np.array([[0, 0], [w, 0], [w, h], [0, h]], float)
+        px = cv2.perspectiveTransform(uv.reshape(-1, 1, 2), H).reshape(-1, 2)
+        k = box.face_vertex_indices(f)
+        acc[k] += px
+        n[k] += 1
+    with np.errstate(invalid="ignore"):
+        out = acc / n[:, None]
+    out[n == 0] = np.nan
+    return out

@@ -46,8 +46,9 @@ class IntrinsicsEstimate:
     dist: np.ndarray
     view_R: dict      # view index -> R_cam_box (3,3)
     view_t: dict      # view index -> t_cam_box (3,)
-    linear_K: list    # per-view K of the paper's closed form
+    linear_K: list    # per-view K of the paper's closed form (all corners)
     bundle: BundleResult
+    vertex_K: list = field(default_factory=list)  # per-view K from the detected vertices only
 
 
 @dataclass
@@ -59,6 +60,7 @@ class PairResult:
     cameras: dict = field(default_factory=dict)   # cam id -> CameraCalibration
     linear_fixture: dict = field(default_factory=dict)  # cam id -> (R, t) of the paper's closed form
     linear_K: dict = field(default_factory=dict)        # cam id -> median K of the paper's closed form
+    vertex_K: dict = field(default_factory=dict)        # cam id -> median K from the vertices only
 
 
 def _usable(det: BoxDetection | None) -> bool:
@@ -70,6 +72,12 @@ def _linear_points(det: BoxDetection):
     vertices; its equations hold for any box points of known position, and the corners are
     measured, whereas our vertex pixels are extrapolated (BoxDetection.vertex_pixels)."""
     return det.points_box, det.pixels
+
+
+def paper_vertices(det: BoxDetection):
+    """(V,3) box vertices B_k and (V,2) their pixels, for the vertices the detection placed."""
+    vis = det.vertex_mask & np.all(np.isfinite(det.vertices_box), axis=1)
+    return det.vertices_box[vis], det.vertex_pixels[vis]
 
 
 def calibrate_intrinsics(cam_id: str, width: int, height: int,
@@ -88,6 +96,16 @@ def calibrate_intrinsics(cam_id: str, width: int, height: int,
             continue  # one face only (coplanar) or degenerate: no closed form from this view
         if res.K[0, 0] > 0 and np.all(res.depths > 0):
             linear_K.append(res.K)
+    vertex_K = []
+    for i in views:  # the paper's points proper: the vertices found from the face boards
+        d = detections[i]
+        B, uv = paper_vertices(d)
+        if len(B) >= 6:
+            try:
+                res = paper_box_calibration(B, uv)
+                vertex_K.append(res.K)
+            except CalibrationError:
+                pass
     if not linear_K:
         raise CalibrationError(f"camera {cam_id}: no box pose shows two faces of the box, so the paper's "
                                "closed form has no solution (all points coplanar)",
@@ -110,7 +128,7 @@ def calibrate_intrinsics(cam_id: str, width: int, height: int,
     res = prob.solve()
     Rv = rotations(res.view_rvec)
     return IntrinsicsEstimate(cam_id, res.K(0), res.dist(0), {i: Rv[j] for j, i in enumerate(views)},
-                              {i: res.view_t[j] for j, i in enumerate(views)}, linear_K, res)
+                              {i: res.view_t[j] for j, i in enumerate(views)}, linear_K, res, vertex_K)
 
 
 def _undistorted_pixels(K, dist, pixels):
@@ -174,7 +192,9 @@ def calibrate_pair(wheel: str, left: str, right: str, sizes: dict, intrinsic_det
                          view_rvec, view_t, obs, free_view=used & (np.arange(n_views + 1) != fixture_view))
     res = prob.solve()
     result = PairResult(wheel, left, right, res, linear_fixture=pose0,
-                        linear_K={c: np.median(np.array(intr[c].linear_K), axis=0) for c in (left, right)})
+                        linear_K={c: np.median(np.array(intr[c].linear_K), axis=0) for c in (left, right)},
+                        vertex_K={c: np.median(np.array(intr[c].vertex_K), axis=0) for c in (left, right)
+                                  if intr[c].vertex_K})
     for c, cam in enumerate((left, right)):
         w, h = sizes[cam]
         model = CameraModel(cam, w, h, res.K(c), res.dist(c), res.R_cam_station(c), res.t_cam_station(c))

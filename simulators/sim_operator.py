@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from calibration.box_detect import BoxDetection
+from calibration.box_detect import BoxDetection, face_homographies, vertices_from_homographies
 from calibration.box_target import POINT_ID_STRIDE, BoxTarget, box_pose_on_floor
 from calibration.camera_model import rodrigues_to_matrix
 from simulators.scene import Scene, TexturedQuad
@@ -102,4 +102,6 @@ def projected_detection(box: BoxTarget, camera, R_station_box, t_station_box, si
     ids_all, px_all = np.concatenate(ids), np.vstack(px)
     if sigma_px:
         px_all = px_all + (rng or np.random.default_rng(0)).normal(0, sigma_px, px_all.shape)
-    return BoxDetection(ids_all, np.vstack(pts), px_all, ids_all // POINT_ID_STRIDE, np.full((8, 2), np.nan))
+    vertices = vertices_from_homographies(box, face_homographies(box, ids_all, px_all))  # as the detector does
+    return BoxDetection(ids_all, np.vstack(pts), px_all, ids_all // POINT_ID_STRIDE, vertices, {},
+                        box.vertices.copy())
