@@ -130,7 +130,8 @@ def main() -> int:
         if not path.exists():
             print(f"no calibration at {path}: run `station calibrate` first (or --calibration truth)", file=sys.stderr)
             return 2
-        sources["file"] = load_calibration(path, config).cameras
+        calib = load_calibration(path, config)
+        sources["file"] = {cid: calib.model(cid) for cid in config.cameras}
     methods = args.methods.split(",")
     scenarios = list(SCENARIOS) if args.scenario == "all" else [args.scenario]
     print(f"# Accuracy benchmark: {args.n} vehicles per scenario, seeds from {args.seed}")
