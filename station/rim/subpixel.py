@@ -233,7 +233,7 @@ def estimate_blur(prof: np.ndarray, s: np.ndarray, polarity: float = -1.0, refin
 
 
 def _tyre_side_flat(prof: np.ndarray, s: np.ndarray, s0: np.ndarray, h: np.ndarray, sigma: float,
-                    max_rise: float = 0.4) -> np.ndarray:
+                    max_rise: float = 0.25) -> np.ndarray:
     """(N,) bool: beyond the step the profile does not climb back by more than ``max_rise`` of
     the jump. Where the lit tyre bead is brighter than a lip shaded dark at its edge, the only
     bright-inside feature along the normal is the lip's shading ramp, not the flange edge."""
