@@ -20,7 +20,7 @@ quadratic equation per ray, solved in float64.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -267,16 +267,18 @@ def trace_wheel(o: np.ndarray, d: np.ndarray, idx: np.ndarray, hits: Hits, light
     won = part >= 0
     if not won.any():
         return
-    sel = np.nonzero(won)[0]
+    sel = np.flatnonzero(won)
     t = best_t[sel]
     p = part[sel]
     a = aux[sel]
-    dw = np.stack([rays.du[sel], rays.dv[sel], rays.dw[sel]], axis=1)
-    pw = rays.o + t[:, None] * dw                       # hit points, wheel frame (M,3)
-    r = np.hypot(pw[:, 0], pw[:, 1])
-    er = np.stack([pw[:, 0], pw[:, 1], np.zeros_like(r)], axis=1) / np.maximum(r, 1e-12)[:, None]
-    axis = np.array([0.0, 0.0, 1.0])
-    normal_w = np.tile(axis, (len(sel), 1))
+    du, dv, dw = rays.du[sel], rays.dv[sel], rays.dw[sel]
+    pu = rays.o[0] + t * du                      # hit points in the wheel frame, (M,) each
+    pv = rays.o[1] + t * dv
+    r = np.hypot(pu, pv)
+    inv_r = 1.0 / np.maximum(r, 1e-12)
+    # shading normal as n_r * e_r + n_w * w (every part is a surface of revolution or a plane)
+    n_r = np.zeros(len(sel))
+    n_w = np.ones(len(sel))
     albedo = np.zeros(len(sel))
     spec = np.zeros(len(sel))
     label_part = p.copy()
@@ -284,10 +286,10 @@ def trace_wheel(o: np.ndarray, d: np.ndarray, idx: np.ndarray, hits: Hits, light
 
     m = p == FLANGE  # rounded lip: the shading normal turns outward toward the edge
     phi = (1.3 * (r[m] - r_in) / g.flange_width_m - 0.25)
-    normal_w[m] = np.cos(phi)[:, None] * axis + np.sin(phi)[:, None] * er[m]
+    n_r[m], n_w[m] = np.sin(phi), np.cos(phi)
     albedo[m], spec[m] = g.rim_albedo, fin.flange_specular
     m = p == BARREL
-    normal_w[m] = -er[m]
+    n_r[m], n_w[m] = -1.0, 0.0
     albedo[m], spec[m] = 0.8 * g.rim_albedo, 0.3 * fin.flange_specular
     m = p == SPOKE
     ringm = m & (a < 0)
@@ -296,42 +298,46 @@ def trace_wheel(o: np.ndarray, d: np.ndarray, idx: np.ndarray, hits: Hits, light
     label_part[ringm] = RING
     m = (p == HUB) | (p == HUB_SIDE)
     albedo[m], spec[m] = 0.5, 0.3
-    normal_w[p == HUB_SIDE] = er[p == HUB_SIDE]
+    m = p == HUB_SIDE
+    n_r[m], n_w[m] = 1.0, 0.0
     # lug holes: five dark circles on the hub disc
-    hub = p == HUB
-    lug_r = 0.6 * g.hub_radius_m
-    ang = np.arctan2(pw[hub, 1], pw[hub, 0])
-    near = np.round(ang / (2 * np.pi / 5)) * (2 * np.pi / 5)
-    dist2 = (pw[hub, 0] - lug_r * np.cos(near)) ** 2 + (pw[hub, 1] - lug_r * np.sin(near)) ** 2
-    lug = np.zeros(len(sel), bool)
-    lug[np.nonzero(hub)[0]] = dist2 < (0.17 * g.hub_radius_m) ** 2
-    albedo[lug], spec[lug] = 0.06, 0.0
-    label_part[lug] = LUG
+    hub = np.flatnonzero(p == HUB)
+    if hub.size:
+        lug_r = 0.6 * g.hub_radius_m
+        near = np.round(np.arctan2(pv[hub], pu[hub]) / (2 * np.pi / 5)) * (2 * np.pi / 5)
+        dist2 = (pu[hub] - lug_r * np.cos(near)) ** 2 + (pv[hub] - lug_r * np.sin(near)) ** 2
+        lug = hub[dist2 < (0.17 * g.hub_radius_m) ** 2]
+        albedo[lug], spec[lug] = 0.06, 0.0
+        label_part[lug] = LUG
     m = p == CALIPER
     albedo[m], spec[m] = fin.caliper_albedo, 0.1
     m = p == DISC
-    albedo[m] = 0.26 + 0.04 * np.cos(40 * np.arctan2(pw[m, 1], pw[m, 0]))
+    albedo[m] = 0.26 + 0.04 * np.cos(40 * np.arctan2(pv[m], pu[m]))
     spec[m] = 0.15
     albedo[p == CAVITY] = 0.025
     albedo[p == INNER] = 0.04
-    m = p == TYRE
-    if m.any():
+    tyre = np.flatnonzero(p == TYRE)
+    if tyre.size:
         vn = _profile_normals(profile)
-        k = np.clip(np.floor(a[m]).astype(int), 0, len(profile) - 2)
-        s = (a[m] - k)[:, None]
-        nrw = vn[k] * (1 - s) + vn[k + 1] * s
-        normal_w[m] = nrw[:, :1] * er[m] + nrw[:, 1:] * axis
-        albedo[m] = g.tyre_albedo
-        spec[m] = 0.04
+        at = a[tyre]
+        k = np.clip(np.floor(at).astype(int), 0, len(profile) - 2)
+        f = at - k
+        nr = vn[k, 0] * (1 - f) + vn[k + 1, 0] * f
+        nw = vn[k, 1] * (1 - f) + vn[k + 1, 1] * f
+        norm = np.hypot(nr, nw)
+        n_r[tyre], n_w[tyre] = nr / norm, nw / norm
+        albedo[tyre] = g.tyre_albedo
+        spec[tyre] = 0.04
         # raised lettering on the outer sidewall: lighter rubber blocks in two arcs
-        text = m.copy()
-        text[m] = _lettering(np.arctan2(pw[m, 1], pw[m, 0]), r[m], a[m], g)
+        text = tyre[_lettering(np.arctan2(pv[tyre], pu[tyre]), r[tyre], at, g)]
         albedo[text] = np.minimum(2.4 * g.tyre_albedo, 0.45)
         label_part[text] = TYRE_TEXT
-    normal_w /= np.linalg.norm(normal_w, axis=1, keepdims=True)
-    normals = rowmat(normal_w, R.T)
-    dirs = d[idx[sel]]
-    value = shade(albedo, normals, dirs, lighting, specular=spec)
+    # shade in the wheel frame: normals, rays and the key light all expressed in (u, v, w)
+    nr_over_r = n_r * inv_r
+    normals = (nr_over_r * pu, nr_over_r * pv, n_w)
+    key_w = R.T @ np.asarray(lighting.key_direction_station, float)
+    value = shade(albedo, normals, (du, dv, dw), replace(lighting, key_direction_station=tuple(key_w)),
+                  specular=spec)
     hits.store(idx[sel], t, LABEL_WHEEL + 40 * wheel_index + label_part, value)
 
 

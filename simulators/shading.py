@@ -52,16 +52,21 @@ def key_direction(lighting: Lighting) -> np.ndarray:
 
 def shade(albedo, normals: np.ndarray, dirs: np.ndarray, lighting: Lighting,
           specular=0.0, shininess: float = 24.0) -> np.ndarray:
-    """Radiance (N,) float32 of surfaces with unit normals (N,3) or (3,) seen along unit rays dirs (N,3).
+    """Radiance (N,) float32 of surfaces with unit normals seen along unit rays, any one frame.
+
+    normals: (N,3), (3,) or a tuple of three (N,) components; dirs: (N,3) or three (N,).
 
     Lambert ``albedo * (ambient + key * max(0, -n.L))`` plus a Phong lobe for metal,
     ``specular * key * max(0, R.(-d))^shininess`` with R the key direction mirrored at the
     surface. albedo, specular: scalars or (N,). Normals are flipped to face the camera.
     """
     L = key_direction(lighting)
-    normals = np.asarray(normals)
-    nx, ny, nz = normals[..., 0], normals[..., 1], normals[..., 2]   # (3,): one normal for all
-    dx, dy, dz = dirs[:, 0], dirs[:, 1], dirs[:, 2]
+    if isinstance(normals, tuple):         # components (nx, ny, nz), (N,) each
+        nx, ny, nz = normals
+    else:                                  # (N,3), or (3,): one normal for all
+        normals = np.asarray(normals)
+        nx, ny, nz = normals[..., 0], normals[..., 1], normals[..., 2]
+    dx, dy, dz = dirs if isinstance(dirs, tuple) else (dirs[:, 0], dirs[:, 1], dirs[:, 2])
     ndotd = nx * dx + ny * dy + nz * dz
     # camera-facing normal: n.L flips sign with n (no BLAS calls: see rowmat)
     ndotl = np.copysign(1.0, -ndotd) * (nx * L[0] + ny * L[1] + nz * L[2])

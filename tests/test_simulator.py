@@ -301,3 +301,24 @@ def test_station_simulate_writes_a_replay_set(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "already exists" in err and "Traceback" not in err
     assert (out / "cam1.png").read_bytes() == before
+
+
+def test_closed_box_shows_only_its_front_faces():
+    """Six quads forming a cube: nearest-hit ordering must hide the three faces turned away."""
+    cam = small_camera(position=(0.9, -0.7, 0.8), target=(0.0, 0.0, 0.15), up=(0, 0, 1))
+    h = 0.15
+    v = np.array([[x, y, z] for z in (0, 2 * h) for y in (-h, h) for x in (-h, h)])  # 8 vertices
+    faces = {  # (corner order: 0, 1, 2, 3 with 3 = 0 + 2 - 1), outward normal
+        "+x": ([1, 3, 7, 5], (1, 0, 0)), "-x": ([2, 0, 4, 6], (-1, 0, 0)),
+        "+y": ([3, 2, 6, 7], (0, 1, 0)), "-y": ([0, 1, 5, 4], (0, -1, 0)),
+        "+z": ([4, 5, 7, 6], (0, 0, 1)), "-z": ([2, 3, 1, 0], (0, 0, -1)),
+    }
+    quads, facing = [], []
+    for k, (idx, normal) in enumerate(faces.values()):
+        c = v[idx].astype(float)
+        assert np.allclose(c[3], c[0] + c[2] - c[1])
+        quads.append(TexturedQuad(c, np.full((4, 4), 60 + 30 * k, np.uint8)))
+        facing.append(np.dot(normal, cam.center_station - c.mean(axis=0)) > 0)
+    _, label = render_radiance(cam, Scene(quads=tuple(quads)), FLAT)
+    seen = {k for k in range(6) if np.any(label == 1000 + k)}
+    assert seen == {k for k in range(6) if facing[k]}
