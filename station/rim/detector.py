@@ -272,10 +272,11 @@ def _refine(grey: np.ndarray, e_full: Ellipse, pmap: PixelMap, passes=PASSES):
     Returns (fit, samples, inlier mask)."""
     fit = samples = None
     e = e_full
-    sigma = None  # the image's edge blur, estimated once
+    sigma = None  # the edge blur: coarse in the first pass, refined near it in the last
     for k, (window, method) in enumerate(passes):
         final = k == len(passes) - 1
-        samples, _ = edge_points(grey, e, pmap, window_px=window, method=method, precise_blur=final)
+        samples, sigma = edge_points(grey, e, pmap, window_px=window, method=method, precise_blur=final,
+                                     spacing_px=1.5 if final else 3.0, blur_hint=sigma)
         ok = samples.ok
         if ok.sum() < MIN_POINTS:
             return None, samples, ok

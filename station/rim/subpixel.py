@@ -204,20 +204,25 @@ def _parabola(y0, y1, y2):
     return np.clip(np.nan_to_num(off), -1, 1)
 
 
-def estimate_blur(prof: np.ndarray, s: np.ndarray, polarity: float = -1.0, refine_steps: int = 7) -> float:
+def estimate_blur(prof: np.ndarray, s: np.ndarray, polarity: float = -1.0, refine_steps: int = 7,
+                  start: float | None = None) -> float:
     """The image's effective edge blur sigma (px), from the sharpest-contrast profiles (N,S):
-    the sigma of the step-and-kink model with the least total residual (a 7-value grid, then
-    a golden-section search between the best value's neighbours, ``refine_steps`` evaluations)."""
+    the sigma of the step-and-kink model with the least total residual. Without ``start``: a
+    7-value grid and a parabola; then (``refine_steps`` > 0) a golden-section search between
+    the best grid value's neighbours, or within +/-0.4 px of ``start``."""
     def total(sg):
         return float(np.sum(np.minimum(fit_kinks(prof, s, sg, polarity, refine=False)[2], 50.0) ** 2))
 
-    sigmas = np.array([0.45, 0.6, 0.8, 1.05, 1.4, 1.9, 2.5])
-    tot = np.array([total(sg) for sg in sigmas])
-    j = int(np.clip(np.argmin(tot), 1, len(sigmas) - 2))
-    if refine_steps <= 0:
-        return float(np.interp(j + _parabola(tot[j - 1], tot[j], tot[j + 1]), np.arange(len(sigmas)), sigmas))
     gr = 0.6180339887
-    lo, hi = sigmas[j - 1], sigmas[j + 1]
+    if start is not None:
+        lo, hi = max(0.3, start - 0.4), start + 0.4
+    else:
+        sigmas = np.array([0.45, 0.6, 0.8, 1.05, 1.4, 1.9, 2.5])
+        tot = np.array([total(sg) for sg in sigmas])
+        j = int(np.clip(np.argmin(tot), 1, len(sigmas) - 2))
+        if refine_steps <= 0:
+            return float(np.interp(j + _parabola(tot[j - 1], tot[j], tot[j + 1]), np.arange(len(sigmas)), sigmas))
+        lo, hi = sigmas[j - 1], sigmas[j + 1]
     m1, m2 = hi - gr * (hi - lo), lo + gr * (hi - lo)
     f1, f2 = total(m1), total(m2)
     for _ in range(refine_steps):
@@ -229,7 +234,10 @@ def estimate_blur(prof: np.ndarray, s: np.ndarray, polarity: float = -1.0, refin
             lo, m1, f1 = m1, m2, f2
             m2 = lo + gr * (hi - lo)
             f2 = total(m2)
-    return float(0.5 * (lo + hi))
+    sigma = float(0.5 * (lo + hi))
+    if start is not None and (sigma < max(0.3, start - 0.4) + 0.03 or sigma > start + 0.37):
+        return estimate_blur(prof, s, polarity, refine_steps)  # the minimum is outside the bracket
+    return sigma
 
 
 def _tyre_side_flat(prof: np.ndarray, s: np.ndarray, s0: np.ndarray, h: np.ndarray, sigma: float,
@@ -251,7 +259,7 @@ def _tyre_side_flat(prof: np.ndarray, s: np.ndarray, s0: np.ndarray, h: np.ndarr
 def edge_points(grey: np.ndarray, ellipse: Ellipse, pmap: PixelMap | None = None, n: int | None = None,
                 window_px: tuple[float, float] = (-4.0, 4.0), step_px: float = 0.5, spacing_px: float = 1.5,
                 method: str = "kink", sigma: float | None = None,
-                precise_blur: bool = True) -> tuple[EdgeSamples, float | None]:
+                precise_blur: bool = True, blur_hint: float | None = None) -> tuple[EdgeSamples, float | None]:
     """Sub-pixel rim points along ``ellipse`` (in ideal pinhole pixels when ``pmap`` has a
     camera, else image pixels), searched in ``window_px`` (inside, outside) along the normals.
 
@@ -289,7 +297,7 @@ def edge_points(grey: np.ndarray, ellipse: Ellipse, pmap: PixelMap | None = None
         if method == "kink":
             if sigma is None:
                 strong = np.argsort(-np.abs(p[:, 2]) + np.where(conv, 0, 1e9))[:min(100, len(idx))]
-                sigma = estimate_blur(prof[strong], s, refine_steps=7 if precise_blur else 2)
+                sigma = estimate_blur(prof[strong], s, refine_steps=7 if precise_blur else 0, start=blur_hint)
             s0, hh, r, conv = fit_kinks(prof, s, sigma)
             conv &= _tyre_side_flat(prof, s, s0, hh, sigma)
             p[:, 3], p[:, 2], p[:, 4] = s0, hh / 2, sigma
