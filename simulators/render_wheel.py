@@ -206,26 +206,8 @@ def trace_wheel(o: np.ndarray, d: np.ndarray, idx: np.ndarray, hits: Hits, light
         if a is not None:
             aux[wi] = a[win]
 
-    # only rays that pass through the tyre's annulus (not just through the rim opening)
-    tyre_rays = rays.reaching(everything, best_t, profile[:, 1].min(), profile[:, 1].max(),
-                              g.rim_radius_m, g.tyre_radius_m)
-
-    def tyre_segment(k):
-        (r0, w0), (r1, w1) = profile[k], profile[k + 1]
-        sub = rays.reaching(tyre_rays, best_t, min(w0, w1), max(w0, w1), min(r0, r1), max(r0, r1))
-        if sub.size == 0:
-            return
-        if abs(w1 - w0) < 1e-12:
-            t, r2 = rays.plane(sub, w0, min(r0, r1), max(r0, r1))
-            s = (np.sqrt(r2) - r0) / (r1 - r0)
-        else:
-            t, s = rays.cone(sub, r0, w0, r1, w1)
-        offer(sub, t, TYRE, k + np.clip(s, 0, 1))
-
-    n_outer = N_OUTER
-    for k in range(n_outer):
-        tyre_segment(k)
-    # rim: flange (the measured circle is its outer edge), barrel, hub
+    # rim first (flange: the measured circle is its outer edge; barrel, hub, spokes, brake):
+    # its hits then cull the tyre segments behind them
     rim = rays.reaching(everything, best_t, -D - 0.08, 0.0, 0.0, r_in + 1e-3)
     sub = rays.reaching(everything, best_t, -1e-9, 1e-9, r_in, g.rim_radius_m)
     t, r2 = rays.plane(sub, 0.0, r_in, g.rim_radius_m)
@@ -239,27 +221,40 @@ def trace_wheel(o: np.ndarray, d: np.ndarray, idx: np.ndarray, hits: Hits, light
         offer(rim, t, HUB_SIDE)
         # spoke face with angular gaps
         t, r2 = rays.plane(rim, -D, g.hub_radius_m, r_in)
+        hit = np.flatnonzero(t < best_t[rim])
+        sub, t, r2 = rim[hit], t[hit], r2[hit]
         ring_w = min(0.012, 0.15 * (r_in - g.hub_radius_m))
-        with np.errstate(invalid="ignore"):
-            theta = np.arctan2(rays.o[1] + t * rays.dv[rim], rays.o[0] + t * rays.du[rim])
+        theta = np.arctan2(rays.o[1] + t * rays.dv[sub], rays.o[0] + t * rays.du[sub])
         f = np.mod(theta * g.spoke_count / (2 * np.pi) + g.spoke_width_frac / 2, 1.0)
         ring = (r2 >= (r_in - ring_w) ** 2) | (r2 <= (g.hub_radius_m + 0.012) ** 2)
         spoke = (f < g.spoke_width_frac) | ring
-        offer(rim, np.where(spoke, t, np.inf), SPOKE, np.where(ring, -1.0, 1.0))
+        offer(sub, np.where(spoke, t, np.inf), SPOKE, np.where(ring, -1.0, 1.0))
         # behind the spokes: caliper (fixed), brake disc, dark cavity
         back = rays.reaching(rim, best_t, -D - 0.075, -D - 0.015, 0.0, r_in + 1e-3)
         t, r2 = rays.plane(back, -D - 0.02, 0.55 * r_in, 0.92 * r_in)
-        with np.errstate(invalid="ignore"):
-            ang = np.arctan2(rays.o[1] + t * rays.dv[back], rays.o[0] + t * rays.du[back])
+        hit = np.flatnonzero(t < best_t[back])
+        ang = np.arctan2(rays.o[1] + t[hit] * rays.dv[back[hit]], rays.o[0] + t[hit] * rays.du[back[hit]])
         dth = np.abs(np.mod(ang - caliper_angle + np.pi, 2 * np.pi) - np.pi)
-        offer(back, np.where(dth < 0.45, t, np.inf), CALIPER)
+        offer(back[hit], np.where(dth < 0.45, t[hit], np.inf), CALIPER)
         t, r2 = rays.plane(back, -D - 0.035, g.hub_radius_m, 0.85 * r_in)
         offer(back, t, DISC, r2)
         t, _ = rays.plane(back, -D - 0.07, 0.0, r_in + 1e-3)
         offer(back, t, CAVITY)
-    # tyre: tread and inner sidewall, then the inner face
-    for k in range(n_outer, len(profile) - 1):
-        tyre_segment(k)
+
+    # tyre: only rays that pass through its annulus before their nearest hit so far
+    tyre_rays = rays.reaching(everything, best_t, profile[:, 1].min(), profile[:, 1].max(),
+                              g.rim_radius_m, g.tyre_radius_m)
+    for k in range(len(profile) - 1):   # outer sidewall, tread, inner sidewall
+        (r0, w0), (r1, w1) = profile[k], profile[k + 1]
+        sub = rays.reaching(tyre_rays, best_t, min(w0, w1), max(w0, w1), min(r0, r1), max(r0, r1))
+        if sub.size == 0:
+            continue
+        if abs(w1 - w0) < 1e-12:
+            t, r2 = rays.plane(sub, w0, min(r0, r1), max(r0, r1))
+            s = (np.sqrt(r2) - r0) / (r1 - r0)
+        else:
+            t, s = rays.cone(sub, r0, w0, r1, w1)
+        offer(sub, t, TYRE, k + np.clip(s, 0, 1))
     sub = rays.reaching(everything, best_t, profile[-1, 1] - 1e-9, profile[-1, 1] + 1e-9, 0.0, g.rim_radius_m)
     t, _ = rays.plane(sub, profile[-1, 1], 0.0, g.rim_radius_m)
     offer(sub, t, INNER)
