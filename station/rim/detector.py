@@ -302,7 +302,13 @@ def _refine(grey: np.ndarray, e_full: Ellipse, pmap: PixelMap, passes=PASSES):
 def detect_rim(image: np.ndarray, *, camera=None, prior: Ellipse | None = None, camera_id: str = "",
                equalization: str = "clahe") -> RimDetection:
     """Find the rim-flange ellipse in one image. See :class:`RimDetection`; raises
-    :class:`station.errors.RimNotFound` (or ImageError for an unusable array) with a reason."""
+    :class:`station.errors.RimNotFound` (or ImageError for an unusable array) with a reason.
+
+    image: (H,W) uint8/uint16 grey or (H,W,3) BGR. camera: optional CameraModel; with lens
+    distortion the returned ellipse is in its ideal pinhole pixels (``ellipse_frame``) and
+    ``points_norm`` are the points' undistorted normalised coordinates. prior: an Ellipse in
+    the same frame as the result (e.g. last cycle's) to refine from; never required.
+    equalization: "clahe" (default), "global" (the paper's), "none" - for the Canny stage only."""
     tag = camera_id or "image"
     clock = _Clock()
     grey = to_grey(image, camera_id)
