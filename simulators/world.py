@@ -45,9 +45,10 @@ class SimWorld:
 
     def __init__(self, config, cameras: dict[str, CameraModel], blur_sigma: dict[str, float],
                  noise_sigma: float | None = None, gain_override: dict[str, float] | None = None,
-                 body: bool = True):
+                 body: bool = True, supersample: int = 34):
         self.config = config
         self.body = body
+        self.supersample = int(supersample)
         self.cameras = cameras
         self.blur_sigma = blur_sigma
         self.noise_sigma = float(config.simulation.noise_sigma if noise_sigma is None else noise_sigma)
@@ -59,10 +60,13 @@ class SimWorld:
 
     @classmethod
     def from_config(cls, config, noise_sigma: float | None = None,
-                    gain_override: dict[str, float] | None = None, body: bool = True) -> "SimWorld":
+                    gain_override: dict[str, float] | None = None, body: bool = True,
+                    supersample: int = 34) -> "SimWorld":
         """The true station for ``config``. noise_sigma: grey levels (default from the config);
         gain_override: {camera id: factor} (0.8 = a camera 20 % darker); body: draw the car's
-        body around the wheels (False: four wheels alone, as in a bare test scene)."""
+        body around the wheels (False: four wheels alone, as in a bare test scene);
+        supersample: samples per edge pixel near measured features (34: ~1/68 px; fewer is
+        faster and coarser, 1 switches anti-aliasing off)."""
         rng = np.random.default_rng(config.simulation.station_seed)
         cameras, blur = {}, {}
         for cam_id, cam in config.cameras.items():
@@ -70,7 +74,7 @@ class SimWorld:
             cameras[cam_id] = perturbed_camera(cam_id, cam.width, cam.height, nom.position_m,
                                                nom.look_at_m, nom.focal_px, rng)
             blur[cam_id] = float(rng.uniform(0.6, 0.9))
-        return cls(config, cameras, blur, noise_sigma, gain_override, body)
+        return cls(config, cameras, blur, noise_sigma, gain_override, body, supersample)
 
     # --- scenes -----------------------------------------------------------------------------
     def set_scene(self, scene: Scene) -> None:
@@ -140,7 +144,7 @@ class SimWorld:
         if rng is None:
             rng = np.random.default_rng([self.config.simulation.station_seed, list(self.cameras).index(cam_id)])
         return render(self.cameras[cam_id], scene, self.lighting_for(cam_id, scene), rng,
-                      self.noise_sigma, self.blur_sigma[cam_id], body=self.body)
+                      self.noise_sigma, self.blur_sigma[cam_id], supersample=self.supersample, body=self.body)
 
     def render_all(self, rng: np.random.Generator | None = None, scene: Scene | None = None) -> dict[str, np.ndarray]:
         """{camera id: image} for every camera; one child noise stream per camera."""
