@@ -298,7 +298,7 @@ def edge_points(grey: np.ndarray, ellipse: Ellipse, pmap: PixelMap | None = None
             if sigma is None:
                 strong = np.argsort(-np.abs(p[:, 2]) + np.where(conv, 0, 1e9))[:min(100, len(idx))]
                 sigma = estimate_blur(prof[strong], s, refine_steps=7 if precise_blur else 0, start=blur_hint)
-            s0, hh, r, conv = fit_kinks(prof, s, sigma)
+            s0, hh, r, conv = fit_kinks(prof, s, sigma, grid_step=0.125, refine=False)  # parabola on a fine grid: < 0.003 px
             conv &= _tyre_side_flat(prof, s, s0, hh, sigma)
             p[:, 3], p[:, 2], p[:, 4] = s0, hh / 2, sigma
         pts[idx] = base[idx] + p[:, 3:4] * nrm[idx]
