@@ -97,3 +97,41 @@ def test_step_fit_finds_the_50_percent_crossing_without_bias():
     err = p[ok, 3] - s0[ok]
     assert abs(err.mean()) < 0.005 and err.std() < 0.06
     assert rms[ok].mean() == pytest.approx(2.0, rel=0.25)
+
+
+def _kink_profiles(rng, n, s, sigma, metal_slope, tyre_slope, jump=-120.0):
+    """Blurred piecewise-linear profiles with a jump at s0 (the model of subpixel.fit_kinks)."""
+    from scipy.stats import norm
+    s0 = rng.uniform(-0.8, 0.8, n)
+    x = s[None, :] - s0[:, None]
+    Phi, phi = norm.cdf(x / sigma), norm.pdf(x / sigma)
+    ramp = metal_slope * (x - x * Phi - sigma * phi) + tyre_slope * (x * Phi + sigma * phi)
+    return 150 + jump * Phi + ramp, s0
+
+
+def test_kink_fit_is_unbiased_where_the_lip_is_shaded_as_a_ramp():
+    from station.rim.subpixel import estimate_blur, fit_kinks
+    rng = np.random.default_rng(5)
+    s = np.arange(-3, 4.51, 0.5)
+    # metal side darkening toward the edge (rounded lip), flat tyre
+    prof, s0 = _kink_profiles(rng, 2000, s, 0.85, metal_slope=-25.0, tyre_slope=0.0)
+    noisy = prof + rng.normal(0, 2.0, prof.shape)
+    sigma = estimate_blur(noisy[:100], s)
+    assert sigma == pytest.approx(0.85, abs=0.05)
+    est, h, rms, ok = fit_kinks(noisy, s, sigma, grid_step=0.125, refine=False)
+    err = est[ok] - s0[ok]
+    assert ok.mean() > 0.98 and abs(err.mean()) < 0.02 and err.std() < 0.12
+    # a plain blurred step with one common slope is pulled inside by the ramp
+    p, _, ok2 = fit_steps(noisy, s)
+    assert (p[ok2, 3] - s0[ok2]).mean() < -0.1
+
+
+def test_profiles_whose_tyre_side_climbs_back_are_rejected():
+    from station.rim.subpixel import _tyre_side_flat, fit_kinks
+    rng = np.random.default_rng(6)
+    s = np.arange(-3, 4.51, 0.5)
+    good, _ = _kink_profiles(rng, 200, s, 0.9, metal_slope=0.0, tyre_slope=0.0)
+    bright_bead, _ = _kink_profiles(rng, 200, s, 0.9, metal_slope=-10.0, tyre_slope=12.0, jump=-20.0)
+    for prof, expect in ((good, 1.0), (bright_bead, 0.0)):
+        est, h, rms, ok = fit_kinks(prof, s, 0.9)
+        assert _tyre_side_flat(prof, s, est, h, 0.9).mean() == pytest.approx(expect, abs=0.05)
