@@ -25,7 +25,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from simulators.scene import Lighting
-from simulators.shading import LABEL_WHEEL, Hits, rowmat, shade
+from simulators.shading import LABEL_WHEEL, Hits, shade
 from simulators.vehicle import WheelGeometry
 
 # part numbers (label = LABEL_WHEEL + 40 * wheel index + part)

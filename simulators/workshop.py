@@ -11,7 +11,7 @@ from functools import lru_cache
 import numpy as np
 
 from simulators.scene import Lighting, TexturedQuad
-from simulators.shading import LABEL_FLOOR, LABEL_QUAD, LABEL_WALL, Hits, bilinear, rowmat, shade, smooth_noise
+from simulators.shading import LABEL_FLOOR, LABEL_QUAD, LABEL_WALL, Hits, bilinear, shade, smooth_noise
 
 WORKSHOP_SEED = 20240611
 ROOM_HALF_X_M = 4.5       # walls at x = +-4.5 m

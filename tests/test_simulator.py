@@ -10,7 +10,7 @@ import pytest
 from calibration.camera_model import CameraModel, look_at
 from simulators.render import lattice_offsets, render, render_radiance
 from simulators.scene import Lighting, Scene, TexturedQuad
-from simulators.vehicle import Vehicle, WheelGeometry
+from simulators.vehicle import Vehicle
 from station.config import load_config
 from simulators.world import SimWorld
 
@@ -24,10 +24,10 @@ def small_camera(dist=(0, 0, 0, 0, 0), width=160, height=128, f=600.0, position=
     return CameraModel("test", width, height, K, np.array(dist, float), R, t)
 
 
-def white_disc_quad(center, radius, normal_axis=2, texels=64):
-    """A square quad with a white texture (the quad itself is the bright shape)."""
+def white_square_quad(center, half_side, texels=64):
+    """A horizontal square quad with a white texture (the quad itself is the bright shape)."""
     c = np.asarray(center, float)
-    e = radius
+    e = half_side
     corners = c + np.array([[-e, e, 0], [e, e, 0], [e, -e, 0], [-e, -e, 0]])
     return TexturedQuad(corners, np.full((texels, texels), 255, np.uint8), 1.0)
 
@@ -41,7 +41,7 @@ def test_lattice_has_distinct_levels_and_centred_mean():
 
 def test_determinism_and_gain():
     cam = small_camera()
-    scene = Scene(quads=(white_disc_quad((0.0, 0.0, 0.2), 0.05),))
+    scene = Scene(quads=(white_square_quad((0.0, 0.0, 0.2), 0.05),))
     a = render(cam, scene, Lighting(), np.random.default_rng(5), 2.0)
     b = render(cam, scene, Lighting(), np.random.default_rng(5), 2.0)
     c = render(cam, scene, Lighting(), np.random.default_rng(6), 2.0)

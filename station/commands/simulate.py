@@ -20,6 +20,8 @@ def add_arguments(parser):
 
 
 def run(args) -> int:
+    import numpy as np
+
     from drivers.base import Frame
     from drivers.frame_store import save_cycle
     from simulators.world import SimWorld
@@ -37,8 +39,6 @@ def run(args) -> int:
     world = SimWorld.from_config(config, noise_sigma=args.noise)
     scene = world.vehicle_scene(args.seed)
     world.set_scene(scene)
-    import numpy as np
-
     start = time.perf_counter()
     images = world.render_all(np.random.default_rng([args.seed, 1]))
     seconds = time.perf_counter() - start
