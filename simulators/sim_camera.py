@@ -144,8 +144,13 @@ def build_context(config, seed: int | None = None, **_) -> dict:
     world = SimWorld.from_config(config)
     if seed is not None:
         world.set_scene(world.vehicle_scene(seed))
+    def calibration_operator(box, operator_seed: int = 0):
+        from simulators.sim_operator import SimOperator  # places the box in the simulated world
+        return SimOperator(world, box, config, seed=operator_seed)
+
     context = {"sim_world": world, "truth": world.truth, "capture_timeout_s": 600.0,
-               "trigger_lines": TriggerLines(), "close": lambda: None}
+               "trigger_lines": TriggerLines(), "close": lambda: None,
+               "calibration_operator": calibration_operator}
     board = getattr(getattr(config, "trigger_board", None), "port", None)
     if board == "sim":  # trigger_board.port: sim -> the simulated board on a pty, wired to the cameras
         sim = TriggerBoardSim(context["trigger_lines"])

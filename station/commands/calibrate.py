@@ -48,13 +48,9 @@ def run(args) -> int:
         raise CalibrationError(f"--poses {n_poses}: at least 3 box poses are needed for the intrinsics")
     # Assemble once, through the driver registry: sim:// brings its simulated world in the context.
     context = build_context([c.uri for c in config.cameras.values()], config)
-    world = context.get("sim_world")
-    if world is not None:
-        # the simulated operator moves the box in the simulated world; real stations have a person
-        from simulators.sim_operator import SimOperator
-        operator = SimOperator(world, box, config, seed=args.seed)
-    else:
-        operator = TerminalOperator()
+    # A simulated station brings the operator who places the box; a real one has a person.
+    make_operator = context.get("calibration_operator")
+    operator = make_operator(box, args.seed) if make_operator else TerminalOperator()
     try:
         cameras = open_station_cameras(config, context)
     except BaseException:
