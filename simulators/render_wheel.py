@@ -93,8 +93,10 @@ class _Rays:
         self.a2 = self.du * self.du + self.dv * self.dv
         self.b1 = o_w[0] * self.du + o_w[1] * self.dv
         self.c0 = o_w[0] ** 2 + o_w[1] ** 2
-        with np.errstate(divide="ignore"):
+        with np.errstate(divide="ignore", invalid="ignore"):
             self.inv_dw = 1.0 / self.dw
+            self.tc = -self.b1 / self.a2          # t of the closest approach to the axis
+        self.b2 = 2.0 * self.b1
 
     def r2_at(self, sub, t):
         return self.c0 + t * (2.0 * self.b1[sub] + t * self.a2[sub])
@@ -103,7 +105,7 @@ class _Rays:
         """The same rays restricted to ``sub`` (avoids repeated gathers)."""
         out = _Rays.__new__(_Rays)
         out.o, out.c0 = self.o, self.c0
-        for name in ("du", "dv", "dw", "a2", "b1", "inv_dw"):
+        for name in ("du", "dv", "dw", "a2", "b1", "b2", "tc", "inv_dw"):
             setattr(out, name, getattr(self, name)[sub])
         return out
 
@@ -117,16 +119,17 @@ class _Rays:
             tb = (w_hi - self.o[2]) * inv
         t0 = np.maximum(np.minimum(ta, tb), 0.0)
         t1 = np.minimum(np.maximum(ta, tb), best_t[sub])
-        keep = np.nonzero(t1 >= t0)[0]           # cheap first stage: slab before the nearest hit
+        keep = np.flatnonzero(t1 >= t0)           # cheap first stage: slab before the nearest hit
         sub, t0, t1 = sub[keep], t0[keep], t1[keep]
         a2 = self.a2[sub]
-        b1 = self.b1[sub]
-        with np.errstate(invalid="ignore", divide="ignore"):
-            ts = np.clip(-b1 / a2, t0, t1)
-            r2_0 = self.c0 + t0 * (2.0 * b1 + t0 * a2)
-            r2_1 = self.c0 + t1 * (2.0 * b1 + t1 * a2)
-            r2_s = self.c0 + ts * (2.0 * b1 + ts * a2)
-            keep = (r2_s <= r_hi * r_hi * (1 + 1e-9)) & (np.maximum(r2_0, r2_1) >= r_lo * r_lo * (1 - 1e-9))
+        b2 = self.b2[sub]
+        ts = np.minimum(np.maximum(self.tc[sub], t0), t1)   # closest approach to the axis
+        with np.errstate(invalid="ignore"):
+            r2_0 = t0 * (b2 + t0 * a2)
+            r2_1 = t1 * (b2 + t1 * a2)
+            r2_s = ts * (b2 + ts * a2)
+            keep = (r2_s <= r_hi * r_hi * (1 + 1e-9) - self.c0) & (
+                np.maximum(r2_0, r2_1) >= r_lo * r_lo * (1 - 1e-9) - self.c0)
         return sub[keep]
 
     def plane(self, sub: np.ndarray, w0: float, r_lo: float, r_hi: float):
