@@ -103,6 +103,28 @@ def _check_exposure(grey: np.ndarray, tag: str) -> None:
                           hint="check that the camera sees the wheel and is in focus")
 
 
+_TABLES: dict = {}
+
+
+def _ideal_table(pmap: PixelMap, shape: tuple[int, int], s: int) -> np.ndarray:
+    """(h,w,2) ideal coarse-pixel coordinates of every coarse pixel centre of a camera, cached
+    (the cameras of a station do not change between cycles; the Newton undistortion of ~10^4
+    edge points per image would otherwise cost more than the Hough vote)."""
+    cam = pmap.camera
+    key = (cam.K.tobytes(), cam.dist.tobytes(), shape, s)
+    table = _TABLES.get(key)
+    if table is None:
+        h, w = shape
+        vv, uu = np.mgrid[0:h, 0:w].astype(float)
+        coarse = np.stack([uu.ravel(), vv.ravel()], axis=1)
+        full = (coarse + 0.5) * s - 0.5
+        table = ((pmap.undistort(full) + 0.5) / s - 0.5).reshape(h, w, 2)
+        if len(_TABLES) >= 16:
+            _TABLES.pop(next(iter(_TABLES)))
+        _TABLES[key] = table
+    return table
+
+
 class _Scene:
     """The coarse image, its edges and the mapping between coarse, full and ideal pixels."""
 
@@ -114,8 +136,10 @@ class _Scene:
         u8 = np.clip(self.coarse + 0.5, 0, 255).astype(np.uint8)
         self.edges = edges_mod.detect_edges(equalize(u8, equalization))
         if not pmap.identity:  # move the edge points to ideal pixels (coarse scale)
-            full = self.to_full(self.edges.points)
-            ideal = self.to_coarse(pmap.undistort(full))
+            table = _ideal_table(pmap, self.coarse.shape, self.s)
+            iv = self.edges.points[:, 1].astype(np.int64)
+            iu = self.edges.points[:, 0].astype(np.int64)
+            ideal = table[iv, iu]  # Canny pixels sit on the coarse grid: a lookup
             good = np.isfinite(ideal).all(axis=1)
             self.edges = self.edges.subset(good)
             self.edges.points = ideal[good]
