@@ -158,7 +158,7 @@ def main(argv=None) -> int:
     ap.add_argument("--transport", default="tcp,rtu", help="tcp, rtu or tcp,rtu")
     ap.add_argument("--real", action="store_true", help="the real (simulated) station instead of the dry run")
     ap.add_argument("--fail-every", type=int, default=10, help="dry run: jobs failing on purpose")
-    ap.add_argument("--spec", default="bench-spec", help="vehicle spec id sent with every trigger")
+    ap.add_argument("--spec", default="toyota-echo-2003", help="vehicle spec id (config/vehicles.yaml) sent with every trigger")
     ap.add_argument("--timeout", type=float, default=2.0, help="Modbus response timeout (s)")
     ap.add_argument("--cycle-timeout", type=float, default=120.0)
     ap.add_argument("--rss-series", action="store_true", help="print the station's RSS every 100 cycles")

@@ -94,11 +94,18 @@ class Station:
         result["captures_dir"] = str(captures_dir) if cfg.capture.keep_captures else None
         if truth is not None:
             add_truth(result, truth)
+        spec_error = None
         if vehicle_spec and result["valid"]:
-            _apply_spec(cfg, result, vehicle_spec)
+            try:
+                _apply_spec(cfg, result, vehicle_spec)
+            except StationError as e:  # the measurement is still kept; the caller gets the error
+                spec_error = e
+                result["warnings"].append(f"vehicle spec {vehicle_spec!r}: {e}")
         self._finish(result, record=record and cfg.recording.enabled, store=store, images=images)
         result["timing_s"]["total"] = time.perf_counter() - t0
         self.cycle_count += 1
+        if spec_error is not None:
+            raise spec_error
         return result
 
     def calibration_check(self) -> dict:
