@@ -204,6 +204,58 @@ def sampson_px(C: np.ndarray, xy: np.ndarray, focal_px: float) -> np.ndarray:
     return focal_px * f / grad
 
 
+def _sector_jackknife(residuals, x, views, n0, e1, e2, n_sectors: int, loss_scale_px: float) -> np.ndarray:
+    """Block-jackknife covariance (6,6) of the circle parameters, leaving out one rim sector at a time."""
+    c = x[2:5]
+    n = _normal_from(x[:2], n0, e1, e2)
+    u = np.cross(n, [0.0, 0.0, 1.0])
+    u /= np.linalg.norm(u)
+    v = np.cross(n, u)
+    labels = []
+    for cam, xy, _ in views:  # the sector of each point: its ray's hit on the rim plane
+        C0 = cam.center_station
+        d = np.concatenate([xy, np.ones((len(xy), 1))], axis=1) @ cam.R_cam_station
+        P = C0 + (((c - C0) @ n) / (d @ n))[:, None] * d
+        phi = np.arctan2((P - c) @ v, (P - c) @ u)
+        labels.append(((phi + np.pi) / (2 * np.pi) * n_sectors).astype(int) % n_sectors)
+    estimates = []
+    for k in range(n_sectors):
+        keep = [lab != k for lab in labels]
+        sol = least_squares(lambda p: residuals(p, keep), x, loss="soft_l1", f_scale=loss_scale_px,
+                            x_scale="jac", method="trf", max_nfev=6)  # warm start: a few steps suffice
+        estimates.append(sol.x)
+    est = np.array(estimates)
+    dev = est - est.mean(axis=0)
+    return (n_sectors - 1) / n_sectors * dev.T @ dev
+
+
+def _along_rim(residuals: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """Residuals (N,) reordered by the polar angle of their points (N,2) around the centroid."""
+    d = xy - xy.mean(axis=0)
+    return residuals[np.argsort(np.arctan2(d[:, 1], d[:, 0]))]
+
+
+def correlation_factor(r: np.ndarray, max_lag_fraction: float = 0.25) -> float:
+    """Variance inflation 1 + 2 sum(rho_k) of a mean of correlated samples (N,) ordered in space.
+
+    rho_k is the lag-k autocorrelation, summed over the initial positive sequence (Geyer);
+    1 for independent residuals, about the correlation length (in points) for smooth errors.
+    """
+    r = r - r.mean()
+    n = len(r)
+    c0 = float(r @ r) / n
+    if n < 8 or c0 <= 0:
+        return 1.0
+    f = np.fft.rfft(r, 2 * n)
+    acf = np.fft.irfft(f * np.conj(f))[: int(n * max_lag_fraction)] / (n * c0)
+    s = 0.0
+    for rho in acf[1:]:
+        if rho <= 0:
+            break
+        s += rho
+    return 1.0 + 2.0 * s
+
+
 def _normal_from(params, n0, e1, e2):
     n = n0 + params[0] * e1 + params[1] * e2
     return n / np.linalg.norm(n)
@@ -231,8 +283,13 @@ def edge_visibility(cam: CameraModel, xy: np.ndarray, circle: WheelFit) -> np.nd
 
 def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: CameraModel,
                   cam_r: CameraModel, init: WheelFit, loss_scale_px: float = 0.3,
-                  visibility_margin: float | None = None) -> WheelFit:
+                  visibility_margin: float | None = None, jackknife_sectors: int = 8) -> WheelFit:
     """Fit one 3-D circle to both views' rim points by minimising image distance (px).
+
+    The covariance is the larger of (a) the Jacobian's, inflated by the residuals' correlation
+    along the rim, and (b) a block jackknife over ``jackknife_sectors`` sectors of the rim (the
+    same physical sector left out of both views in turn), which sees errors that move whole
+    stretches of the edge (shading, occlusion) and so bias the fit; 0 skips (b).
 
     Points where the tyre's sidewall may hide the flange edge (:func:`edge_visibility` below
     ``visibility_margin``) are left out; None keeps every point.
@@ -249,13 +306,13 @@ def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: Camer
     e1 /= np.linalg.norm(e1)
     e2 = np.cross(n0, e1)
 
-    def residuals(p):
+    def residuals(p, keep=None):
         c = p[2:5]
         n = _normal_from(p[:2], n0, e1, e2)
         out = []
-        for cam, xy, f in views:
+        for k, (cam, xy, f) in enumerate(views):
             C = circle_conic(cam.R_cam_station @ c + cam.t_cam_station, cam.R_cam_station @ n, p[5])
-            out.append(sampson_px(C, xy, f))
+            out.append(sampson_px(C, xy if keep is None else xy[keep[k]], f))
         return np.concatenate(out)
 
     x0 = np.concatenate([[0.0, 0.0], init.center_station, [init.radius_m]])
@@ -271,6 +328,16 @@ def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: Camer
         cov_p = np.linalg.inv(J.T @ J) * sigma2
     except np.linalg.LinAlgError:
         cov_p = np.full((6, 6), np.nan)
+    # Edge errors are not independent from point to point (shading, blur and occlusion move
+    # whole stretches of the rim): inflate by the residuals' correlation along the rim.
+    sizes = [len(v[1]) for v in views]
+    split = np.cumsum(sizes)[:-1]
+    factors = [correlation_factor(_along_rim(res, xy)) for res, (_, xy, _) in zip(np.split(r, split), views)]
+    cov_p *= float(np.average(factors, weights=sizes))
+    if jackknife_sectors:
+        cov_jk = _sector_jackknife(residuals, sol.x, views, n0, e1, e2, jackknife_sectors, loss_scale_px)
+        if np.trace(cov_jk[:2, :2]) > np.trace(cov_p[:2, :2]):
+            cov_p = cov_jk
     n = _normal_from(sol.x[:2], n0, e1, e2)
     if n[0] * outward_sign(sol.x[2:5]) < 0:
         n = -n
