@@ -66,3 +66,19 @@ def test_measure_without_calibration_names_the_file_and_what_to_do(tmp_path):
     assert out.returncode == 2
     assert "calibration file not found" in out.stderr and "station calibrate" in out.stderr
     assert "Traceback" not in out.stderr
+
+
+@pytest.mark.slow
+def test_a_knocked_camera_is_reported_as_calibration_drift(sim):
+    from calibration.camera_model import rodrigues_to_matrix
+
+    cfg, world, scene, images = sim
+    cams = dict(world.cameras)
+    c = cams["cam2"]
+    # The reference camera of FR was knocked (tilted 0.15 deg about its own centre) after calibration.
+    R = rodrigues_to_matrix([np.radians(0.15), 0, 0]) @ c.R_cam_station
+    cams["cam2"] = c.with_pose(R, -R @ c.center_station)
+    result = measure_frames(images, cams, cfg)
+    drift = [w for w in result["warnings"] if "epipolar residual" in w]
+    assert any("pair FR (cam1, cam2)" in w for w in drift), result["warnings"]
+    assert not any("pair RL" in w for w in drift)
