@@ -30,7 +30,9 @@ from station.rim.ellipse_fit import fit_direct, fit_geometric, ransac_ellipse
 from station.rim.preprocess import PixelMap, detection_scale, downscale, equalize, to_grey
 from station.rim.subpixel import edge_points
 
-MIN_COVERAGE = 0.5         # below: "no closed rim contour"
+MIN_COVERAGE = 0.5         # below: "no closed rim contour" (choosing the candidate)
+MIN_REFINED_COVERAGE = 0.35  # the chosen rim's sub-pixel edge may be partly hidden (wheel arch,
+                             # tyre bulge in oblique views): the 3-D fit works on arcs
 MIN_SCORE = 0.35
 AMBIGUITY_RATIO = 0.85     # a second wheel-like ellipse scoring within this of the best: refuse
 MIN_POINTS = 32
@@ -368,7 +370,7 @@ def detect_rim(image: np.ndarray, *, camera=None, prior: Ellipse | None = None, 
                               f"{int(mask.sum())} points of the candidate ellipse)",
                               hint="check focus and lighting of the rim flange")
     coverage = _coverage(samples, mask)
-    if coverage < MIN_COVERAGE:
+    if coverage < MIN_REFINED_COVERAGE:
         raise RimNotFound(f"{tag}: no closed rim contour (sub-pixel edge on {coverage:.0%} of the perimeter)",
                           hint="check that the whole rim is in view and evenly lit")
     pts = samples.points_px[mask]
