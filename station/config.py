@@ -210,6 +210,8 @@ SCHEMA = {
     })),
     "measurement": Field(_section({
         "epipolar_limit_px": Field(_number(0.01, 100), default=0.6),
+        "mismatch_limit_px": Field(_number(0.1, 1000), default=5.0),
+        "max_wheel_offset_m": Field(_number(0.01, 5), default=0.5),
         "min_rim_points": Field(_number(10, 100000, integer=True), default=200),
     }), default={}),
     "simulation": Field(_section({

@@ -59,6 +59,29 @@ def reconstruct_wheel(wheel: str, cams: tuple[str, str], detections: dict, camer
     return WheelObservation(wheel, cams, (det_l, det_r), paper, circle)
 
 
+def check_same_rim(o: WheelObservation, config: StationConfig) -> None:
+    """Refuse a wheel whose two cameras did not find the same 3-D rim.
+
+    A wrong ellipse in one camera (the tyre outline, a hub, the other wheel) cannot share the
+    rim's two epipolar tangent planes with the other camera, nor fit one 3-D circle with it:
+    the residuals are then tens of pixels where a true rim gives tenths.
+    """
+    limit = config.measurement.mismatch_limit_px
+    nominal = np.array(config.cameras[o.cams[0]].nominal.look_at_m)
+    offset = float(np.linalg.norm(o.circle.center_station - nominal))
+    if offset > config.measurement.max_wheel_offset_m:
+        raise MeasurementError(
+            f"{o.cams[0]} and {o.cams[1]} found a rim {offset:.2f} m from where the {o.wheel} wheel "
+            f"should be (limit {config.measurement.max_wheel_offset_m} m): not this wheel's rim",
+            hint="check the vehicle's position on the lift and both cameras' images")
+    worst_view = max(o.circle.view_median_px)
+    if o.paper.epipolar_rms_px > limit or not worst_view <= limit:
+        raise MeasurementError(
+            f"{o.cams[0]} and {o.cams[1]} did not find the same rim (epipolar residual "
+            f"{o.paper.epipolar_rms_px:.1f} px, circle fit median {worst_view:.1f} px, "
+            f"limit {limit} px)", hint="look at both cameras' images of this wheel (station review)")
+
+
 def measure_frames(images: dict[str, np.ndarray], cameras: dict[str, CameraModel],
                    config: StationConfig, method: str = "circle") -> dict:
     """The measurement result (docs/result-schema.md) for one set of eight images.
@@ -91,6 +114,7 @@ def measure_frames(images: dict[str, np.ndarray], cameras: dict[str, CameraModel
         cams = (pair.precision, pair.reference)
         try:
             observations[wheel] = reconstruct_wheel(wheel, cams, detections, cameras)
+            check_same_rim(observations[wheel], config)
         except StationError as e:
             result["failure"] = {"code": e.code, "wheel": wheel, "camera": f"{cams[0]}+{cams[1]}",
                                  "message": f"{wheel} ({cams[0]}, {cams[1]}): {e}"}

@@ -41,6 +41,7 @@ class WheelFit:
     reprojection_rms_px: float = float("nan")
     epipolar_rms_px: float = float("nan")
     n_points: tuple[int, int] = (0, 0)
+    view_median_px: tuple[float, float] = (float("nan"), float("nan"))  # median |residual| per view
 
 
 # --- pair geometry ----------------------------------------------------------------------------
@@ -345,7 +346,8 @@ def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: Camer
     B = np.stack([e1, e2], axis=1)
     Jn = (np.eye(3) - np.outer(n, n)) @ B
     cov_axis = Jn @ cov_p[:2, :2] @ Jn.T
-    return WheelFit("circle", sol.x[2:5].copy(), n, float(sol.x[5]),
+    medians = tuple(float(np.median(np.abs(res))) if len(res) else float("inf") for res in np.split(r, split))
+    return WheelFit("circle", sol.x[2:5].copy(), n, float(sol.x[5]), view_median_px=medians,
                     cov_center=cov_p[2:5, 2:5], cov_axis=cov_axis,
                     reprojection_rms_px=float(np.sqrt(np.mean(r[inlier] ** 2))) if inlier.any() else float("nan"),
                     epipolar_rms_px=init.epipolar_rms_px,

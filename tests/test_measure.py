@@ -82,3 +82,14 @@ def test_a_knocked_camera_is_reported_as_calibration_drift(sim):
     drift = [w for w in result["warnings"] if "epipolar residual" in w]
     assert any("pair FR (cam1, cam2)" in w for w in drift), result["warnings"]
     assert not any("pair RL" in w for w in drift)
+
+
+@pytest.mark.slow
+def test_cameras_that_found_different_rims_fail_the_wheel(sim):
+    cfg, world, scene, images = sim
+    swapped = dict(images, cam2=np.flipud(images["cam2"]).copy())  # a rim, but not where cam2 sees it
+    result = measure_frames(swapped, world.cameras, cfg)
+    assert not result["valid"]
+    assert result["failure"]["wheel"] == "FR"
+    assert "did not find the same rim" in result["failure"]["message"]
+
