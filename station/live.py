@@ -1,0 +1,254 @@
+"""Live measurement for adjusting toe: one axle (or all four wheels), many updates a second.
+
+A technician turning a tie rod watches toe move. :class:`LiveSession` assembles the station
+like station/cycle.py does (cameras through the driver registry, the calibration file), takes
+one full cycle of all eight cameras to fix the car frame (the car does not move while a wheel
+is adjusted), then loops over the live axle's cameras only: capture, rim detection with each
+camera's previous ellipse as the prior (the detector's fast path; it falls back to the full
+search by itself), the 3-D circle of each live wheel, and the angles in the car frame with the
+other wheels' last measured centres and axes.
+
+Nothing here asks whether the station is simulated, except one place: on a sim:// station the
+simulated toe adjustment (simulators/adjustment.py) is swapped into the driver context before
+the cameras open.
+"""
+
+from __future__ import annotations
+
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from station import alignment, capture
+from station.config import WHEELS, StationConfig
+from station.errors import MeasurementError, StationError
+from station.measure import check_same_rim, measure_frames, reconstruct_wheel
+
+AXLES = {"front": ("FL", "FR"), "rear": ("RL", "RR"), "all": WHEELS}
+
+
+@dataclass
+class Reading:
+    """One live update. wheels[W] = {toe_deg, camber_deg} for the live wheels; errors[W] = why
+    a live wheel has no value this time; timing_s per stage; truth_toe_deg in simulation."""
+
+    n: int
+    wheels: dict = field(default_factory=dict)
+    total_toe_deg: dict = field(default_factory=dict)   # axle -> deg (both wheels measured)
+    errors: dict = field(default_factory=dict)
+    timing_s: dict = field(default_factory=dict)
+    truth_toe_deg: dict | None = None
+
+
+class LiveSession:
+    """Cameras + calibration + the live loop. Use as a context manager."""
+
+    def __init__(self, config: StationConfig, *, axle: str = "front", seed: int = 0, calibration=None,
+                 cache_dir: str | Path | None = None, hold: int = 5, toe_span_deg: float = 0.6,
+                 n_steps: int = 7, progress: Callable[[str], None] = print):
+        from calibration.calib_file import load_calibration
+        from drivers.registry import build_context
+
+        if axle not in AXLES:
+            raise MeasurementError(f"unknown axle {axle!r}; expected one of {', '.join(AXLES)}")
+        self.config = config
+        self.axle = axle
+        self.live_wheels = tuple(AXLES[axle])
+        self.calibration = calibration or load_calibration(config.calibration_file, config)
+        self.models = {cid: self.calibration.model(cid) for cid in config.cameras}
+        self.pairs = {w: (config.pairs[w].precision, config.pairs[w].reference) for w in WHEELS}
+        self.live_cams = [c for w in self.live_wheels for c in self.pairs[w]]
+        self.context = build_context([c.uri for c in config.cameras.values()], config, seed=seed)
+        self.adjustment = None
+        if "sim_world" in self.context:  # the simulated station: a simulated tie-rod adjustment
+            from simulators.adjustment import install
+            wheel = self.live_wheels[0]
+            toe0 = self.context["sim_world"].scene.vehicle.toe_deg[wheel]
+            steps = toe0 + np.linspace(0.0, toe_span_deg, n_steps)
+            cache = Path(cache_dir) if cache_dir else config.data_path("live-cache")
+            self.adjustment = install(self.context, config, seed, wheel, steps, self.live_cams, cache,
+                                      progress=progress, hold=hold)
+        self.cameras = capture.open_station_cameras(config, self.context)
+        try:
+            self.trigger_board = capture.open_trigger_board(config, self.context)
+        except StationError:
+            capture.close_cameras(self.cameras)
+            raise
+        self.timeout_s = max(config.capture.timeout_s, float(self.context.get("capture_timeout_s", 0)))
+        self.priors: dict = {}
+        self.centers: dict = {}
+        self.axes: dict = {}
+        self.n = 0
+        self._pool = ThreadPoolExecutor(max_workers=2)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def close(self) -> None:
+        self._pool.shutdown(wait=True)
+        capture.close_cameras(self.cameras)
+        if self.trigger_board is not None:
+            self.trigger_board.close()
+        self.context.get("close", lambda: None)()
+
+    # --- the car frame: one full cycle --------------------------------------------------------
+    def baseline(self) -> dict:
+        """Measure all four wheels once (every camera); raises MeasurementError if it fails."""
+        frames = capture.capture_cycle(self.cameras, self.timeout_s, self.trigger_board)
+        result = measure_frames({c: f.image for c, f in frames.items()}, self.models, self.config)
+        if not result["valid"]:
+            raise MeasurementError(f"the first full measurement failed: {result['failure']['message']}",
+                                   hint="check the vehicle's position and the cameras' images (station measure)")
+        for w in WHEELS:
+            self.centers[w] = np.asarray(result["wheels"][w]["center_station_m"])
+            self.axes[w] = np.asarray(result["wheels"][w]["axis_station"])
+        self.priors = {c: _ellipse(d) for c, d in result["detections"].items()}
+        return result
+
+    # --- one live update ----------------------------------------------------------------------
+    def update(self) -> Reading:
+        """Capture the live cameras, detect, rebuild the live wheels, compute their angles."""
+        from station.rim import detect_rim
+
+        if not self.centers:
+            self.baseline()
+        reading = Reading(self.n)
+        t0 = time.perf_counter()
+        cams = {c: self.cameras[c] for c in self.live_cams}
+        frames = capture.capture_cycle(cams, self.timeout_s, self.trigger_board)
+        t1 = time.perf_counter()
+
+        def detect(cid):
+            try:
+                return detect_rim(frames[cid].image, camera=self.models[cid], prior=self.priors.get(cid),
+                                  camera_id=cid)
+            except StationError as e:
+                return e
+
+        detections = dict(zip(self.live_cams, self._pool.map(detect, self.live_cams)))
+        t2 = time.perf_counter()
+        for cid, d in detections.items():  # a failed camera searches the whole image next time
+            if isinstance(d, StationError):
+                self.priors.pop(cid, None)
+            else:
+                self.priors[cid] = d.ellipse
+        for w in self.live_wheels:
+            cams_w = self.pairs[w]
+            bad = [c for c in cams_w if isinstance(detections[c], StationError)]
+            if bad:
+                reading.errors[w] = f"{bad[0]}: {detections[bad[0]]}"
+                continue
+            try:
+                obs = reconstruct_wheel(w, cams_w, detections, self.models)
+                check_same_rim(obs, self.config)
+            except StationError as e:
+                reading.errors[w] = str(e)
+                continue
+            self.centers[w] = obs.circle.center_station
+            self.axes[w] = obs.circle.axis_station
+            reading.wheels[w] = {}
+        t3 = time.perf_counter()
+        if reading.wheels:
+            angles = alignment.compute_angles(self.centers, self.axes)
+            for w in reading.wheels:
+                reading.wheels[w] = {k: float(angles["wheels"][w][k]) for k in ("toe_deg", "camber_deg")}
+            for axle, (left, right) in (("front", ("FL", "FR")), ("rear", ("RL", "RR"))):
+                if left in reading.wheels and right in reading.wheels:
+                    reading.total_toe_deg[axle] = float(angles["axles"][axle]["total_toe_deg"])
+        t4 = time.perf_counter()
+        reading.timing_s = {"capture": t1 - t0, "detect": t2 - t1, "reconstruct": t3 - t2,
+                            "angles": t4 - t3, "total": t4 - t0}
+        if self.adjustment is not None:
+            truth = self.adjustment.truth()
+            reading.truth_toe_deg = {w: truth["wheels"][w]["toe_deg"] for w in self.live_wheels}
+        self.n += 1
+        return reading
+
+    def run(self, seconds: float | None, show: Callable[[Reading], None], max_updates: int | None = None) -> dict:
+        """Update until ``seconds`` pass, ``max_updates`` are done or Ctrl-C; returns the rate.
+
+        Ctrl-C ends the loop cleanly (the KeyboardInterrupt is caught here, the summary still
+        returned, with ``interrupted`` True)."""
+        times, interrupted = [], False
+        t_start = time.perf_counter()
+        try:
+            while True:
+                r = self.update()
+                times.append(r.timing_s)
+                show(r)
+                if seconds is not None and time.perf_counter() - t_start >= seconds:
+                    break
+                if max_updates is not None and len(times) >= max_updates:
+                    break
+        except KeyboardInterrupt:
+            interrupted = True
+        elapsed = time.perf_counter() - t_start
+        return rate_summary(times, elapsed, interrupted)
+
+
+def rate_summary(times: list[dict], elapsed_s: float, interrupted: bool = False) -> dict:
+    """Updates per second and the median time per stage (ms) of a live run."""
+    out = {"updates": len(times), "elapsed_s": elapsed_s, "interrupted": interrupted,
+           "rate_hz": len(times) / elapsed_s if elapsed_s > 0 and times else 0.0}
+    for k in ("capture", "detect", "reconstruct", "angles", "total"):
+        vals = [t[k] for t in times if k in t]
+        out[f"{k}_ms"] = float(np.median(vals) * 1e3) if vals else None
+    return out
+
+
+def _ellipse(summary: dict):
+    """The detector's Ellipse from a result's detection summary (docs/result-schema.md)."""
+    from station.rim import Ellipse
+
+    if not summary.get("ok"):
+        return None
+    return Ellipse(np.asarray(summary["center_px"], float), np.asarray(summary["axes_px"], float),
+                   float(np.radians(summary["angle_deg"])))
+
+
+# --- the terminal display ---------------------------------------------------------------------
+def format_reading(reading: Reading, spec=None, live_wheels=WHEELS) -> list[str]:
+    """The display's lines: per live wheel toe and camber, the spec range and pass/fail."""
+    lines = [f"{'wheel':<6}{'toe (deg)':>10}{'spec':>18}{'':>6}{'camber (deg)':>14}{'spec':>18}{'':>6}"]
+    for w in live_wheels:
+        if w not in reading.wheels:
+            lines.append(f"{w:<6}  no reading: {reading.errors.get(w, 'not measured')}")
+            continue
+        line = f"{w:<6}"
+        for kind in ("toe", "camber"):
+            value = reading.wheels[w][f"{kind}_deg"]
+            s = _angle_spec(spec, f"{'front' if w.startswith('F') else 'rear'}.{kind}")
+            line += f"{value:>+10.3f}" if kind == "toe" else f"{value:>+14.3f}"
+            line += f"{_range(s):>18}{_verdict(s, value):>6}"
+        if reading.truth_toe_deg and w in reading.truth_toe_deg:
+            line += f"   (sim true toe {reading.truth_toe_deg[w]:+.3f})"
+        lines.append(line)
+    for axle, value in reading.total_toe_deg.items():
+        s = _angle_spec(spec, f"{axle}.total_toe")
+        lines.append(f"{axle} total toe {value:+.3f} deg  {_range(s)} {_verdict(s, value)}".rstrip())
+    t = reading.timing_s
+    if t:
+        lines.append(f"update {reading.n}: {t['total'] * 1e3:.0f} ms (capture {t['capture'] * 1e3:.0f}, "
+                     f"detect {t['detect'] * 1e3:.0f}, 3-D {t['reconstruct'] * 1e3:.0f})")
+    return lines
+
+
+def _angle_spec(spec, name):
+    return None if spec is None else spec.angles.get(name)
+
+
+def _range(s) -> str:
+    return "" if s is None else f"[{s.low_deg:+.2f}, {s.high_deg:+.2f}]"
+
+
+def _verdict(s, value) -> str:
+    if s is None:
+        return ""
+    return "OK" if s.check(value) else "ADJUST"

@@ -1,0 +1,135 @@
+"""`station live`: the loop on a small simulated station, the display, Ctrl-C."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from station.live import LiveSession, Reading, format_reading, rate_summary
+from tests.station_fixtures import small_station_config
+
+ROOT = Path(__file__).resolve().parents[1]
+SEED = 1
+
+
+def _truth_calibration(config):
+    from calibration.calib_file import CameraCalibration, StationCalibration, save_calibration
+    from simulators.world import SimWorld
+
+    world = SimWorld.from_config(config)
+    cams = {c: CameraCalibration(m, 0.1, 1000, {}) for c, m in world.cameras.items()}
+    calib = StationCalibration(cams, {w: (p.precision, p.reference) for w, p in config.pairs.items()},
+                               station_name=config.name)
+    config.calibration_file.parent.mkdir(parents=True, exist_ok=True)
+    save_calibration(calib, config.calibration_file)
+    return calib
+
+
+@pytest.fixture(scope="module")
+def station(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("live")
+    config = small_station_config(tmp)
+    _truth_calibration(config)
+    return config, tmp / "cache"
+
+
+@pytest.fixture(scope="module")
+def session_run(station):
+    config, cache = station
+    shown = []
+    with LiveSession(config, axle="front", seed=SEED, cache_dir=cache, hold=1, n_steps=3, toe_span_deg=0.5,
+                     progress=lambda s: None) as s:
+        s.baseline()
+        summary = s.run(None, shown.append, max_updates=5)
+    return summary, shown
+
+
+def test_live_loop_measures_the_adjusted_wheel_and_stops(session_run):
+    summary, shown = session_run
+    assert summary["updates"] == 5 and not summary["interrupted"] and summary["rate_hz"] > 0
+    for r in shown:
+        assert set(r.wheels) == {"FL", "FR"}, r.errors
+        for w in ("FL", "FR"):  # the measured toe follows the simulated adjustment
+            assert abs(r.wheels[w]["toe_deg"] - r.truth_toe_deg[w]) < 0.1
+    fl = [r.wheels["FL"]["toe_deg"] for r in shown]
+    true_fl = [r.truth_toe_deg["FL"] for r in shown]
+    assert max(true_fl) - min(true_fl) == pytest.approx(0.5)  # hold=1: steps 0,1,2,1,0
+    assert max(fl) - min(fl) == pytest.approx(0.5, abs=0.1)
+    fr = [r.wheels["FR"]["toe_deg"] for r in shown]
+    assert max(fr) - min(fr) < 0.1  # the other wheel stays put
+
+
+def test_display_formats_values_and_verdicts():
+    from station.vehicle_specs import AngleSpec, VehicleSpec
+
+    spec = VehicleSpec("x", "X", "", {"front.toe": AngleSpec(0.05, 0.10), "front.camber": AngleSpec(0.1, 0.4),
+                                      "front.total_toe": AngleSpec(0.10, 0.20)})
+    r = Reading(7, wheels={"FL": {"toe_deg": 0.123, "camber_deg": -0.5}}, total_toe_deg={},
+                errors={"FR": "cam3: no closed rim contour"},
+                timing_s={"capture": 0.01, "detect": 0.03, "reconstruct": 0.02, "angles": 0.001, "total": 0.07})
+    lines = format_reading(r, spec, live_wheels=("FL", "FR"))
+    fl = next(line for line in lines if line.startswith("FL"))
+    assert "+0.123" in fl and "[-0.05, +0.15]" in fl and "OK" in fl
+    assert "-0.500" in fl and "[-0.30, +0.50]" in fl and "ADJUST" in fl
+    assert any("FR" in line and "no closed rim contour" in line for line in lines)
+    assert any("update 7: 70 ms" in line for line in lines)
+    r.total_toe_deg = {"front": 0.35}
+    assert any(line.startswith("front total toe +0.350") and "ADJUST" in line
+               for line in format_reading(r, spec, ("FL", "FR")))
+    assert "OK" not in "".join(format_reading(r, None, ("FL",))[1:])  # no spec: no verdicts
+
+
+def test_rate_summary():
+    s = rate_summary([{"total": 0.1, "capture": 0.01}] * 10, 1.25, interrupted=True)
+    assert s["rate_hz"] == pytest.approx(8.0) and s["total_ms"] == pytest.approx(100) and s["interrupted"]
+    assert rate_summary([], 0.0)["rate_hz"] == 0.0
+
+
+def test_unknown_axle_is_refused(station):
+    from station.errors import MeasurementError
+
+    with pytest.raises(MeasurementError, match="unknown axle"):
+        LiveSession(station[0], axle="middle")
+
+
+def _cli(config, cache, *extra):
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    return [sys.executable, "-m", "station.cli", "--config", str(config.path), "live", "--seed", str(SEED),
+            "--cache", str(cache), *extra], env
+
+
+def test_cli_stops_at_seconds_and_reports_the_rate(station, session_run):
+    config, cache = station
+    cmd, env = _cli(config, cache, "--seconds", "1", "--vehicle", "dodge-caravan-2007")
+    out = subprocess.run(cmd, capture_output=True, text=True, timeout=120, env=env, cwd=ROOT)
+    assert out.returncode == 0, out.stderr
+    assert "Traceback" not in out.stderr
+    assert " Hz " in out.stdout and "updates in" in out.stdout and "FL" in out.stdout
+
+
+def test_ctrl_c_exits_cleanly(station, session_run):
+    config, cache = station
+    cmd, env = _cli(config, cache)
+    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=ROOT)
+    try:
+        deadline = time.monotonic() + 90
+        line = ""
+        while time.monotonic() < deadline:  # wait for the first live update
+            line = p.stdout.readline()
+            if line.startswith("FL") or "update" in line:
+                break
+        p.send_signal(signal.SIGINT)
+        out, err = p.communicate(timeout=30)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert p.returncode in (0, 130), err
+    assert "Traceback" not in err
+    assert "stopped by Ctrl-C" in out or "stopped" in err
