@@ -22,7 +22,10 @@ from scipy.optimize import least_squares
 
 from calibration.camera_model import CameraModel
 from calibration.triangulation import homogeneous, triangulate_paper
+from station.blas_threads import single_thread_blas
 from station.errors import MeasurementError
+
+single_thread_blas()  # small least-squares problems: OpenBLAS threads cost 40x here (station/blas_threads.py)
 
 PRUNE_FRACTION = 0.10  # the paper's Fig. 9d: 10 % of the diameter at the top and the bottom
 
