@@ -16,7 +16,8 @@ supersample 8 and cached under --cache; re-runs only measure):
    size bounds from the truth, a time cap) because on a full crop it takes minutes.
    Truth: the true rim circle projected (with distortion) by the true camera, 2000 points,
    direct ellipse fit. Errors: centre distance and the larger semi-axis error (px).
-2. A full measurement cycle (eight images -> angles; capture excluded), per stage, with the
+2. Our calibration refinement against ``cv2.calibrateCamera`` on the same points (one camera).
+3. A full measurement cycle (eight images -> angles; capture excluded), per stage, with the
    true cameras as calibration, at 0.33, 1.3 and 5.2 megapixels (scale 0.5, 1, 2 of the
    configured 1280x1024 resolution and focal length), and its growth against pixel count.
 
@@ -173,6 +174,67 @@ def print_rim(rows: list[dict], args) -> None:
               f"{args.skimage_cap_s:.0f} s): {t:.1f} s, time ours/hough_ellipse = {med('ours_t') / t:.4f}")
 
 
+# --- calibration refinement vs cv2.calibrateCamera -------------------------------------------
+def calib_row(world, args) -> dict:
+    """One camera's intrinsics from --calib-views views of a planar 11 x 8 grid (40 mm), the TRUE
+    camera's projection + 0.1 px Gaussian noise. Both methods start from the same guess (K from
+    the nominal focal length and the image centre, no distortion, poses by solvePnP with it):
+    ours is calibration/refine.py's BundleProblem (every view pose free, camera at the origin),
+    OpenCV's is cv2.calibrateCamera with CALIB_USE_INTRINSIC_GUESS and the 5-term model."""
+    import cv2
+
+    from calibration.camera_model import rodrigues_to_matrix
+    from calibration.refine import BundleProblem, Observation
+
+    cam = world.cameras["cam3"]
+    rng = np.random.default_rng(args.seed)
+    g = np.stack(np.meshgrid(np.arange(11), np.arange(8)), -1).reshape(-1, 2) * 0.04
+    board = np.c_[g - g.mean(0), np.zeros(len(g))]                       # (88,3) board frame, m
+    obj, img = [], []
+    for _ in range(args.calib_views):
+        R = rodrigues_to_matrix(np.radians(rng.uniform(-30, 30, 3)))
+        t = np.array([rng.uniform(-0.25, 0.25), rng.uniform(-0.2, 0.2), rng.uniform(1.0, 1.6)])
+        xc = board @ R.T + t
+        uv = cam.project_cam(xc) + rng.normal(0, 0.1, (len(board), 2))
+        obj.append(board.astype(np.float32))
+        img.append(uv.astype(np.float32))
+    f0 = float(world.config.cameras["cam3"].nominal.focal_px)
+    K0 = np.array([[f0, 0, (cam.width - 1) / 2], [0, f0, (cam.height - 1) / 2], [0, 0, 1.0]])
+    poses = [cv2.solvePnP(o, i, K0, None)[1:] for o, i in zip(obj, img)]
+    truth = np.r_[cam.K[0, 0], cam.K[1, 1], cam.K[0, 2], cam.K[1, 2], cam.dist]
+
+    def err(x):
+        return {"f_pct": 100 * float(np.max(np.abs(x[:2] / truth[:2] - 1))),
+                "c_px": float(np.max(np.abs(x[2:4] - truth[2:4]))), "k1": float(abs(x[4] - truth[4]))}
+
+    t = time.perf_counter()
+    prob = BundleProblem(np.r_[f0, f0, K0[0, 2], K0[1, 2], np.zeros(5)][None], np.zeros((1, 3)), np.zeros((1, 3)),
+                         np.array([p[0].ravel() for p in poses]), np.array([p[1].ravel() for p in poses]),
+                         [Observation(0, v, obj[v].astype(float), img[v].astype(float)) for v in range(len(obj))],
+                         free_cam_pose=[False])
+    res = prob.solve()
+    ours_t = time.perf_counter() - t
+    t = time.perf_counter()
+    rms, K, dist, _, _ = cv2.calibrateCamera(obj, img, (cam.width, cam.height), K0.copy(), np.zeros(5),
+                                             flags=cv2.CALIB_USE_INTRINSIC_GUESS)
+    cv_t = time.perf_counter() - t
+    return {"views": len(obj), "points": len(obj) * len(board), "ours_t": ours_t, "cv_t": cv_t,
+            "ours": {**err(res.intrinsics[0]), "rms": float(res.rms_px[0])},
+            "cv": {**err(np.r_[K[0, 0], K[1, 1], K[0, 2], K[1, 2], dist.ravel()[:5]]), "rms": float(rms)}}
+
+
+def print_calib(r: dict) -> None:
+    print(f"\n## Calibration refinement: one camera, {r['views']} views, {r['points']} points (true projection "
+          "+ 0.1 px noise)\n")
+    print("| method | time ms | focal err % | principal point err px | k1 err | reprojection RMS px |")
+    print("|---|---|---|---|---|---|")
+    for name, key, tk in (("ours (calibration/refine.py BundleProblem)", "ours", "ours_t"),
+                          ("cv2.calibrateCamera", "cv", "cv_t")):
+        e = r[key]
+        print(f"| {name} | {r[tk] * 1e3:.0f} | {e['f_pct']:.3f} | {e['c_px']:.2f} | {e['k1']:.4f} | {e['rms']:.3f} |")
+    print(f"\ntime ours/calibrateCamera = {r['ours_t'] / r['cv_t']:.2f}")
+
+
 # --- the full cycle ---------------------------------------------------------------------------
 def cycle_row(scale: float, args) -> dict:
     from station.measure import measure_frames
@@ -217,15 +279,23 @@ def main(argv=None) -> int:
     ap.add_argument("--cycles", type=int, default=3, help="full cycles per scale (median)")
     ap.add_argument("--skip-peers", action="store_true")
     ap.add_argument("--skip-rim", action="store_true")
+    ap.add_argument("--skip-calib", action="store_true")
+    ap.add_argument("--calib-views", type=int, default=12)
     ap.add_argument("--skimage-images", type=int, default=2)
     ap.add_argument("--skimage-side", type=int, default=120, help="px of the downscaled crop's long side")
     ap.add_argument("--skimage-cap-s", type=float, default=300.0)
     args = ap.parse_args(argv)
     args.cache.mkdir(parents=True, exist_ok=True)
+    from station.blas_threads import single_thread_blas
+    import scipy.optimize  # noqa: F401  (load scipy's OpenBLAS before setting it, as station/wheel3d.py does)
+    single_thread_blas()
     print(f"# bench/speed.py  (cpus: {os.cpu_count()}, seed {args.seed}, cache {args.cache})")
     if not args.skip_rim:
         _, world, scene, images = station_at(1.0, args.cache, args.seed)
         print_rim(rim_table(world, scene, images, args), args)
+    if not args.skip_calib:
+        _, world, _, _ = station_at(1.0, args.cache, args.seed)
+        print_calib(calib_row(world, args))
     rows = [cycle_row(s, args) for s in sorted(args.scales)]
     print_cycle(rows)
     return 0

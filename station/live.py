@@ -26,7 +26,8 @@ import numpy as np
 from station import alignment, capture
 from station.config import WHEELS, StationConfig
 from station.errors import MeasurementError, StationError
-from station.measure import check_same_rim, measure_frames, reconstruct_wheel
+from station.measure import WheelObservation, check_same_rim, measure_frames
+from station.wheel3d import reconstruct_paper, refine_circle
 
 AXLES = {"front": ("FL", "FR"), "rear": ("RL", "RR"), "all": WHEELS}
 
@@ -146,7 +147,7 @@ class LiveSession:
                 reading.errors[w] = f"{bad[0]}: {detections[bad[0]]}"
                 continue
             try:
-                obs = reconstruct_wheel(w, cams_w, detections, self.models)
+                obs = _reconstruct(w, cams_w, detections, self.models)
                 check_same_rim(obs, self.config)
             except StationError as e:
                 reading.errors[w] = str(e)
@@ -191,6 +192,16 @@ class LiveSession:
             interrupted = True
         elapsed = time.perf_counter() - t_start
         return rate_summary(times, elapsed, interrupted)
+
+
+def _reconstruct(wheel: str, cams: tuple[str, str], detections: dict, models: dict) -> WheelObservation:
+    """measure.reconstruct_wheel without the jackknife covariance (the live display shows no
+    uncertainty; the jackknife's eight extra fits are most of the 3-D time)."""
+    cam_l, cam_r = models[cams[0]], models[cams[1]]
+    det_l, det_r = detections[cams[0]], detections[cams[1]]
+    paper = reconstruct_paper(det_l.points_px, det_r.points_px, cam_l, cam_r)
+    circle = refine_circle(det_l.points_px, det_r.points_px, cam_l, cam_r, paper, jackknife_sectors=0)
+    return WheelObservation(wheel, cams, (det_l, det_r), paper, circle)
 
 
 def rate_summary(times: list[dict], elapsed_s: float, interrupted: bool = False) -> dict:
