@@ -235,7 +235,7 @@ def format_reading(reading: Reading, spec=None, live_wheels=WHEELS) -> list[str]
         line = f"{w:<6}"
         for kind in ("toe", "camber"):
             value = reading.wheels[w][f"{kind}_deg"]
-            s = _angle_spec(spec, f"{'front' if w.startswith('F') else 'rear'}.{kind}")
+            s = _angle_spec(spec, f"{w}.{kind}")
             line += f"{value:>+10.3f}" if kind == "toe" else f"{value:>+14.3f}"
             line += f"{_range(s):>18}{_verdict(s, value):>6}"
         if reading.truth_toe_deg and w in reading.truth_toe_deg:
@@ -252,7 +252,15 @@ def format_reading(reading: Reading, spec=None, live_wheels=WHEELS) -> list[str]
 
 
 def _angle_spec(spec, name):
-    return None if spec is None else spec.angles.get(name)
+    """The AngleSpec of ``name`` ("FL.toe", "front.total_toe"); per-wheel names fall back to the
+    axle's ("front.toe") for a spec written per axle."""
+    if spec is None:
+        return None
+    if name in spec.angles:
+        return spec.angles[name]
+    wheel, _, kind = name.partition(".")
+    axle = {"F": "front", "R": "rear"}.get(wheel[:1])
+    return spec.angles.get(f"{axle}.{kind}") if axle else None
 
 
 def _range(s) -> str:

@@ -86,6 +86,19 @@ def test_display_formats_values_and_verdicts():
     assert "OK" not in "".join(format_reading(r, None, ("FL",))[1:])  # no spec: no verdicts
 
 
+def test_display_uses_the_real_vehicle_spec_per_wheel():
+    from station.config import load_config
+    from station.vehicle_specs import get_spec, load_vehicle_specs
+
+    cfg = load_config()
+    spec = get_spec(load_vehicle_specs(cfg.vehicle_specs_path), "dodge-caravan-2007")
+    r = Reading(1, wheels={"FR": {"toe_deg": 0.05, "camber_deg": 2.0}})
+    fr = next(line for line in format_reading(r, spec, ("FR",)) if line.startswith("FR"))
+    toe, camber = spec.angles["FR.toe"], spec.angles["FR.camber"]
+    assert f"[{toe.low_deg:+.2f}, {toe.high_deg:+.2f}]" in fr and f"[{camber.low_deg:+.2f}, {camber.high_deg:+.2f}]" in fr
+    assert fr.count("OK") == 1 and fr.count("ADJUST") == 1  # toe on nominal, camber 2 deg out
+
+
 def test_rate_summary():
     s = rate_summary([{"total": 0.1, "capture": 0.01}] * 10, 1.25, interrupted=True)
     assert s["rate_hz"] == pytest.approx(8.0) and s["total_ms"] == pytest.approx(100) and s["interrupted"]
@@ -112,6 +125,7 @@ def test_cli_stops_at_seconds_and_reports_the_rate(station, session_run):
     assert out.returncode == 0, out.stderr
     assert "Traceback" not in out.stderr
     assert " Hz " in out.stdout and "updates in" in out.stdout and "FL" in out.stdout
+    assert "[" in out.stdout.splitlines()[-2]  # the spec's ranges are shown
 
 
 def test_ctrl_c_exits_cleanly(station, session_run):
