@@ -29,6 +29,18 @@ def _say(msg: str) -> None:
     print(msg, flush=True)
 
 
+def open_capture(config: StationConfig, context: dict):
+    """Open the cameras and the trigger board: (cameras, board or None, capture deadline s).
+    The simulated cameras may ask for a longer deadline than the configured one."""
+    cameras = capture.open_station_cameras(config, context)
+    try:
+        board = capture.open_trigger_board(config, context)
+    except StationError:
+        capture.close_cameras(cameras)
+        raise
+    return cameras, board, max(config.capture.timeout_s, float(context.get("capture_timeout_s", 0)))
+
+
 class Station:
     """Cameras + calibration of one configured station. Use as a context manager."""
 
@@ -40,13 +52,7 @@ class Station:
         self.models = {cid: self.calibration.model(cid) for cid in config.cameras}
         uris = [c.uri for c in config.cameras.values()]
         self.context = build_context(uris, config, seed=seed)
-        self.cameras = capture.open_station_cameras(config, self.context)
-        try:
-            self.trigger_board = capture.open_trigger_board(config, self.context)
-        except StationError:
-            capture.close_cameras(self.cameras)
-            raise
-        self.timeout_s = max(config.capture.timeout_s, float(self.context.get("capture_timeout_s", 0)))
+        self.cameras, self.trigger_board, self.timeout_s = open_capture(config, self.context)
         self.cycle_count = 0
 
     def __enter__(self):

@@ -26,6 +26,7 @@ import numpy as np
 from station import alignment, capture
 from station.config import WHEELS, StationConfig
 from station.errors import MeasurementError, StationError
+from station.cycle import open_capture
 from station.measure import WheelObservation, check_same_rim, measure_frames
 from station.wheel3d import reconstruct_paper, refine_circle
 
@@ -73,13 +74,7 @@ class LiveSession:
             cache = Path(cache_dir) if cache_dir else config.data_path("live-cache")
             self.adjustment = install(self.context, config, seed, wheel, steps, self.live_cams, cache,
                                       progress=progress, hold=hold)
-        self.cameras = capture.open_station_cameras(config, self.context)
-        try:
-            self.trigger_board = capture.open_trigger_board(config, self.context)
-        except StationError:
-            capture.close_cameras(self.cameras)
-            raise
-        self.timeout_s = max(config.capture.timeout_s, float(self.context.get("capture_timeout_s", 0)))
+        self.cameras, self.trigger_board, self.timeout_s = open_capture(config, self.context)
         self.priors: dict = {}
         self.centers: dict = {}
         self.axes: dict = {}

@@ -24,6 +24,7 @@ from calibration.camera_model import CameraModel
 from calibration.triangulation import homogeneous, triangulate_paper
 from station.blas_threads import single_thread_blas
 from station.errors import MeasurementError
+from station.rim.ellipse_fit import fit_direct
 
 single_thread_blas()  # small least-squares problems: OpenBLAS threads cost 40x here (station/blas_threads.py)
 
@@ -56,28 +57,11 @@ def pair_relation(cam_l: CameraModel, cam_r: CameraModel) -> tuple[np.ndarray, n
 
 
 def fit_conic(xy: np.ndarray) -> np.ndarray:
-    """Direct least-squares ellipse (Fitzgibbon) through (N,2) points; returns the (3,3) conic.
-
-    Hartley-normalised for conditioning; x^T C x = 0 for homogeneous points on the ellipse.
-    """
-    m = xy.mean(axis=0)
-    s = np.sqrt(2) / np.mean(np.linalg.norm(xy - m, axis=1))
-    x, y = ((xy - m) * s).T
-    D1 = np.stack([x * x, x * y, y * y], axis=1)
-    D2 = np.stack([x, y, np.ones_like(x)], axis=1)
-    S1, S2, S3 = D1.T @ D1, D1.T @ D2, D2.T @ D2
-    T = -np.linalg.solve(S3, S2.T)
-    M = S1 + S2 @ T
-    M = np.array([M[2] / 2, -M[1], M[0] / 2])
-    evals, evecs = np.linalg.eig(M)
-    evecs = np.real(evecs)
-    cond = 4 * evecs[0] * evecs[2] - evecs[1] ** 2
-    a1 = evecs[:, np.argmax(cond)]
-    a, b, c, d, e, f = np.concatenate([a1, T @ a1])
-    C_n = np.array([[a, b / 2, d / 2], [b / 2, c, e / 2], [d / 2, e / 2, f]])
-    H = np.array([[s, 0, -s * m[0]], [0, s, -s * m[1]], [0, 0, 1]])  # x_n = H x
-    C = H.T @ C_n @ H
-    return C / np.linalg.norm(C)
+    """Direct least-squares ellipse (Fitzgibbon, the rim detector's) through (N,2) points, as
+    the (3,3) conic C with x^T C x = 0 for homogeneous points on it (unit norm)."""
+    A, B, C, D, E, F = fit_direct(xy).to_conic()
+    M = np.array([[A, B / 2, D / 2], [B / 2, C, E / 2], [D / 2, E / 2, F]])
+    return M / np.linalg.norm(M)
 
 
 def line_conic_intersections(lines: np.ndarray, C: np.ndarray) -> np.ndarray:
