@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 import time
+from abc import ABC, abstractmethod
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -61,7 +62,7 @@ class Frame:
     metadata: dict[str, Any] = field(default_factory=dict)
 
 
-class Camera:
+class Camera(ABC):
     """Base class. Subclasses implement the ``_`` methods; users call the public ones."""
 
     scheme = ""
@@ -171,8 +172,9 @@ class Camera:
         self.close()
 
     # --- to implement -----------------------------------------------------------------------
+    @abstractmethod
     def _open(self) -> None:
-        raise NotImplementedError
+        """Connect to the device (called once by :meth:`open`)."""
 
     def _configure(self, settings: CameraSettings) -> None:
         pass
@@ -183,8 +185,9 @@ class Camera:
     def _trigger(self) -> None:
         pass
 
+    @abstractmethod
     def _grab(self, timeout_s: float) -> Frame | None:
-        raise NotImplementedError
+        """The next frame, or None when none came within ``timeout_s``."""
 
     def _identity(self) -> CameraIdentity:
         s = self.settings
