@@ -19,6 +19,7 @@ from calibration.calib_file import StationCalibration, load_calibration
 from drivers.registry import build_context
 from station import capture
 from station.config import StationConfig
+from station.atomic_file import write_text_atomic
 from station.errors import StationError, StorageError
 from station.measure import add_truth, measure_frames
 
@@ -180,13 +181,14 @@ def _record(path: Path, station: Station, result: dict, images: dict, observatio
 
 
 def write_json(result: dict, path: str | Path) -> Path:
-    """Write a result as JSON atomically (temp file + rename)."""
+    """Write a result as JSON atomically (temp file + rename). OSError -> StorageError."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(result, indent=1, default=_json_default))
-    tmp.replace(path)
-    return path
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        return write_text_atomic(path, json.dumps(result, indent=1, default=_json_default))
+    except OSError as e:
+        raise StorageError(f"{path}: cannot write the result JSON: {e.strerror or e}; the cycle is "
+                           "kept in the history", hint="choose a writable folder for --json") from e
 
 
 def _json_default(o):

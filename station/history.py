@@ -18,10 +18,10 @@ import math
 import numbers
 import os
 import sqlite3
-import tempfile
 import threading
 from pathlib import Path
 
+from station.atomic_file import write_atomic
 from station.errors import StorageError
 
 ANGLE_NAMES = ("FL.toe", "FL.camber", "FR.toe", "FR.camber", "RL.toe", "RL.camber",
@@ -334,20 +334,9 @@ def export_csv(rows: list[dict], path_or_file) -> int:
         write(path_or_file)
         return len(rows)
     path = Path(path_or_file)
-    tmp = None
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
-        with os.fdopen(fd, "w", newline="") as f:
-            write(f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
+        write_atomic(path, write, newline="")
     except OSError as e:
-        if tmp:
-            try:
-                os.unlink(tmp)
-            except OSError:
-                pass
         raise StorageError(f"{path}: cannot write the CSV export: {e.strerror or e}",
                            hint="choose a writable folder with free space") from e
     return len(rows)

@@ -18,6 +18,7 @@ import tempfile
 from html import escape
 from pathlib import Path
 
+from station.atomic_file import write_text_atomic
 from station.errors import StorageError
 from station.report_svg import top_view_svg
 from station.vehicle_specs import ANGLE_NAMES, VehicleSpec, angle_value, evaluate
@@ -149,19 +150,10 @@ line to the right. Front toe is measured against the geometric centreline. Colou
 def write_report(html: str, path: str | os.PathLike) -> Path:
     """Write atomically (temp file + rename). OSError -> StorageError."""
     path = Path(path)
-    tmp = None
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(html)
-        os.replace(tmp, path)
+        write_text_atomic(path, html)
     except OSError as err:
-        if tmp:
-            try:
-                os.unlink(tmp)
-            except OSError:
-                pass
         raise StorageError(f"{path}: cannot write the report: {err.strerror or err}",
                            hint="choose a writable folder with --out") from err
     return path

@@ -306,7 +306,6 @@ def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: Camer
     x0 = np.concatenate([[0.0, 0.0], init.center_station, [init.radius_m]])
     sol = least_squares(residuals, x0, loss="soft_l1", f_scale=loss_scale_px, x_scale="jac", method="trf")
     r = sol.fun
-    n_res = len(r)
     # Robust sigma of the residuals, and the parameter covariance from the Jacobian.
     mad = 1.4826 * np.median(np.abs(r - np.median(r)))
     inlier = np.abs(r) < max(3 * mad, 1e-6)

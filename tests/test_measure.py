@@ -93,3 +93,16 @@ def test_cameras_that_found_different_rims_fail_the_wheel(sim):
     assert result["failure"]["wheel"] == "FR"
     assert "did not find the same rim" in result["failure"]["message"]
 
+
+
+def test_result_json_to_an_unwritable_place_is_a_storage_error_and_leaves_no_file(tmp_path):
+    from station.cycle import write_json
+    from station.errors import StorageError
+
+    blocker = tmp_path / "not-a-folder"
+    blocker.write_text("x")
+    with pytest.raises(StorageError, match="cannot write the result JSON"):
+        write_json({"valid": True}, blocker / "r.json")
+    out = write_json({"valid": True, "v": np.float64(0.5)}, tmp_path / "ok" / "r.json")
+    assert json.loads(out.read_text()) == {"valid": True, "v": 0.5}
+    assert [p.name for p in out.parent.iterdir()] == ["r.json"]
