@@ -29,6 +29,8 @@ from station.rim.ellipse_fit import fit_direct
 single_thread_blas()  # small least-squares problems: OpenBLAS threads cost 40x here (station/blas_threads.py)
 
 PRUNE_FRACTION = 0.10  # the paper's Fig. 9d: 10 % of the diameter at the top and the bottom
+INWARD_WEIGHT = 0.3    # weight of residuals inside the rim's projection in the circle fit
+BIAS_MODES = 1         # edge-bias Fourier modes (0: uniform, 1: + cos/sin) in the covariance
 
 
 @dataclass
@@ -192,20 +194,58 @@ def sampson_px(C: np.ndarray, xy: np.ndarray, focal_px: float) -> np.ndarray:
     return focal_px * f / grad
 
 
+def _rim_angles(cam: CameraModel, xy: np.ndarray, c: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """(N,) angle (rad) around the circle (centre c (3,), unit normal n (3,), station frame) of
+    the points where the rays of ``cam``'s normalised points xy (N,2) meet the circle's plane."""
+    u = np.cross(n, [0.0, 0.0, 1.0])
+    u /= np.linalg.norm(u)
+    v = np.cross(n, u)
+    C0 = cam.center_station
+    d = np.concatenate([xy, np.ones((len(xy), 1))], axis=1) @ cam.R_cam_station
+    P = C0 + (((c - C0) @ n) / (d @ n))[:, None] * d
+    return np.arctan2((P - c) @ v, (P - c) @ u)
+
+
+def _sector_labels(phi: np.ndarray, n_sectors: int) -> np.ndarray:
+    return ((phi + np.pi) / (2 * np.pi) * n_sectors).astype(int) % n_sectors
+
+
+def _bias_covariance(sol, views, n0, e1, e2, n_modes: int, n_sectors: int = 18) -> np.ndarray:
+    """(6,6) covariance of the circle parameters from slowly varying edge biases in each view.
+
+    The edge a camera sees may sit off the flange edge by a bias that changes slowly around
+    the rim (a shaded lip, the tyre bulge, the blur model): it does not average out over the
+    points. Model it per view as Fourier modes 0..``n_modes`` of the rim angle, each with the
+    standard deviation this cycle's residuals show (RMS of the median residual of each of
+    ``n_sectors`` sectors: the part of the bias the fit could not absorb), and propagate each
+    mode through the least-squares solution (dp = (J^T J)^-1 J^T dr)."""
+    c = sol.x[2:5]
+    n = _normal_from(sol.x[:2], n0, e1, e2)
+    J = sol.jac
+    pinv = np.linalg.pinv(J.T @ J) @ J.T                                  # (6, N)
+    bounds = np.cumsum([0] + [len(v[1]) for v in views])
+    cov = np.zeros((6, 6))
+    for (cam, xy, _), a, b in zip(views, bounds[:-1], bounds[1:]):
+        r = sol.fun[a:b]
+        phi = _rim_angles(cam, xy, c, n)
+        lab = _sector_labels(phi, n_sectors)
+        count = np.bincount(lab, minlength=n_sectors)
+        full = np.nonzero(count >= 3)[0]
+        meds = np.array([np.median(r[lab == k]) for k in full])
+        noise = 1.4826 * np.median(np.abs(r - np.median(r)))  # the part of each median that is noise:
+        se2 = (1.2533 * noise) ** 2 / count[full]                 # its squared standard error
+        sigma_b = float(np.sqrt(max(np.mean(meds ** 2 - se2), 0.0))) if len(full) else 0.0
+        modes = [np.ones_like(phi)] + [f(k * phi) for k in range(1, n_modes + 1) for f in (np.cos, np.sin)]
+        dp = pinv[:, a:b] @ (np.stack(modes, axis=1) * sigma_b)            # (6, modes)
+        cov += dp @ dp.T
+    return cov
+
+
 def _sector_jackknife(residuals, x, views, n0, e1, e2, n_sectors: int, loss_scale_px: float) -> np.ndarray:
     """Block-jackknife covariance (6,6) of the circle parameters, leaving out one rim sector at a time."""
     c = x[2:5]
     n = _normal_from(x[:2], n0, e1, e2)
-    u = np.cross(n, [0.0, 0.0, 1.0])
-    u /= np.linalg.norm(u)
-    v = np.cross(n, u)
-    labels = []
-    for cam, xy, _ in views:  # the sector of each point: its ray's hit on the rim plane
-        C0 = cam.center_station
-        d = np.concatenate([xy, np.ones((len(xy), 1))], axis=1) @ cam.R_cam_station
-        P = C0 + (((c - C0) @ n) / (d @ n))[:, None] * d
-        phi = np.arctan2((P - c) @ v, (P - c) @ u)
-        labels.append(((phi + np.pi) / (2 * np.pi) * n_sectors).astype(int) % n_sectors)
+    labels = [_sector_labels(_rim_angles(cam, xy, c, n), n_sectors) for cam, xy, _ in views]
     estimates = []
     for k in range(n_sectors):
         keep = [lab != k for lab in labels]
@@ -271,13 +311,19 @@ def edge_visibility(cam: CameraModel, xy: np.ndarray, circle: WheelFit) -> np.nd
 
 def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: CameraModel,
                   cam_r: CameraModel, init: WheelFit, loss_scale_px: float = 0.3,
-                  visibility_margin: float | None = None, jackknife_sectors: int = 8) -> WheelFit:
+                  visibility_margin: float | None = None, jackknife_sectors: int = 0,
+                  inward_weight: float = INWARD_WEIGHT, bias_modes: int = BIAS_MODES) -> WheelFit:
     """Fit one 3-D circle to both views' rim points by minimising image distance (px).
 
-    The covariance is the larger of (a) the Jacobian's, inflated by the residuals' correlation
-    along the rim, and (b) a block jackknife over ``jackknife_sectors`` sectors of the rim (the
-    same physical sector left out of both views in turn), which sees errors that move whole
-    stretches of the edge (shading, occlusion) and so bias the fit; 0 skips (b).
+    Residuals of points inside the circle's projection count ``inward_weight`` times (1: a
+    symmetric fit): the tyre bulge and a lip shaded as dark as the tyre hide the flange edge
+    on whole arcs of an oblique view, and then the edge the detector finds lies inside it.
+
+    The covariance is (a) the Jacobian's, inflated by the residuals' correlation along the rim,
+    plus (b) slowly varying edge biases (:func:`_bias_covariance`, Fourier modes up to
+    ``bias_modes`` of the rim angle; 0 skips it). Optionally (``jackknife_sectors`` > 0) the
+    larger of that and a block jackknife over sectors of the rim (the same physical sector left
+    out of both views in turn); docs/accuracy.md compares the two against the observed errors.
 
     Points where the tyre's sidewall may hide the flange edge (:func:`edge_visibility` below
     ``visibility_margin``) are left out; None keeps every point.
@@ -301,7 +347,11 @@ def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: Camer
         for k, (cam, xy, f) in enumerate(views):
             C = circle_conic(cam.R_cam_station @ c + cam.t_cam_station, cam.R_cam_station @ n, p[5])
             out.append(sampson_px(C, xy if keep is None else xy[keep[k]], f))
-        return np.concatenate(out)
+        r = np.concatenate(out)
+        # an edge seen inside the rim's projection is more likely a hidden or shaded flange
+        # (tyre bulge, dark lip) than a real one: occlusion only ever moves the edge inward
+        # beyond the noise (loss_scale_px) only; within it the fit stays unbiased
+        return np.where(r < -loss_scale_px, inward_weight * (r + loss_scale_px) - loss_scale_px, r)
 
     x0 = np.concatenate([[0.0, 0.0], init.center_station, [init.radius_m]])
     sol = least_squares(residuals, x0, loss="soft_l1", f_scale=loss_scale_px, x_scale="jac", method="trf")
@@ -325,6 +375,8 @@ def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: Camer
         cov_jk = _sector_jackknife(residuals, sol.x, views, n0, e1, e2, jackknife_sectors, loss_scale_px)
         if np.trace(cov_jk[:2, :2]) > np.trace(cov_p[:2, :2]):
             cov_p = cov_jk
+    if bias_modes:
+        cov_p = cov_p + _bias_covariance(sol, views, n0, e1, e2, bias_modes)
     n = _normal_from(sol.x[:2], n0, e1, e2)
     if n[0] * outward_sign(sol.x[2:5]) < 0:
         n = -n
