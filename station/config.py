@@ -212,6 +212,8 @@ SCHEMA = {
         "epipolar_limit_px": Field(_number(0.01, 100), default=0.6),
         "mismatch_limit_px": Field(_number(0.1, 1000), default=5.0),
         "max_wheel_offset_m": Field(_number(0.01, 5), default=0.5),
+        "min_rim_radius_m": Field(_number(0.05, 1), default=0.15),
+        "max_rim_radius_m": Field(_number(0.05, 1), default=0.34),
         "min_rim_points": Field(_number(10, 100000, integer=True), default=200),
     }), default={}),
     "simulation": Field(_section({

@@ -74,12 +74,64 @@ def check_same_rim(o: WheelObservation, config: StationConfig) -> None:
             f"{o.cams[0]} and {o.cams[1]} found a rim {offset:.2f} m from where the {o.wheel} wheel "
             f"should be (limit {config.measurement.max_wheel_offset_m} m): not this wheel's rim",
             hint="check the vehicle's position on the lift and both cameras' images")
+    lo, hi = config.measurement.min_rim_radius_m, config.measurement.max_rim_radius_m
+    if not lo <= o.circle.radius_m <= hi:
+        raise MeasurementError(
+            f"{o.cams[0]} and {o.cams[1]} found a circle of radius {o.circle.radius_m * 1000:.0f} mm, "
+            f"not a rim flange ({lo * 1000:.0f}-{hi * 1000:.0f} mm): the hub, the disc or the tyre",
+            hint="look at both cameras' images of this wheel (station review); rims outside this "
+                 "range need measurement.min_rim_radius_m / max_rim_radius_m")
     worst_view = max(o.circle.view_median_px)
     if o.paper.epipolar_rms_px > limit or not worst_view <= limit:
         raise MeasurementError(
             f"{o.cams[0]} and {o.cams[1]} did not find the same rim (epipolar residual "
             f"{o.paper.epipolar_rms_px:.1f} px, circle fit median {worst_view:.1f} px, "
             f"limit {limit} px)", hint="look at both cameras' images of this wheel (station review)")
+
+
+ALTERNATIVES = 2  # runner-up candidates per camera tried when a pair's first choices disagree
+
+
+def _alternatives(cid: str, det, image: np.ndarray, camera: CameraModel) -> list[tuple[float, object]]:
+    """[(search score, RimDetection)] of the detector's first choice and its runner-up
+    candidates in one image, each refined to sub-pixel edges (those that hold)."""
+    from station.rim import Ellipse
+    from station.rim.detector import refine_candidate
+
+    cands = det.details.get("candidates", [])
+    out = [(cands[0]["score"] if cands else det.score, det)]
+    for c in cands[1:1 + ALTERNATIVES]:
+        e = c["ellipse"]
+        prior = Ellipse(e["center_px"], e["axes_px"], np.radians(e["angle_deg"]))
+        try:
+            out.append((c["score"], refine_candidate(image, prior, camera=camera, camera_id=cid)))
+        except StationError:
+            continue
+    return out
+
+
+def resolve_pair(wheel: str, cams: tuple[str, str], detections: dict, images: dict, cameras: dict,
+                 config: StationConfig) -> tuple[WheelObservation, str] | None:
+    """A pair whose cameras' first choices are not the same rim (the hub won in one view, say):
+    the best combination of each camera's candidates that is one 3-D rim, scored by the weaker
+    of its two detection scores; with a warning naming what was changed. None if there is none."""
+    options = {c: _alternatives(c, detections[c], images[c], cameras[c]) for c in cams}
+    best = None
+    for i, (sl, dl) in enumerate(options[cams[0]]):
+        for j, (sr, dr) in enumerate(options[cams[1]]):
+            if i == j == 0 or (best is not None and min(sl, sr) <= best[0]):
+                continue
+            try:
+                o = reconstruct_wheel(wheel, cams, {cams[0]: dl, cams[1]: dr}, cameras)
+                check_same_rim(o, config)
+            except StationError:
+                continue
+            best = (min(sl, sr), o, (i, j))
+    if best is None:
+        return None
+    changed = [f"{c} took its candidate {k + 1} ({options[c][k][0]:.2f}) over its first choice ({options[c][0][0]:.2f})"
+               for c, k in zip(cams, best[2]) if k]
+    return best[1], f"{wheel} ({cams[0]}, {cams[1]}): the first choices were not the same rim; " + "; ".join(changed)
 
 
 def measure_frames(images: dict[str, np.ndarray], cameras: dict[str, CameraModel],
@@ -116,6 +168,12 @@ def measure_frames(images: dict[str, np.ndarray], cameras: dict[str, CameraModel
             observations[wheel] = reconstruct_wheel(wheel, cams, detections, cameras)
             check_same_rim(observations[wheel], config)
         except StationError as e:
+            resolved = resolve_pair(wheel, cams, detections, images, cameras, config)
+            if resolved is not None:
+                observations[wheel], note = resolved
+                detections.update(dict(zip(cams, observations[wheel].detections)))
+                result["warnings"].append(note)
+                continue
             result["failure"] = {"code": e.code, "wheel": wheel, "camera": f"{cams[0]}+{cams[1]}",
                                  "message": f"{wheel} ({cams[0]}, {cams[1]}): {e}"}
             result["timing_s"] = {**timing, "total": time.perf_counter() - t0}

@@ -106,3 +106,51 @@ def test_result_json_to_an_unwritable_place_is_a_storage_error_and_leaves_no_fil
     out = write_json({"valid": True, "v": np.float64(0.5)}, tmp_path / "ok" / "r.json")
     assert json.loads(out.read_text()) == {"valid": True, "v": 0.5}
     assert [p.name for p in out.parent.iterdir()] == ["r.json"]
+
+
+@pytest.mark.slow
+def test_a_pair_whose_first_choices_differ_takes_the_candidates_that_are_one_rim(sim):
+    """cam2's first choice is a smaller concentric contour (the hub won there, as happens where
+    the tyre band is lit in an oblique view): the runner-up candidates are refined and the
+    combination that is one 3-D rim wins."""
+    import dataclasses
+
+    from station.measure import resolve_pair
+    from station.rim import detect_rim
+
+    cfg, world, _, images = sim
+    dets = {c: detect_rim(images[c], camera=world.cameras[c], camera_id=c) for c in ("cam1", "cam2")}
+    rim = dets["cam2"]
+    c0 = rim.ellipse.center_px
+    hub_pts = c0 + 0.4 * (rim.points_px - c0)  # a concentric contour 0.4 times the rim's size
+    hub_cand = dict(rim.details["candidates"][0], score=0.95)
+    hub_cand["ellipse"] = dict(hub_cand["ellipse"], axes_px=[0.4 * a for a in hub_cand["ellipse"]["axes_px"]])
+    hub = dataclasses.replace(rim, points_px=hub_pts, details={"candidates": [hub_cand, rim.details["candidates"][0]]})
+    dets["cam2"] = hub
+    obs, note = resolve_pair("FR", ("cam1", "cam2"), dets, images, world.cameras, cfg)
+    chosen = obs.detections[1].ellipse
+    assert np.linalg.norm(chosen.center_px - rim.ellipse.center_px) < 1.0
+    assert abs(chosen.axes_px[0] - rim.ellipse.axes_px[0]) < 1.0
+    assert "cam2 took its candidate 2" in note
+    # with no candidate that is the same rim as cam1's, there is nothing to resolve
+    hub.details["candidates"] = [hub_cand]
+    assert resolve_pair("FR", ("cam1", "cam2"), dets, images, world.cameras, cfg) is None
+
+
+@pytest.mark.slow
+def test_a_circle_the_size_of_a_hub_is_not_a_rim(sim):
+    import dataclasses
+
+    from station.errors import MeasurementError
+    from station.measure import check_same_rim, reconstruct_wheel
+    from station.rim import detect_rim
+
+    cfg, world, _, images = sim
+    dets = {}
+    for c in ("cam1", "cam2"):  # both cameras on a contour 0.4 times the rim: one 3-D circle, a small one
+        d = detect_rim(images[c], camera=world.cameras[c], camera_id=c)
+        c0 = d.points_px.mean(axis=0)
+        dets[c] = dataclasses.replace(d, points_px=c0 + 0.4 * (d.points_px - c0))
+    obs = reconstruct_wheel("FR", ("cam1", "cam2"), dets, world.cameras)
+    with pytest.raises(MeasurementError, match="not a rim flange"):
+        check_same_rim(obs, cfg)

@@ -365,10 +365,27 @@ def detect_rim(image: np.ndarray, *, camera=None, prior: Ellipse | None = None, 
         clock.lap("choose")
         fit, samples, mask = _refine(grey, best.ellipse.scaled(sc.s), pmap)
         clock.lap("refine")
-        if fit is None:
-            raise RimNotFound(f"{tag}: no closed rim contour (the sub-pixel edge was found at only "
-                              f"{int(mask.sum())} points of the candidate ellipse)",
-                              hint="check focus and lighting of the rim flange")
+    return _result(fit, samples, mask, info, clock, camera, pmap, camera_id)
+
+
+def refine_candidate(image: np.ndarray, ellipse: Ellipse, *, camera=None, camera_id: str = "") -> RimDetection:
+    """The sub-pixel rim along one candidate ellipse (e.g. a runner-up of ``details["candidates"]``,
+    in the frame of the detection it came from), refined exactly as the search refines its
+    choice; raises RimNotFound when no rim edge holds there. No search, no fallback."""
+    clock = _Clock()
+    grey = to_grey(image, camera_id)
+    pmap = PixelMap(camera)
+    fit, samples, mask = _refine(grey, ellipse, pmap)
+    clock.lap("refine")
+    return _result(fit, samples, mask, {"path": "candidate"}, clock, camera, pmap, camera_id)
+
+
+def _result(fit, samples, mask, info: dict, clock: _Clock, camera, pmap: PixelMap, camera_id: str) -> RimDetection:
+    tag = camera_id or "image"
+    if fit is None:
+        raise RimNotFound(f"{tag}: no closed rim contour (the sub-pixel edge was found at only "
+                          f"{int(mask.sum())} points of the candidate ellipse)",
+                          hint="check focus and lighting of the rim flange")
     coverage = _coverage(samples, mask)
     if coverage < MIN_REFINED_COVERAGE:
         raise RimNotFound(f"{tag}: no closed rim contour (sub-pixel edge on {coverage:.0%} of the perimeter)",
