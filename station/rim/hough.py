@@ -171,13 +171,12 @@ def coverage_of(ellipse: Ellipse, pts: np.ndarray, shape: tuple[int, int], n_bin
 def polarity_inliers(ellipse: Ellipse, edges: EdgeSet, tol_px: float, inward: bool = True) -> np.ndarray:
     """Indices of edge pixels within ``tol_px`` of the ellipse whose gradient agrees with its
     normal (inward = brighter inside)."""
-    near = np.nonzero(np.abs(ellipse.radius_ratio(edges.points) - 1) * ellipse.axes_px[1] < 1.5 * tol_px + 1)[0]
-    d, t = ellipse.distance(edges.points[near], iterations=2)
-    n = ellipse.normal_at(t)
-    cosg = -np.einsum("ij,ij->i", n, edges.grad[near])
+    d, n = ellipse.approx_distance(edges.points)
+    near = np.nonzero(np.abs(d) < tol_px)[0]
+    cosg = -np.einsum("ij,ij->i", n[near], edges.grad[near])
     if not inward:
         cosg = np.abs(cosg)
-    return near[(np.abs(d) < tol_px) & (cosg > NORMAL_COS)]
+    return near[cosg > NORMAL_COS]
 
 
 def size_peaks(edges: EdgeSet, centre: np.ndarray, M: np.ndarray, r_min: float, r_max: float,
