@@ -72,6 +72,21 @@ def test_prior_takes_the_fast_path_and_agrees():
     assert np.linalg.norm(detect_rim(img, prior=far).ellipse.center_px - truth.center_px) < 0.05
 
 
+def test_tracking_from_the_previous_frame_agrees_and_lets_go_when_the_rim_moved():
+    img, truth = render_wheel(WheelSpec(axis_ratio=0.9), seed=9)
+    full = detect_rim(img)
+    moved = np.roll(img, (1, 1), axis=(0, 1))  # the next frame: the rim moved by (1, 1) px
+    track = detect_rim(moved, previous=full)
+    assert track.details["path"] == "track"
+    np.testing.assert_allclose(track.ellipse.center_px, truth.center_px + 1.0, atol=0.03)
+    np.testing.assert_allclose(track.ellipse.axes_px, truth.axes_px, atol=0.03)
+    assert track.details["blur_px"] == full.details["blur_px"]
+    jumped = np.roll(img, (40, 40), axis=(0, 1))  # far beyond the tracking window
+    lost = detect_rim(jumped, previous=full)
+    assert lost.details["path"] in ("prior", "search")
+    np.testing.assert_allclose(lost.ellipse.center_px, truth.center_px + 40.0, atol=0.05)
+
+
 def test_lens_distortion_is_corrected_on_the_points():
     cam = CameraModel("cam3", 1280, 1024, K=np.array([[1500.0, 0, 641.0], [0, 1500.0, 510.0], [0, 0, 1]]),
                       dist=np.array([-0.25, 0.12, 0.001, -0.0008, 0.0]))

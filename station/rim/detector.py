@@ -263,6 +263,8 @@ def _choose(sc: _Scene, cands: list[hough.Candidate], tag: str) -> tuple[hough.C
 
 PASSES = (((-6.0, 6.0), "kink"), ((-3.0, 4.5), "kink"))
 PRIOR_PASSES = (((-10.0, 10.0), "peak"), ((-5.0, 5.0), "erf"), ((-3.0, 4.5), "kink"))
+TRACK_PASSES = (((-3.0, 4.5), "kink"),)  # a prior from the previous frame, the blur known
+TRACK_SHIFT = 0.03                       # of the semi-major axis: tracking lost beyond this
 
 
 def _consensus_threshold(d: np.ndarray) -> float:
@@ -293,40 +295,40 @@ def _outer_mode(d: np.ndarray, window: tuple[float, float], bin_px: float = 0.5,
     return sel
 
 
-def _refine(grey: np.ndarray, e_full: Ellipse, pmap: PixelMap, passes=PASSES):
-    """Sub-pixel points and geometric fit, once per (half-width, method) pass.
-    Returns (fit, samples, inlier mask)."""
+def _refine(grey: np.ndarray, e_full: Ellipse, pmap: PixelMap, passes=PASSES, blur_px: float | None = None):
+    """Sub-pixel points and geometric fit, once per (half-width, method) pass; ``blur_px``
+    fixes the edge blur instead of estimating it. Returns (fit, samples, inlier mask, blur px)."""
     fit = samples = None
     e = e_full
     sigma = None  # the edge blur: coarse in the first pass, refined near it in the last
     for k, (window, method) in enumerate(passes):
         final = k == len(passes) - 1
         samples, sigma = edge_points(grey, e, pmap, window_px=window, method=method, precise_blur=final,
-                                     spacing_px=1.5 if final else 3.0, blur_hint=sigma)
+                                     spacing_px=1.5 if final else 3.0, blur_hint=sigma, sigma=blur_px)
         ok = samples.ok
         if ok.sum() < MIN_POINTS:
-            return None, samples, ok
+            return None, samples, ok, sigma
         ideal = pmap.undistort(samples.points_px[ok])
         # one curve, not a compromise between concentric edges: consensus first, then the
         # robust fit of ALL points from the consensus ellipse (a tight consensus band alone
         # would bias the fit toward the minimal sample that defined it)
         keep = ransac_ellipse(ideal, threshold_px=_consensus_threshold(e.distance(ideal)[0]), seed=len(ideal))
         if keep is None or keep.sum() < MIN_POINTS:
-            return None, samples, ok
+            return None, samples, ok, sigma
         try:
             e_cons = fit_direct(ideal[keep])
             fit = fit_geometric(ideal, init=e_cons, iterations=12 if final else 5)
         except (ValueError, np.linalg.LinAlgError):
-            return None, samples, ok
+            return None, samples, ok, sigma
         e = fit.ellipse
         ok_idx = np.nonzero(ok)[0]
         ok[ok_idx[~fit.inliers]] = False
         samples.ok = ok
-    return fit, samples, samples.ok.copy()
+    return fit, samples, samples.ok.copy(), sigma
 
 
 def detect_rim(image: np.ndarray, *, camera=None, prior: Ellipse | None = None, camera_id: str = "",
-               equalization: str = "clahe") -> RimDetection:
+               equalization: str = "clahe", previous: RimDetection | None = None) -> RimDetection:
     """Find the rim-flange ellipse in one image. See :class:`RimDetection`; raises
     :class:`station.errors.RimNotFound` (or ImageError for an unusable array) with a reason.
 
@@ -334,7 +336,11 @@ def detect_rim(image: np.ndarray, *, camera=None, prior: Ellipse | None = None, 
     distortion the returned ellipse is in its ideal pinhole pixels (``ellipse_frame``) and
     ``points_norm`` are the points' undistorted normalised coordinates. prior: an Ellipse in
     the same frame as the result (e.g. last cycle's) to refine from; never required.
-    equalization: "clahe" (default), "global" (the paper's), "none" - for the Canny stage only."""
+    equalization: "clahe" (default), "global" (the paper's), "none" - for the Canny stage only.
+    previous: this camera's detection in the previous frame (station live): tracking, one
+    sub-pixel pass from its ellipse with its edge blur; when the rim moved more than
+    ``TRACK_SHIFT`` of its size or lost coverage, the prior path (from its ellipse) and then
+    the search take over."""
     tag = camera_id or "image"
     clock = _Clock()
     grey = to_grey(image, camera_id)
@@ -343,11 +349,17 @@ def detect_rim(image: np.ndarray, *, camera=None, prior: Ellipse | None = None, 
     clock.lap("grey")
     fit = None
     info: dict = {}
-    if prior is not None:  # fast path: refine straight from the prior, fall back to the search
-        fit, samples, mask = _refine(grey, prior, pmap, passes=PRIOR_PASSES)
-        if fit is not None and (np.linalg.norm(fit.ellipse.center_px - prior.center_px) > 0.15 * prior.axes_px[0]
-                                or abs(fit.ellipse.axes_px[0] / prior.axes_px[0] - 1) > 0.15
-                                or _coverage(samples, mask) < 0.8):
+    if previous is not None and previous.details.get("blur_px"):  # tracking: one pass, the blur known
+        prior = previous.ellipse
+        fit, samples, mask, blur = _refine(grey, prior, pmap, passes=TRACK_PASSES, blur_px=previous.details["blur_px"])
+        if fit is not None and not _holds(fit, samples, mask, prior, TRACK_SHIFT, min(0.8, 0.9 * previous.coverage)):
+            fit = None
+        if fit is not None:
+            info["path"] = "track"
+            clock.lap("refine")
+    if prior is not None and fit is None:  # fast path: refine straight from the prior, fall back to the search
+        fit, samples, mask, blur = _refine(grey, prior, pmap, passes=PRIOR_PASSES)
+        if fit is not None and not _holds(fit, samples, mask, prior, 0.15):
             fit = None
         if fit is not None:
             info["path"] = "prior"
@@ -363,8 +375,9 @@ def detect_rim(image: np.ndarray, *, camera=None, prior: Ellipse | None = None, 
         best, info = _choose(sc, cands, tag)
         info["path"] = "search"
         clock.lap("choose")
-        fit, samples, mask = _refine(grey, best.ellipse.scaled(sc.s), pmap)
+        fit, samples, mask, blur = _refine(grey, best.ellipse.scaled(sc.s), pmap)
         clock.lap("refine")
+    info["blur_px"] = blur
     return _result(fit, samples, mask, info, clock, camera, pmap, camera_id)
 
 
@@ -375,9 +388,9 @@ def refine_candidate(image: np.ndarray, ellipse: Ellipse, *, camera=None, camera
     clock = _Clock()
     grey = to_grey(image, camera_id)
     pmap = PixelMap(camera)
-    fit, samples, mask = _refine(grey, ellipse, pmap)
+    fit, samples, mask, blur = _refine(grey, ellipse, pmap)
     clock.lap("refine")
-    return _result(fit, samples, mask, {"path": "candidate"}, clock, camera, pmap, camera_id)
+    return _result(fit, samples, mask, {"path": "candidate", "blur_px": blur}, clock, camera, pmap, camera_id)
 
 
 def _result(fit, samples, mask, info: dict, clock: _Clock, camera, pmap: PixelMap, camera_id: str) -> RimDetection:
@@ -402,6 +415,14 @@ def _result(fit, samples, mask, info: dict, clock: _Clock, camera, pmap: PixelMa
         points_norm=pmap.normalized(pts) if camera is not None else None,
         ellipse_frame="pixels" if pmap.identity else "ideal_pixels",
         coverage=coverage, contrast=float(np.median(samples.contrast[mask])), details=info)
+
+
+def _holds(fit, samples, mask, prior: Ellipse, shift: float, min_coverage: float = 0.8) -> bool:
+    """A fit from a prior is the prior's rim: centre and size within ``shift`` of its size,
+    and the edge found on ``min_coverage`` of the perimeter."""
+    return bool(np.linalg.norm(fit.ellipse.center_px - prior.center_px) <= shift * prior.axes_px[0]
+                and abs(fit.ellipse.axes_px[0] / prior.axes_px[0] - 1) <= shift
+                and _coverage(samples, mask) >= min_coverage)
 
 
 def _coverage(samples, mask) -> float:
