@@ -22,6 +22,7 @@ from station.config import StationConfig
 from station.atomic_file import write_text_atomic
 from station.errors import StationError, StorageError
 from station.measure import add_truth, measure_frames
+from station.wheel_workers import WheelWorkers, default_workers
 
 SOFTWARE_NAME = "wheel-alignment-station"
 
@@ -46,7 +47,10 @@ class Station:
     """Cameras + calibration of one configured station. Use as a context manager."""
 
     def __init__(self, config: StationConfig, *, seed: int | None = None,
-                 calibration: StationCalibration | None = None, progress: Callable[[str], None] = _say):
+                 calibration: StationCalibration | None = None, progress: Callable[[str], None] = _say,
+                 workers: int | None = None):
+        """workers: measurement worker processes (station/wheel_workers.py); None: one per
+        core, 0 or 1: none (the four wheels run in two threads of this process)."""
         self.config = config
         self.progress = progress
         self.calibration = calibration or load_calibration(config.calibration_file, config)
@@ -55,6 +59,8 @@ class Station:
         self.context = build_context(uris, config, seed=seed)
         self.cameras, self.trigger_board, self.timeout_s = open_capture(config, self.context)
         self.cycle_count = 0
+        n = default_workers() if workers is None else workers
+        self.workers = WheelWorkers(n) if n > 1 else None
 
     def __enter__(self):
         return self
@@ -63,6 +69,8 @@ class Station:
         self.close()
 
     def close(self) -> None:
+        if self.workers is not None:
+            self.workers.close()
         capture.close_cameras(self.cameras)
         if self.trigger_board is not None:
             self.trigger_board.close()
@@ -95,7 +103,7 @@ class Station:
         t_capture = time.perf_counter() - t0
         self.progress(f"cycle {cycle_id}: detecting rims and rebuilding the wheels")
         images = {cid: f.image for cid, f in frames.items()}
-        result = measure_frames(images, self.models, cfg, method=method)
+        result = measure_frames(images, self.models, cfg, method=method, workers=self.workers)
         result.update(self._base(cycle_id, job_id, vehicle_spec))
         result["timing_s"]["capture"] = t_capture
         result["captures_dir"] = str(captures_dir) if cfg.capture.keep_captures else None

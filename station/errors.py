@@ -87,6 +87,12 @@ class ImageError(MeasurementError):
     code = 402
 
 
+class WorkerFailure(MeasurementError):
+    """A measurement worker process died (killed, out of memory): the cycle fails, the workers restart."""
+
+    code = 403
+
+
 class PlcError(StationError):
     code = 500
     area = "plc"

@@ -33,22 +33,50 @@ class WheelObservation:
     circle: WheelFit
 
 
-def detect_all(images: dict[str, np.ndarray], cameras: dict[str, CameraModel], workers: int = 2) -> dict:
-    """Run the rim detector on every image (threads: OpenCV releases the GIL).
-
-    Returns cam_id -> RimDetection or the StationError that camera raised.
-    """
+def detect_one(image: np.ndarray, camera: CameraModel, cam_id: str):
+    """The RimDetection of one camera, or the StationError it raised."""
     from station.rim import detect_rim
 
-    def one(cam_id):
-        try:
-            return detect_rim(images[cam_id], camera=cameras[cam_id], camera_id=cam_id)
-        except StationError as e:
-            return e
+    try:
+        return detect_rim(image, camera=camera, camera_id=cam_id)
+    except StationError as e:
+        return e
 
-    with ThreadPoolExecutor(max_workers=workers) as pool:
-        results = dict(zip(images, pool.map(one, images)))
-    return results
+
+@dataclass
+class WheelOutcome:
+    """One wheel of a cycle: both cameras' detections (RimDetection or StationError), the
+    observation or the error that refused it, a warning, and seconds per stage."""
+
+    wheel: str
+    cams: tuple[str, str]
+    detections: dict
+    observation: WheelObservation | None = None
+    error: StationError | None = None
+    note: str | None = None
+    timing_s: dict | None = None
+
+
+def measure_wheel(wheel: str, cams: tuple[str, str], images: dict, cameras: dict,
+                  config: StationConfig) -> WheelOutcome:
+    """Detect the rim in both cameras of a pair and rebuild the wheel (one worker's task)."""
+    t0 = time.perf_counter()
+    detections = {c: detect_one(images[c], cameras[c], c) for c in cams}
+    t1 = time.perf_counter()
+    out = WheelOutcome(wheel, cams, detections)
+    if not any(isinstance(d, StationError) for d in detections.values()):
+        try:
+            out.observation = reconstruct_wheel(wheel, cams, detections, cameras)
+            check_same_rim(out.observation, config)
+        except StationError as e:
+            resolved = resolve_pair(wheel, cams, detections, images, cameras, config)
+            if resolved is None:
+                out.observation, out.error = None, e
+            else:
+                out.observation, out.note = resolved
+                detections.update(dict(zip(cams, out.observation.detections)))
+    out.timing_s = {"detect": t1 - t0, "reconstruct": time.perf_counter() - t1}
+    return out
 
 
 def reconstruct_wheel(wheel: str, cams: tuple[str, str], detections: dict, cameras: dict) -> WheelObservation:
@@ -135,20 +163,35 @@ def resolve_pair(wheel: str, cams: tuple[str, str], detections: dict, images: di
 
 
 def measure_frames(images: dict[str, np.ndarray], cameras: dict[str, CameraModel],
-                   config: StationConfig, method: str = "circle") -> dict:
+                   config: StationConfig, method: str = "circle", workers=None) -> dict:
     """The measurement result (docs/result-schema.md) for one set of eight images.
 
     images, cameras: keyed by camera id. method: "circle" (default, the refined fit) or
     "paper" (section 3.2 exactly). Never raises for a wheel that fails: the result is
-    invalid and ``failure`` names the wheel, the camera and why.
+    invalid and ``failure`` names the wheel, the camera and why. workers: a
+    :class:`station.wheel_workers.WheelWorkers` to run the four wheels in processes (both
+    cores), else two threads. ``timing_s``: "wheels" the wall time of the four wheels,
+    "detect" and "reconstruct" their stages summed over the wheels (work, not wall time).
     """
     if method not in METHODS:
         raise MeasurementError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
-    timing = {}
     t0 = time.perf_counter()
-    detections = detect_all(images, cameras)
-    timing["detect"] = time.perf_counter() - t0
+    tasks = []
+    for wheel in WHEELS:
+        cams = (config.pairs[wheel].precision, config.pairs[wheel].reference)
+        tasks.append((wheel, cams, {c: images[c] for c in cams}, {c: cameras[c] for c in cams}, config))
+    if workers is not None:
+        outcomes = workers.map(measure_wheel, tasks)
+    else:  # threads: overlap only where OpenCV and large numpy calls release the GIL
+        with ThreadPoolExecutor(max_workers=2) as pool:
+            outcomes = list(pool.map(lambda a: measure_wheel(*a), tasks))
+    timing = {"wheels": time.perf_counter() - t0,
+              "detect": sum(o.timing_s["detect"] for o in outcomes),
+              "reconstruct": sum(o.timing_s["reconstruct"] for o in outcomes)}
+    by_cam = {c: d for o in outcomes for c, d in o.detections.items()}
+    detections = {c: by_cam[c] for c in images if c in by_cam}
     result = _empty_result(config)
+    result["warnings"] += [o.note for o in outcomes if o.note]
     failures = [(cid, d) for cid, d in detections.items() if isinstance(d, StationError)]
     if failures:
         cid, err = failures[0]
@@ -159,26 +202,15 @@ def measure_frames(images: dict[str, np.ndarray], cameras: dict[str, CameraModel
         result["timing_s"] = {**timing, "total": time.perf_counter() - t0}
         result["detections"] = _detection_summary(detections)
         return result
-    t1 = time.perf_counter()
     observations = {}
-    for wheel in WHEELS:
-        pair = config.pairs[wheel]
-        cams = (pair.precision, pair.reference)
-        try:
-            observations[wheel] = reconstruct_wheel(wheel, cams, detections, cameras)
-            check_same_rim(observations[wheel], config)
-        except StationError as e:
-            resolved = resolve_pair(wheel, cams, detections, images, cameras, config)
-            if resolved is not None:
-                observations[wheel], note = resolved
-                detections.update(dict(zip(cams, observations[wheel].detections)))
-                result["warnings"].append(note)
-                continue
-            result["failure"] = {"code": e.code, "wheel": wheel, "camera": f"{cams[0]}+{cams[1]}",
-                                 "message": f"{wheel} ({cams[0]}, {cams[1]}): {e}"}
+    for o in outcomes:
+        if o.error is not None:
+            e, cams = o.error, o.cams
+            result["failure"] = {"code": e.code, "wheel": o.wheel, "camera": f"{cams[0]}+{cams[1]}",
+                                 "message": f"{o.wheel} ({cams[0]}, {cams[1]}): {e}"}
             result["timing_s"] = {**timing, "total": time.perf_counter() - t0}
             return result
-    timing["reconstruct"] = time.perf_counter() - t1
+        observations[o.wheel] = o.observation
     t2 = time.perf_counter()
     fits = {w: (o.circle if method == "circle" else o.paper) for w, o in observations.items()}
     _fill_angles(result, fits, observations, config)

@@ -1,0 +1,78 @@
+"""Worker processes for a cycle's per-wheel work, so that it runs on every core.
+
+A measurement splits into four independent wheels: find the rim in both cameras of the pair,
+rebuild the 3-D wheel (station/measure.py ``measure_wheel``). Threads overlap that work poorly:
+most of the detector is numpy on arrays of a few thousand elements, where the interpreter (and
+its lock) is busy between the calls. Processes share nothing, so two workers on two cores
+take about half the time of one (docs/speed.md).
+
+The workers are started once (forkserver: a clean process that has imported the measurement
+code, forked per worker; not the caller, which may hold threads of a PLC server or a recording)
+and live as long as their owner, the :class:`station.cycle.Station` or ``station live``; each
+keeps its detector caches (undistortion tables, profile bases) between cycles. Images go to a
+worker by pickling, about 1 ms per 1280x1024 frame.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+import time
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
+
+from station.errors import WorkerFailure
+
+PRELOAD = ["station.measure", "station.rim.detector", "station.wheel3d"]
+
+
+def default_workers() -> int:
+    """One worker per core this process may use."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not on Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def _ready(_index: int) -> int:
+    time.sleep(0.05)  # long enough that each of the n start-up tasks lands on its own worker
+    return os.getpid()
+
+
+class WheelWorkers:
+    """A pool of ``n`` worker processes. ``map(fn, args)`` runs ``fn(*a)`` for each tuple of
+    ``args`` (``fn`` a module-level function) and returns the results in order. Use as a
+    context manager or call :meth:`close`."""
+
+    def __init__(self, n: int | None = None):
+        self.n = n or default_workers()
+        self._pool: ProcessPoolExecutor | None = None
+        self._start()
+
+    def _start(self) -> None:
+        ctx = multiprocessing.get_context("forkserver")
+        ctx.set_forkserver_preload(PRELOAD)
+        self._pool = ProcessPoolExecutor(self.n, mp_context=ctx)
+        # start every worker now (the first cycle should not pay for it): n tasks at once
+        list(self._pool.map(_ready, range(self.n)))
+
+    def map(self, fn, args: list[tuple]) -> list:
+        try:
+            futures = [self._pool.submit(fn, *a) for a in args]
+            return [f.result() for f in futures]
+        except BrokenProcessPool as e:
+            self._pool.shutdown(wait=False, cancel_futures=True)
+            self._start()
+            raise WorkerFailure("a measurement worker process died during the cycle; the workers were restarted",
+                                hint="run the cycle again; if it repeats, check the machine's memory") from e
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()

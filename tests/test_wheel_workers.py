@@ -1,0 +1,54 @@
+"""Worker processes for the per-wheel work: same results as in-process, a dead worker is a
+clear error and the pool recovers."""
+
+import os
+
+import numpy as np
+import pytest
+
+from station.errors import WorkerFailure
+from station.wheel_workers import WheelWorkers
+
+
+def _square(x):
+    return x * x
+
+
+def _pid(_):
+    return os.getpid()
+
+
+def _die(_):
+    os._exit(3)  # a worker killed mid-task (the OOM killer, a segfault)
+
+
+def test_results_come_back_in_order_from_every_worker():
+    with WheelWorkers(2) as w:
+        assert w.map(_square, [(i,) for i in range(7)]) == [i * i for i in range(7)]
+        assert os.getpid() not in w.map(_pid, [(i,) for i in range(4)])
+
+
+def test_a_dead_worker_fails_the_cycle_clearly_and_the_next_cycle_runs():
+    with WheelWorkers(2) as w:
+        with pytest.raises(WorkerFailure, match="worker process died"):
+            w.map(_die, [(0,)])
+        assert w.map(_square, [(3,)]) == [9]
+
+
+@pytest.mark.slow
+def test_measure_frames_in_workers_equals_in_process(tmp_path):
+    from simulators.world import SimWorld
+    from station.measure import measure_frames
+    from tests.station_fixtures import small_station_config
+
+    cfg = small_station_config(tmp_path)
+    world = SimWorld.from_config(cfg)
+    world.set_scene(world.vehicle_scene(5))
+    images = world.render_all(np.random.default_rng(5))
+    local = measure_frames(images, world.cameras, cfg)
+    with WheelWorkers(2) as w:
+        pooled = measure_frames(images, world.cameras, cfg, workers=w)
+    assert local["valid"] and pooled["valid"]
+    for wheel in ("FL", "FR", "RL", "RR"):
+        for k in ("toe_deg", "camber_deg", "toe_std_deg"):
+            assert pooled["wheels"][wheel][k] == local["wheels"][wheel][k]
