@@ -27,6 +27,7 @@ from station import alignment, capture
 from station.config import WHEELS, StationConfig
 from station.errors import MeasurementError, StationError
 from station.cycle import open_capture
+from station.wheel_workers import WheelWorkers, default_workers
 from station.measure import WheelObservation, check_same_rim, measure_frames
 from station.wheel3d import reconstruct_paper, refine_circle
 
@@ -51,7 +52,7 @@ class LiveSession:
 
     def __init__(self, config: StationConfig, *, axle: str = "front", seed: int = 0, calibration=None,
                  cache_dir: str | Path | None = None, hold: int = 5, toe_span_deg: float = 0.6,
-                 n_steps: int = 7, progress: Callable[[str], None] = print):
+                 n_steps: int = 7, progress: Callable[[str], None] = print, workers: int | None = None):
         from calibration.calib_file import load_calibration
         from drivers.registry import build_context
 
@@ -75,10 +76,12 @@ class LiveSession:
             self.adjustment = install(self.context, config, seed, wheel, steps, self.live_cams, cache,
                                       progress=progress, hold=hold)
         self.cameras, self.trigger_board, self.timeout_s = open_capture(config, self.context)
-        self.priors: dict = {}
+        self.previous: dict = {}  # cam id -> its last RimDetection (tracking)
         self.centers: dict = {}
         self.axes: dict = {}
         self.n = 0
+        n = default_workers() if workers is None else workers
+        self.workers = WheelWorkers(n) if n > 1 else None
         self._pool = ThreadPoolExecutor(max_workers=2)
 
     def __enter__(self):
@@ -89,6 +92,8 @@ class LiveSession:
 
     def close(self) -> None:
         self._pool.shutdown(wait=True)
+        if self.workers is not None:
+            self.workers.close()
         capture.close_cameras(self.cameras)
         if self.trigger_board is not None:
             self.trigger_board.close()
@@ -98,21 +103,20 @@ class LiveSession:
     def baseline(self) -> dict:
         """Measure all four wheels once (every camera); raises MeasurementError if it fails."""
         frames = capture.capture_cycle(self.cameras, self.timeout_s, self.trigger_board)
-        result = measure_frames({c: f.image for c, f in frames.items()}, self.models, self.config)
+        result = measure_frames({c: f.image for c, f in frames.items()}, self.models, self.config,
+                                workers=self.workers)
         if not result["valid"]:
             raise MeasurementError(f"the first full measurement failed: {result['failure']['message']}",
                                    hint="check the vehicle's position and the cameras' images (station measure)")
         for w in WHEELS:
             self.centers[w] = np.asarray(result["wheels"][w]["center_station_m"])
             self.axes[w] = np.asarray(result["wheels"][w]["axis_station"])
-        self.priors = {c: _ellipse(d) for c, d in result["detections"].items()}
+        self.previous = {c: d for o in result["_observations"].values() for c, d in zip(o.cams, o.detections)}
         return result
 
     # --- one live update ----------------------------------------------------------------------
     def update(self) -> Reading:
         """Capture the live cameras, detect, rebuild the live wheels, compute their angles."""
-        from station.rim import detect_rim
-
         if not self.centers:
             self.baseline()
         reading = Reading(self.n)
@@ -120,36 +124,27 @@ class LiveSession:
         cams = {c: self.cameras[c] for c in self.live_cams}
         frames = capture.capture_cycle(cams, self.timeout_s, self.trigger_board)
         t1 = time.perf_counter()
-
-        def detect(cid):
-            try:
-                return detect_rim(frames[cid].image, camera=self.models[cid], prior=self.priors.get(cid),
-                                  camera_id=cid)
-            except StationError as e:
-                return e
-
-        detections = dict(zip(self.live_cams, self._pool.map(detect, self.live_cams)))
+        tasks = [(w, self.pairs[w], {c: frames[c].image for c in self.pairs[w]},
+                  {c: self.models[c] for c in self.pairs[w]}, {c: self.previous.get(c) for c in self.pairs[w]},
+                  self.config) for w in self.live_wheels]
+        if self.workers is not None:
+            outcomes = self.workers.map(live_wheel, tasks)
+        else:
+            outcomes = list(self._pool.map(lambda a: live_wheel(*a), tasks))
         t2 = time.perf_counter()
-        for cid, d in detections.items():  # a failed camera searches the whole image next time
-            if isinstance(d, StationError):
-                self.priors.pop(cid, None)
-            else:
-                self.priors[cid] = d.ellipse
-        for w in self.live_wheels:
-            cams_w = self.pairs[w]
-            bad = [c for c in cams_w if isinstance(detections[c], StationError)]
-            if bad:
-                reading.errors[w] = f"{bad[0]}: {detections[bad[0]]}"
+        for o in outcomes:
+            for cid, d in o.detections.items():  # a failed camera searches the whole image next time
+                if isinstance(d, StationError):
+                    self.previous.pop(cid, None)
+                else:
+                    self.previous[cid] = d
+            if o.error is not None:
+                reading.errors[o.wheel] = o.error
                 continue
-            try:
-                obs = _reconstruct(w, cams_w, detections, self.models)
-                check_same_rim(obs, self.config)
-            except StationError as e:
-                reading.errors[w] = str(e)
-                continue
-            self.centers[w] = obs.circle.center_station
-            self.axes[w] = obs.circle.axis_station
-            reading.wheels[w] = {}
+            self.centers[o.wheel] = o.observation.circle.center_station
+            self.axes[o.wheel] = o.observation.circle.axis_station
+            reading.wheels[o.wheel] = {}
+        work = {k: sum(o.timing_s[k] for o in outcomes) for k in ("detect", "reconstruct")}
         t3 = time.perf_counter()
         if reading.wheels:
             angles = alignment.compute_angles(self.centers, self.axes)
@@ -159,8 +154,7 @@ class LiveSession:
                 if left in reading.wheels and right in reading.wheels:
                     reading.total_toe_deg[axle] = float(angles["axles"][axle]["total_toe_deg"])
         t4 = time.perf_counter()
-        reading.timing_s = {"capture": t1 - t0, "detect": t2 - t1, "reconstruct": t3 - t2,
-                            "angles": t4 - t3, "total": t4 - t0}
+        reading.timing_s = {"capture": t1 - t0, "wheels": t2 - t1, **work, "angles": t4 - t3, "total": t4 - t0}
         if self.adjustment is not None:
             truth = self.adjustment.truth()
             reading.truth_toe_deg = {w: truth["wheels"][w]["toe_deg"] for w in self.live_wheels}
@@ -189,34 +183,57 @@ class LiveSession:
         return rate_summary(times, elapsed, interrupted)
 
 
-def _reconstruct(wheel: str, cams: tuple[str, str], detections: dict, models: dict) -> WheelObservation:
-    """measure.reconstruct_wheel without the jackknife covariance (the live display shows no
-    uncertainty; the jackknife's eight extra fits are most of the 3-D time)."""
-    cam_l, cam_r = models[cams[0]], models[cams[1]]
-    det_l, det_r = detections[cams[0]], detections[cams[1]]
-    paper = reconstruct_paper(det_l.points_px, det_r.points_px, cam_l, cam_r)
-    circle = refine_circle(det_l.points_px, det_r.points_px, cam_l, cam_r, paper, jackknife_sectors=0)
-    return WheelObservation(wheel, cams, (det_l, det_r), paper, circle)
+@dataclass
+class LiveWheel:
+    """One live wheel of an update: detections (RimDetection or StationError per camera), the
+    observation or why there is none, seconds of work per stage."""
+
+    wheel: str
+    detections: dict
+    observation: WheelObservation | None
+    error: str | None
+    timing_s: dict
+
+
+def live_wheel(wheel: str, cams: tuple[str, str], images: dict, models: dict, previous: dict,
+               config: StationConfig) -> LiveWheel:
+    """Track the rim in both cameras of a pair from their previous detections and rebuild the
+    wheel (a worker's task). The 3-D fit skips the covariance: the live display shows none."""
+    from station.rim import detect_rim
+
+    t0 = time.perf_counter()
+    detections = {}
+    for c in cams:
+        try:
+            detections[c] = detect_rim(images[c], camera=models[c], previous=previous.get(c), camera_id=c)
+        except StationError as e:
+            detections[c] = e
+    t1 = time.perf_counter()
+    obs, error = None, None
+    bad = [c for c in cams if isinstance(detections[c], StationError)]
+    if bad:
+        error = f"{bad[0]}: {detections[bad[0]]}"
+    else:
+        try:
+            cam_l, cam_r = models[cams[0]], models[cams[1]]
+            det_l, det_r = detections[cams[0]], detections[cams[1]]
+            paper = reconstruct_paper(det_l.points_px, det_r.points_px, cam_l, cam_r)
+            circle = refine_circle(det_l.points_px, det_r.points_px, cam_l, cam_r, paper, bias_modes=0)
+            obs = WheelObservation(wheel, cams, (det_l, det_r), paper, circle)
+            check_same_rim(obs, config)
+        except StationError as e:
+            obs, error = None, str(e)
+    return LiveWheel(wheel, detections, obs, error, {"detect": t1 - t0, "reconstruct": time.perf_counter() - t1})
 
 
 def rate_summary(times: list[dict], elapsed_s: float, interrupted: bool = False) -> dict:
     """Updates per second and the median time per stage (ms) of a live run."""
     out = {"updates": len(times), "elapsed_s": elapsed_s, "interrupted": interrupted,
            "rate_hz": len(times) / elapsed_s if elapsed_s > 0 and times else 0.0}
-    for k in ("capture", "detect", "reconstruct", "angles", "total"):
+    for k in ("capture", "wheels", "detect", "reconstruct", "angles", "total"):
         vals = [t[k] for t in times if k in t]
         out[f"{k}_ms"] = float(np.median(vals) * 1e3) if vals else None
     return out
-
-
-def _ellipse(summary: dict):
-    """The detector's Ellipse from a result's detection summary (docs/result-schema.md)."""
-    from station.rim import Ellipse
-
-    if not summary.get("ok"):
-        return None
-    return Ellipse(np.asarray(summary["center_px"], float), np.asarray(summary["axes_px"], float),
-                   float(np.radians(summary["angle_deg"])))
 
 
 # --- the terminal display ---------------------------------------------------------------------
@@ -242,7 +259,8 @@ def format_reading(reading: Reading, spec=None, live_wheels=WHEELS) -> list[str]
     t = reading.timing_s
     if t:
         lines.append(f"update {reading.n}: {t['total'] * 1e3:.0f} ms (capture {t['capture'] * 1e3:.0f}, "
-                     f"detect {t['detect'] * 1e3:.0f}, 3-D {t['reconstruct'] * 1e3:.0f})")
+                     f"wheels {t['wheels'] * 1e3:.0f}; work: detect {t['detect'] * 1e3:.0f}, "
+                     f"3-D {t['reconstruct'] * 1e3:.0f})")
     return lines
 
 

@@ -73,7 +73,7 @@ def test_display_formats_values_and_verdicts():
                                       "front.total_toe": AngleSpec(0.10, 0.20)})
     r = Reading(7, wheels={"FL": {"toe_deg": 0.123, "camber_deg": -0.5}}, total_toe_deg={},
                 errors={"FR": "cam3: no closed rim contour"},
-                timing_s={"capture": 0.01, "detect": 0.03, "reconstruct": 0.02, "angles": 0.001, "total": 0.07})
+                timing_s={"capture": 0.01, "wheels": 0.05, "detect": 0.03, "reconstruct": 0.02, "angles": 0.001, "total": 0.07})
     lines = format_reading(r, spec, live_wheels=("FL", "FR"))
     fl = next(line for line in lines if line.startswith("FL"))
     assert "+0.123" in fl and "[-0.05, +0.15]" in fl and "OK" in fl

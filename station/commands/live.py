@@ -62,7 +62,8 @@ def run(args) -> int:
         return 130
     print(f"{summary['updates']} updates in {summary['elapsed_s']:.1f} s: {summary['rate_hz']:.1f} Hz "
           f"(median per update {_ms(summary['total_ms'])}: capture {_ms(summary['capture_ms'])}, "
-          f"detection {_ms(summary['detect_ms'])}, 3-D wheels {_ms(summary['reconstruct_ms'])})"
+          f"wheels {_ms(summary['wheels_ms'])}; work summed over the live wheels: detection "
+          f"{_ms(summary['detect_ms'])}, 3-D {_ms(summary['reconstruct_ms'])})"
           + ("; stopped by Ctrl-C" if summary["interrupted"] else ""), flush=True)
     return 0
 
