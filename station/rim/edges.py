@@ -31,6 +31,25 @@ class EdgeSet:
     def subset(self, idx) -> "EdgeSet":
         return EdgeSet(self.points[idx], self.grad[idx], self.mag[idx], self.shape)
 
+    def near_curve(self, curve_px: np.ndarray, radius_px: float, cell_px: float = 8.0) -> np.ndarray:
+        """Indices (sorted) of the edge pixels in the grid cells of ``cell_px`` that lie within
+        ``radius_px`` (+ a cell) of the dense curve points ``curve_px`` (M,2): a superset of the
+        pixels within ``radius_px`` of the curve, without a distance to every pixel."""
+        if getattr(self, "_grid", (None, None))[:2] != (cell_px, id(self.points)):
+            gw = int(self.shape[1] // cell_px) + 2
+            gh = int(self.shape[0] // cell_px) + 2
+            cu = np.clip(np.floor(self.points[:, 0] / cell_px).astype(np.int64), 0, gw - 1)
+            cv = np.clip(np.floor(self.points[:, 1] / cell_px).astype(np.int64), 0, gh - 1)
+            self._grid = (cell_px, id(self.points), gh, gw, cv * gw + cu)
+        _, _, gh, gw, cell_of_point = self._grid
+        mask = np.zeros((gh, gw), np.uint8)
+        ok = np.isfinite(curve_px).all(axis=1)
+        cu = np.clip(np.floor(curve_px[ok, 0] / cell_px), -1, gw).astype(np.int64)
+        cv = np.clip(np.floor(curve_px[ok, 1] / cell_px), -1, gh).astype(np.int64)
+        mask[np.clip(cv, 0, gh - 1), np.clip(cu, 0, gw - 1)] = 1  # off the grid: its border cell
+        r = int(np.ceil(radius_px / cell_px))
+        mask = cv2.dilate(mask, np.ones((2 * r + 1, 2 * r + 1), np.uint8))
+        return np.nonzero(mask.ravel()[cell_of_point])[0]
 
 def canny_thresholds(mag: np.ndarray, high_percentile: float = 90.0) -> tuple[float, float]:
     """(low, high) hysteresis thresholds from the gradient magnitude image.

@@ -146,16 +146,17 @@ class Ellipse:
         n = np.stack([c * gx - s * gy, s * gx + c * gy], axis=1) / np.maximum(g, 1e-12)[:, None]
         return d, n
 
-    def distance(self, pts: np.ndarray, iterations: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    def distance(self, pts: np.ndarray, iterations: int = 4, t0: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Signed orthogonal distance (positive outside) and foot parameter t, both (N,).
 
-        Newton's method on the foot-point parameter from the angle of the point; exact to
-        1e-10 px for points within a few px of an ellipse with a/b < 2.
+        Newton's method on the foot-point parameter from the angle of the point (or from
+        ``t0`` (N,), e.g. the feet on a nearby ellipse); exact to 1e-10 px for points within a
+        few px of an ellipse with a/b < 2.
         """
         le = self.to_local(pts)
         a, b = self.axes_px
         x, y = le[:, 0], le[:, 1]
-        t = np.arctan2(a * y, b * x)
+        t = np.arctan2(a * y, b * x) if t0 is None else t0
         for _ in range(iterations):
             ct, st = np.cos(t), np.sin(t)
             # f(t) = (p - e(t)) . e'(t) = 0

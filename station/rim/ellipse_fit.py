@@ -96,9 +96,8 @@ def fit_geometric(pts: np.ndarray, init: Ellipse | None = None, iterations: int 
     w = np.ones(len(pts))
     inl = np.ones(len(pts), bool)
 
-    def evaluate(ell):
-        d, t = ell.distance(pts)
-        return d, t
+    def evaluate(ell, t0=None):  # from the last feet: the step moved the ellipse by little
+        return ell.distance(pts) if t0 is None else ell.distance(pts, iterations=2, t0=t0)
 
     d, t = evaluate(e)
     it = 0
@@ -115,7 +114,7 @@ def fit_geometric(pts: np.ndarray, init: Ellipse | None = None, iterations: int 
         while True:
             step = -np.linalg.solve(H + lam * (np.diag(np.diag(H)) + 1e-12 * np.eye(5)), g)
             e_new = Ellipse.from_params(p + step)
-            d_new, t_new = evaluate(e_new)
+            d_new, t_new = evaluate(e_new, t)
             if (w * d_new * d_new).sum() <= cost or lam > 1e6:
                 break
             lam *= 10
@@ -162,9 +161,14 @@ def ransac_ellipse(pts: np.ndarray, threshold_px: float, iterations: int = 160,
     rng = np.random.default_rng(seed)
     idx = rng.integers(0, n, (iterations, 5))  # (a repeated index gives a degenerate conic that loses)
     xs, ys = x[idx], y[idx]
-    M = np.stack([xs * xs, xs * ys, ys * ys, xs, ys, np.ones_like(xs)], axis=2)  # (I,5,6)
-    _, _, Vt = np.linalg.svd(M)
-    Q = Vt[:, -1, :]                                                             # (I,6) null vectors
+    # The conic through 5 points: with the points centred on the data, an ellipse around them
+    # does not pass through the origin, so F = -1 normalises it and 5x5 solves replace SVDs.
+    M = np.stack([xs * xs, xs * ys, ys * ys, xs, ys], axis=2)                    # (I,5,5)
+    ok = np.abs(np.linalg.det(M)) > 1e-12
+    if not ok.any():
+        return None
+    q = np.linalg.solve(M[ok], np.ones((int(ok.sum()), 5, 1)))[:, :, 0]
+    Q = np.concatenate([q, -np.ones((len(q), 1))], axis=1)                      # (I,6) conics
     ellipse = Q[:, 1] ** 2 - 4 * Q[:, 0] * Q[:, 2] < 0
     if not ellipse.any():
         return None

@@ -171,12 +171,15 @@ def coverage_of(ellipse: Ellipse, pts: np.ndarray, shape: tuple[int, int], n_bin
 def polarity_inliers(ellipse: Ellipse, edges: EdgeSet, tol_px: float, inward: bool = True) -> np.ndarray:
     """Indices of edge pixels within ``tol_px`` of the ellipse whose gradient agrees with its
     normal (inward = brighter inside)."""
-    d, n = ellipse.approx_distance(edges.points)
+    a = ellipse.axes_px[0]
+    curve = ellipse.points(int(np.clip(2 * np.pi * a / 4.0, 32, 2048)))  # a point every ~4 px
+    cand = edges.near_curve(curve, tol_px + 2.0)
+    d, n = ellipse.approx_distance(edges.points[cand])
     near = np.nonzero(np.abs(d) < tol_px)[0]
-    cosg = -np.einsum("ij,ij->i", n[near], edges.grad[near])
+    cosg = -np.einsum("ij,ij->i", n[near], edges.grad[cand[near]])
     if not inward:
         cosg = np.abs(cosg)
-    return near[cosg > NORMAL_COS]
+    return cand[near[cosg > NORMAL_COS]]
 
 
 def size_peaks(edges: EdgeSet, centre: np.ndarray, M: np.ndarray, r_min: float, r_max: float,
