@@ -61,6 +61,9 @@ class StationCalibration:
     software_version: str = field(default_factory=software_version)
     method: str = "box: paper eqs 4-22 + bundle adjustment"
     notes: dict = field(default_factory=dict)
+    # wheel -> (30,30) joint covariance of the pair's two cameras from the bundle adjustment,
+    # per camera [fx fy cx cy k1 k2 p1 p2 k3, rvec (3, rad), centre (3, m)], left then right
+    pair_covariance: dict = field(default_factory=dict)
 
     def model(self, cam_id: str) -> CameraModel:
         return self.cameras[cam_id].model
@@ -89,6 +92,8 @@ class StationCalibration:
             p = self.pair(wheel)
             pairs[wheel] = {"left": left, "right": right, "R": p.R.tolist(), "t_m": p.t.tolist(),
                             "baseline_m": p.baseline_m, "E": p.E.tolist(), "F": p.F.tolist()}
+            if wheel in self.pair_covariance:
+                pairs[wheel]["covariance"] = np.asarray(self.pair_covariance[wheel], float).tolist()
         return {"format": FORMAT, "format_version": FORMAT_VERSION, "calibration_id": self.calibration_id,
                 "created_utc": self.created_utc, "software_version": self.software_version,
                 "station_name": self.station_name, "method": self.method,
@@ -123,13 +128,21 @@ class StationCalibration:
                 raise bad(f"camera {cam_id}: focal length must be positive")
             cams[cam_id] = CameraCalibration(model, float(c.get("reprojection_rms_px", math.nan) or math.nan),
                                              int(c.get("n_points", 0)), dict(c.get("std", {})))
-        pairs = {}
+        pairs, covs = {}, {}
         for wheel, p in (d.get("pairs") or {}).items():
             if p.get("left") not in cams or p.get("right") not in cams:
                 raise bad(f"pair {wheel}: names a camera that is not in the file ({p.get('left')}, {p.get('right')})")
             pairs[wheel] = (p["left"], p["right"])
+            if "covariance" in p:  # optional (files before it carry marginal std devs only)
+                try:
+                    cov = np.asarray(p["covariance"], float)
+                except (TypeError, ValueError):
+                    raise bad(f"pair {wheel}: covariance is not a 30x30 matrix of numbers") from None
+                if cov.shape != (30, 30) or not np.all(np.isfinite(cov)) or np.abs(cov - cov.T).max() > 1e-9 * max(np.abs(cov).max(), 1e-300):
+                    raise bad(f"pair {wheel}: covariance must be a symmetric 30x30 matrix of finite numbers")
+                covs[wheel] = cov
         return cls(cams, pairs, d.get("station_name", ""), d.get("calibration_id", ""), d.get("created_utc", ""),
-                   d.get("software_version", ""), d.get("method", ""), d.get("notes", {}))
+                   d.get("software_version", ""), d.get("method", ""), d.get("notes", {}), pair_covariance=covs)
 
     def check_against_config(self, config, source: str = "calibration") -> None:
         """The file must describe exactly the configured cameras and pairs."""

@@ -97,6 +97,7 @@ class BundleResult:
     rms_px: np.ndarray
     n_points: np.ndarray
     residuals: list = field(default_factory=list)
+    cov_cameras: np.ndarray | None = None  # (15C,15C) per camera [9 intrinsics, rvec, C] (0: held)
     outliers: int = 0
     sigma_px: float = 0.0
     iterations: int = 0
@@ -239,6 +240,8 @@ class BundleProblem:
             cov = np.linalg.inv(JTJ) * s2
         except np.linalg.LinAlgError:
             cov = np.linalg.pinv(JTJ) * s2
+        cov_all = np.zeros((len(full), len(full)))
+        cov_all[np.ix_(free, free)] = cov
         std_free = np.sqrt(np.clip(np.diag(cov), 0, None))
         std_full = np.zeros(len(full))
         std_full[free] = std_free
@@ -254,7 +257,10 @@ class BundleProblem:
             npts[c] = int(sel.sum())
             rms[c] = float(np.sqrt(np.mean(np.sum(res_all[sel] ** 2, axis=1)))) if npts[c] else np.nan
         split = np.cumsum([len(o.pixels) for o in self.observations])[:-1]
+        cam_idx = np.concatenate([np.r_[c * 9:c * 9 + 9, nc * 9 + c * 3:nc * 9 + c * 3 + 3,
+                                        nc * 12 + c * 3:nc * 12 + c * 3 + 3] for c in range(nc)])
         return BundleResult(intr, crv, cC, vrv, vt, s_intr.copy(), s_crv.copy(), s_cC.copy(), rms, npts,
+                            cov_cameras=cov_all[np.ix_(cam_idx, cam_idx)],
                             residuals=np.split(res_all, split), outliers=int((~self.active).sum()),
                             sigma_px=float(np.sqrt(s2 / 1.0)), iterations=int(result.nfev))
 

@@ -239,4 +239,5 @@ def assemble(config, pair_results: dict[str, PairResult], box: BoxTarget) -> Sta
                          for w, f in config.calibration.fixture.items()},
              "intrinsic_poses": int(config.calibration.intrinsic_poses),
              "outliers": {pr.wheel: pr.bundle.outliers for pr in pair_results.values()}}
-    return StationCalibration(cams, pairs, station_name=config.name, notes=notes)
+    covs = {w: pr.bundle.cov_cameras for w, pr in pair_results.items() if pr.bundle.cov_cameras is not None}
+    return StationCalibration(cams, pairs, station_name=config.name, notes=notes, pair_covariance=covs)

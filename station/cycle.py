@@ -103,7 +103,8 @@ class Station:
         t_capture = time.perf_counter() - t0
         self.progress(f"cycle {cycle_id}: detecting rims and rebuilding the wheels")
         images = {cid: f.image for cid, f in frames.items()}
-        result = measure_frames(images, self.models, cfg, method=method, workers=self.workers)
+        result = measure_frames(images, self.models, cfg, method=method, workers=self.workers,
+                                calibration_cov=self.calibration.pair_covariance)
         result.update(self._base(cycle_id, job_id, vehicle_spec))
         result["timing_s"]["capture"] = t_capture
         result["captures_dir"] = str(captures_dir) if cfg.capture.keep_captures else None

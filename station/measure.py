@@ -18,7 +18,8 @@ from calibration.camera_model import CameraModel
 from station import alignment
 from station.config import WHEELS, StationConfig
 from station.errors import MeasurementError, StationError
-from station.wheel3d import WheelFit, reconstruct_paper, refine_circle
+from station.wheel3d import (WheelFit, calibration_covariance, pair_perturbation_covariance, reconstruct_paper,
+                             refine_circle)
 
 METHODS = ("circle", "paper")
 SCHEMA_VERSION = 1
@@ -58,7 +59,7 @@ class WheelOutcome:
 
 
 def measure_wheel(wheel: str, cams: tuple[str, str], images: dict, cameras: dict,
-                  config: StationConfig) -> WheelOutcome:
+                  config: StationConfig, calibration_cov: np.ndarray | None = None) -> WheelOutcome:
     """Detect the rim in both cameras of a pair and rebuild the wheel (one worker's task)."""
     t0 = time.perf_counter()
     detections = {c: detect_one(images[c], cameras[c], c) for c in cams}
@@ -66,10 +67,10 @@ def measure_wheel(wheel: str, cams: tuple[str, str], images: dict, cameras: dict
     out = WheelOutcome(wheel, cams, detections)
     if not any(isinstance(d, StationError) for d in detections.values()):
         try:
-            out.observation = reconstruct_wheel(wheel, cams, detections, cameras)
+            out.observation = reconstruct_wheel(wheel, cams, detections, cameras, calibration_cov)
             check_same_rim(out.observation, config)
         except StationError as e:
-            resolved = resolve_pair(wheel, cams, detections, images, cameras, config)
+            resolved = resolve_pair(wheel, cams, detections, images, cameras, config, calibration_cov)
             if resolved is None:
                 out.observation, out.error = None, e
             else:
@@ -79,11 +80,21 @@ def measure_wheel(wheel: str, cams: tuple[str, str], images: dict, cameras: dict
     return out
 
 
-def reconstruct_wheel(wheel: str, cams: tuple[str, str], detections: dict, cameras: dict) -> WheelObservation:
+def reconstruct_wheel(wheel: str, cams: tuple[str, str], detections: dict, cameras: dict,
+                      calibration_cov: np.ndarray | None = None) -> WheelObservation:
+    """Both 3-D methods for one pair. calibration_cov: the pair's (30,30) joint camera-parameter
+    covariance from the calibration (StationCalibration.pair_covariance); when given, its share
+    of the circle's uncertainty is added to the circle's centre and axis covariance."""
     cam_l, cam_r = (cameras[c] for c in cams)
     det_l, det_r = detections[cams[0]], detections[cams[1]]
     paper = reconstruct_paper(det_l.points_px, det_r.points_px, cam_l, cam_r)
     circle = refine_circle(det_l.points_px, det_r.points_px, cam_l, cam_r, paper)
+    if calibration_cov is not None:
+        cov_pair = pair_perturbation_covariance(cam_l, cam_r, calibration_cov)
+        cc, ca = calibration_covariance(det_l.points_px, det_r.points_px, cam_l, cam_r, circle, cov_pair=cov_pair)
+        circle.cov_center = circle.cov_center + cc
+        circle.cov_axis = circle.cov_axis + ca
+        circle.calibration_share = (float(np.trace(cc)), float(np.trace(ca)))
     return WheelObservation(wheel, cams, (det_l, det_r), paper, circle)
 
 
@@ -139,7 +150,7 @@ def _alternatives(cid: str, det, image: np.ndarray, camera: CameraModel) -> list
 
 
 def resolve_pair(wheel: str, cams: tuple[str, str], detections: dict, images: dict, cameras: dict,
-                 config: StationConfig) -> tuple[WheelObservation, str] | None:
+                 config: StationConfig, calibration_cov: np.ndarray | None = None) -> tuple[WheelObservation, str] | None:
     """A pair whose cameras' first choices are not the same rim (the hub won in one view, say):
     the best combination of each camera's candidates that is one 3-D rim, scored by the weaker
     of its two detection scores; with a warning naming what was changed. None if there is none."""
@@ -150,7 +161,7 @@ def resolve_pair(wheel: str, cams: tuple[str, str], detections: dict, images: di
             if i == j == 0 or (best is not None and min(sl, sr) <= best[0]):
                 continue
             try:
-                o = reconstruct_wheel(wheel, cams, {cams[0]: dl, cams[1]: dr}, cameras)
+                o = reconstruct_wheel(wheel, cams, {cams[0]: dl, cams[1]: dr}, cameras, calibration_cov)
                 check_same_rim(o, config)
             except StationError:
                 continue
@@ -163,7 +174,8 @@ def resolve_pair(wheel: str, cams: tuple[str, str], detections: dict, images: di
 
 
 def measure_frames(images: dict[str, np.ndarray], cameras: dict[str, CameraModel],
-                   config: StationConfig, method: str = "circle", workers=None) -> dict:
+                   config: StationConfig, method: str = "circle", workers=None,
+                   calibration_cov: dict | None = None) -> dict:
     """The measurement result (docs/result-schema.md) for one set of eight images.
 
     images, cameras: keyed by camera id. method: "circle" (default, the refined fit) or
@@ -172,6 +184,8 @@ def measure_frames(images: dict[str, np.ndarray], cameras: dict[str, CameraModel
     :class:`station.wheel_workers.WheelWorkers` to run the four wheels in processes (both
     cores), else two threads. ``timing_s``: "wheels" the wall time of the four wheels,
     "detect" and "reconstruct" their stages summed over the wheels (work, not wall time).
+    calibration_cov: wheel -> the pair's (30,30) camera-parameter covariance from the
+    calibration file (``StationCalibration.pair_covariance``), added to the stated uncertainty.
     """
     if method not in METHODS:
         raise MeasurementError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
@@ -179,7 +193,8 @@ def measure_frames(images: dict[str, np.ndarray], cameras: dict[str, CameraModel
     tasks = []
     for wheel in WHEELS:
         cams = (config.pairs[wheel].precision, config.pairs[wheel].reference)
-        tasks.append((wheel, cams, {c: images[c] for c in cams}, {c: cameras[c] for c in cams}, config))
+        tasks.append((wheel, cams, {c: images[c] for c in cams}, {c: cameras[c] for c in cams}, config,
+                      (calibration_cov or {}).get(wheel)))
     if workers is not None:
         outcomes = workers.map(measure_wheel, tasks)
     else:  # threads: overlap only where OpenCV and large numpy calls release the GIL

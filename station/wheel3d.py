@@ -48,6 +48,7 @@ class WheelFit:
     epipolar_rms_px: float = float("nan")
     n_points: tuple[int, int] = (0, 0)
     view_median_px: tuple[float, float] = (float("nan"), float("nan"))  # median |residual| per view
+    calibration_share: tuple[float, float] | None = None  # traces of the calibration's (centre m^2, axis) covariance
 
 
 # --- pair geometry ----------------------------------------------------------------------------
@@ -413,27 +414,64 @@ def perturb_camera(cam: CameraModel, delta: np.ndarray) -> CameraModel:
                        rodrigues_to_matrix(delta[9:12]) @ cam.R_cam_station, cam.t_cam_station + delta[12:15])
 
 
+def bundle_to_perturbation(cam: CameraModel) -> np.ndarray:
+    """(15,15) Jacobian from the bundle adjustment's camera parameters (calibration/refine.py:
+    9 intrinsics, rotation vector of R_cam_station, camera centre C in the station frame) to
+    :func:`perturb_camera`'s (9 intrinsics, small rotation applied in the camera frame,
+    translation t_cam_station), at ``cam``: t = -R C, so dt = d x t - R dC."""
+    from calibration.camera_model import matrix_to_rodrigues, rodrigues_to_matrix
+
+    R, t = cam.R_cam_station, cam.t_cam_station
+    rvec = matrix_to_rodrigues(R)
+    D = np.zeros((3, 3))
+    h = 1e-7
+    for k in range(3):  # d(rotation in the camera frame) / d(rvec), numerically
+        dR = rodrigues_to_matrix(rvec + h * np.eye(3)[k]) @ R.T
+        D[:, k] = np.array([dR[2, 1] - dR[1, 2], dR[0, 2] - dR[2, 0], dR[1, 0] - dR[0, 1]]) / (2 * h)
+    J = np.zeros((15, 15))
+    J[:9, :9] = np.eye(9)
+    J[9:12, 9:12] = D
+    tx = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
+    J[12:15, 9:12] = -tx @ D
+    J[12:15, 12:15] = -R
+    return J
+
+
+def pair_perturbation_covariance(cam_l: CameraModel, cam_r: CameraModel, cov_bundle: np.ndarray) -> np.ndarray:
+    """(30,30) covariance of both cameras' :func:`perturb_camera` parameters from the pair's
+    bundle-adjustment covariance (30,30) (StationCalibration.pair_covariance)."""
+    J = np.zeros((30, 30))
+    J[:15, :15] = bundle_to_perturbation(cam_l)
+    J[15:, 15:] = bundle_to_perturbation(cam_r)
+    return J @ cov_bundle @ J.T
+
+
 def calibration_covariance(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: CameraModel,
-                           cam_r: CameraModel, fit: WheelFit, cov_params_l: np.ndarray,
-                           cov_params_r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                           cam_r: CameraModel, fit: WheelFit, cov_params_l: np.ndarray | None = None,
+                           cov_params_r: np.ndarray | None = None, cov_pair: np.ndarray | None = None,
+                           max_points: int = 256) -> tuple[np.ndarray, np.ndarray]:
     """How the calibration's uncertainty moves a fitted circle: (cov_center (3,3), cov_axis (3,3)).
 
     First order, by the implicit-function theorem at the solution x* of the circle fit:
     dx/dp = -(J_x^T J_x)^-1 J_x^T J_p, with J_p the residuals' derivative with respect to the
-    30 camera parameters (numerical), and cov_params_* (15,15) each camera's parameter covariance.
+    30 camera parameters (numerical). The parameters' covariance is either each camera's
+    (15,15) ``cov_params_*`` (independent cameras) or the pair's joint (30,30) ``cov_pair``
+    (both in :func:`perturb_camera`'s parameters). Sensitivities need not every edge point:
+    each view is thinned to ``max_points`` evenly spread ones.
     """
-    views_pts = (points_l_px, points_r_px)
+    views_pts = tuple(p[:: max(1, len(p) // max_points)] for p in (points_l_px, points_r_px))
     n = fit.axis_station
     e1 = np.cross(n, [0.0, 0.0, 1.0])
     e1 /= np.linalg.norm(e1)
     e2 = np.cross(n, e1)
 
-    def residuals(x, cams):
+    xy0 = [cam.pixels_to_normalized(pts) for cam, pts in zip((cam_l, cam_r), views_pts)]
+
+    def residuals(x, cams, xys=xy0):
         c = x[2:5]
         nn = _normal_from(x[:2], n, e1, e2)
         out = []
-        for cam, pts in zip(cams, views_pts):
-            xy = cam.pixels_to_normalized(pts)
+        for cam, xy in zip(cams, xys):
             C = circle_conic(cam.R_cam_station @ c + cam.t_cam_station, cam.R_cam_station @ nn, x[5])
             out.append(sampson_px(C, xy, 0.5 * (cam.K[0, 0] + cam.K[1, 1])))
         return np.concatenate(out)
@@ -444,9 +482,12 @@ def calibration_covariance(points_l_px: np.ndarray, points_r_px: np.ndarray, cam
     steps_x = np.array([1e-6, 1e-6, 1e-6, 1e-6, 1e-6, 1e-6])
     Jx = np.stack([(residuals(x0 + np.eye(6)[k] * steps_x[k], cams) - r0) / steps_x[k] for k in range(6)], axis=1)
     steps_p = np.array([0.05, 0.05, 0.05, 0.05, 1e-5, 1e-5, 1e-6, 1e-6, 1e-5, 1e-6, 1e-6, 1e-6, 1e-6, 1e-6, 1e-6])
-    cov_p = np.zeros((30, 30))
-    cov_p[:15, :15] = cov_params_l
-    cov_p[15:, 15:] = cov_params_r
+    if cov_pair is not None:
+        cov_p = np.asarray(cov_pair, float)
+    else:
+        cov_p = np.zeros((30, 30))
+        cov_p[:15, :15] = cov_params_l
+        cov_p[15:, 15:] = cov_params_r
     cols = []
     for which in range(2):
         for k in range(15):
@@ -454,7 +495,10 @@ def calibration_covariance(points_l_px: np.ndarray, points_r_px: np.ndarray, cam
             delta[k] = steps_p[k]
             moved = list(cams)
             moved[which] = perturb_camera(cams[which], delta)
-            cols.append((residuals(x0, moved) - r0) / steps_p[k])
+            xys = list(xy0)
+            if k < 9:  # an intrinsic moves the normalised points; a pose does not
+                xys[which] = moved[which].pixels_to_normalized(views_pts[which])
+            cols.append((residuals(x0, moved, xys) - r0) / steps_p[k])
     Jp = np.stack(cols, axis=1)
     dx_dp = -np.linalg.solve(Jx.T @ Jx, Jx.T @ Jp)
     cov_x = dx_dp @ cov_p @ dx_dp.T

@@ -110,3 +110,21 @@ def test_stereo_eqs_34_35_29_33(config):
     assert np.abs(pair.triangulate_station(uv_l, uv_r) - X).max() < 1e-9       # eq. 24
     shifted = uv_r + [0, 3.0]
     assert np.abs(pair.epipolar_distance_px(uv_l, shifted)).min() > 1.0
+
+
+def test_pair_covariance_round_trips_and_a_malformed_one_is_refused(config, tmp_path):
+    calib = _calibration(config)
+    A = np.random.default_rng(3).normal(size=(30, 30))
+    calib.pair_covariance = {"FR": A @ A.T * 1e-8}
+    path = save_calibration(calib, tmp_path / "c.json")
+    back = load_calibration(path, config)
+    assert set(back.pair_covariance) == {"FR"}
+    np.testing.assert_array_equal(back.pair_covariance["FR"], calib.pair_covariance["FR"])
+    d = json.loads(path.read_text())
+    d["pairs"]["FR"]["covariance"] = d["pairs"]["FR"]["covariance"][:29]
+    path.write_text(json.dumps(d))
+    with pytest.raises(CalibrationError, match="pair FR: covariance must be a symmetric 30x30"):
+        load_calibration(path)
+    del d["pairs"]["FR"]["covariance"]  # files written before it: no covariance, still valid
+    path.write_text(json.dumps(d))
+    assert load_calibration(path, config).pair_covariance == {}

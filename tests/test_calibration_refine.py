@@ -129,6 +129,13 @@ def test_pair_flow_recovers_the_true_station_cameras(station):
         assert np.linalg.norm(est.center_station - true.center_station) < 0.5e-3
         assert res.cameras[c].reprojection_rms_px < 0.1
         assert 0 < res.cameras[c].std["fx"] < 1.0
+    # the joint covariance of both cameras (for the measurement's stated uncertainty)
+    cov = res.bundle.cov_cameras
+    assert cov.shape == (30, 30) and np.allclose(cov, cov.T)
+    assert np.all(np.linalg.eigvalsh(cov) > -1e-12 * np.abs(cov).max())
+    for k, c in enumerate(ids):
+        np.testing.assert_allclose(np.sqrt(np.diag(cov))[15 * k:15 * k + 9], res.bundle.std_intrinsics[k], rtol=1e-9)
+        np.testing.assert_allclose(np.sqrt(np.diag(cov))[15 * k + 12:15 * k + 15], res.bundle.std_cam_C[k], rtol=1e-9)
         # check points in the wheel volume reproject like the truth
         X = np.random.default_rng(1).uniform([-1.0, 1.0, 0.05], [-0.6, 1.7, 0.6], (200, 3))
         d = est.project(X) - true.project(X)

@@ -154,3 +154,19 @@ def test_a_circle_the_size_of_a_hub_is_not_a_rim(sim):
     obs = reconstruct_wheel("FR", ("cam1", "cam2"), dets, world.cameras)
     with pytest.raises(MeasurementError, match="not a rim flange"):
         check_same_rim(obs, cfg)
+
+
+@pytest.mark.slow
+def test_the_calibrations_covariance_adds_to_the_stated_uncertainty(sim):
+    cfg, world, _, images = sim
+    sd = np.array([0.1, 0.1, 0.2, 0.2, 1e-4, 3e-4, 1e-5, 1e-5, 5e-4, 3e-5, 3e-5, 3e-5, 1e-4, 1e-4, 1e-4])
+    cov = np.diag(np.tile(sd, 2) ** 2)
+    plain = measure_frames(images, world.cameras, cfg)
+    with_cal = measure_frames(images, world.cameras, cfg, calibration_cov={"FR": cov})
+    assert plain["valid"] and with_cal["valid"]
+    fr0, fr1 = plain["wheels"]["FR"], with_cal["wheels"]["FR"]
+    assert fr1["toe_deg"] == fr0["toe_deg"]  # the values do not move, their uncertainty grows
+    assert fr0["toe_std_deg"] < fr1["toe_std_deg"] < 10 * fr0["toe_std_deg"]
+    # the car frame is built from all four centres, so the other wheels' angles move a little
+    rl0, rl1 = plain["wheels"]["RL"]["toe_std_deg"], with_cal["wheels"]["RL"]["toe_std_deg"]
+    assert rl1 / rl0 < fr1["toe_std_deg"] / fr0["toe_std_deg"]

@@ -135,3 +135,55 @@ def test_stated_uncertainty_grows_with_a_slowly_varying_edge_bias():
     assert axis_std_deg(biased) > 1.3 * axis_std_deg(no_term)
     clean_no_term = refine_circle(pl, pr, cl, cr, reconstruct_paper(pl, pr, cl, cr), bias_modes=0)
     assert axis_std_deg(clean) < 1.3 * axis_std_deg(clean_no_term)
+
+
+def test_bundle_parameters_map_to_the_perturbation_parameters():
+    """A small step of the bundle adjustment's camera parameters (rotation vector, centre) and
+    the mapped step of perturb_camera's parameters move every projected point the same way."""
+    from calibration.camera_model import matrix_to_rodrigues, rodrigues_to_matrix
+    from station.wheel3d import bundle_to_perturbation, perturb_camera
+
+    cam = _pair(0.78, 1.35)[1]
+    X = np.random.default_rng(0).uniform([0.5, 1.1, 0.1], [1.0, 1.6, 0.6], (50, 3))
+    J = bundle_to_perturbation(cam)
+    rvec, C = matrix_to_rodrigues(cam.R_cam_station), cam.center_station
+    for k in range(9, 15):
+        step = np.zeros(15)
+        step[k] = 1e-6
+        R = rodrigues_to_matrix(rvec + step[9:12])
+        moved_bundle = CameraModel(cam.name, cam.width, cam.height, cam.K, cam.dist, R, -R @ (C + step[12:15]))
+        moved_mapped = perturb_camera(cam, J @ step)
+        d_bundle = moved_bundle.project(X) - cam.project(X)
+        d_mapped = moved_mapped.project(X) - cam.project(X)
+        assert np.abs(d_bundle).max() > 1e-5  # the step moves the points
+        np.testing.assert_allclose(d_mapped, d_bundle, atol=1e-3 * np.abs(d_bundle).max())
+
+
+def test_calibration_covariance_matches_refits_with_perturbed_cameras():
+    """Monte Carlo: refit the circle with cameras drawn from a parameter covariance; the spread
+    of the axis matches the first-order prediction."""
+    from station.wheel3d import calibration_covariance, perturb_camera
+
+    v = random_vehicle(np.random.default_rng(2))
+    c, w, X = _rim(v, "FR")
+    cl, cr = _pair(c[0], c[1])
+    pl, pr = cl.project(X), cr.project(X)
+    fit = refine_circle(pl, pr, cl, cr, reconstruct_paper(pl, pr, cl, cr), bias_modes=0)
+    sd = np.array([0.3, 0.3, 0.3, 0.3, 2e-4, 5e-4, 2e-5, 2e-5, 1e-3, 5e-5, 5e-5, 5e-5, 1e-4, 1e-4, 1e-4])
+    A = np.random.default_rng(5).normal(size=(30, 30)) * 0.3 + np.eye(30)
+    corr = A @ A.T
+    corr /= np.sqrt(np.outer(np.diag(corr), np.diag(corr)))
+    for scale, robust in ((1.0, False), (0.1, True)):
+        # correlated, both cameras jointly; the robust (production) fit at a scale where its
+        # weights stay put (at full scale its optimiser's tolerances blur the comparison)
+        cov = corr * np.outer(np.tile(sd, 2), np.tile(sd, 2)) * scale**2
+        _, cov_axis = calibration_covariance(pl, pr, cl, cr, fit, cov_pair=cov)
+        rng = np.random.default_rng(6)
+        axes = []
+        for _ in range(40):
+            d = rng.multivariate_normal(np.zeros(30), cov)
+            ml, mr = perturb_camera(cl, d[:15]), perturb_camera(cr, d[15:])
+            kw = {} if robust else {"inward_weight": 1.0, "loss_scale_px": 100.0}
+            axes.append(refine_circle(pl, pr, ml, mr, fit, bias_modes=0, **kw).axis_station)
+        spread = np.trace(np.cov(np.array(axes).T))
+        assert 0.6 < spread / np.trace(cov_axis) < 1.6, (scale, robust, spread / np.trace(cov_axis))
