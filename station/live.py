@@ -183,6 +183,14 @@ class LiveSession:
         return rate_summary(times, elapsed, interrupted)
 
 
+LIVE_MAX_POINTS = 600  # edge points per view for the live 3-D fit (a full cycle uses all)
+
+
+def _thin(points: np.ndarray, n: int) -> np.ndarray:
+    """Every k-th of the (N,2) points, at most about ``n``, spread evenly along the rim."""
+    return points[:: max(1, int(np.ceil(len(points) / n)))]
+
+
 @dataclass
 class LiveWheel:
     """One live wheel of an update: detections (RimDetection or StationError per camera), the
@@ -217,8 +225,9 @@ def live_wheel(wheel: str, cams: tuple[str, str], images: dict, models: dict, pr
         try:
             cam_l, cam_r = models[cams[0]], models[cams[1]]
             det_l, det_r = detections[cams[0]], detections[cams[1]]
-            paper = reconstruct_paper(det_l.points_px, det_r.points_px, cam_l, cam_r)
-            circle = refine_circle(det_l.points_px, det_r.points_px, cam_l, cam_r, paper, bias_modes=0)
+            pl, pr = (_thin(d.points_px, LIVE_MAX_POINTS) for d in (det_l, det_r))
+            paper = reconstruct_paper(pl, pr, cam_l, cam_r)
+            circle = refine_circle(pl, pr, cam_l, cam_r, paper, bias_modes=0)
             obs = WheelObservation(wheel, cams, (det_l, det_r), paper, circle)
             check_same_rim(obs, config)
         except StationError as e:
