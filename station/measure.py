@@ -121,6 +121,16 @@ def check_same_rim(o: WheelObservation, config: StationConfig) -> None:
             hint="look at both cameras' images of this wheel (station review); rims outside this "
                  "range need measurement.min_rim_radius_m / max_rim_radius_m")
     worst_view = max(o.circle.view_median_px)
+    if o.paper.epipolar_rms_px > limit and worst_view <= 0.2 * limit:
+        # one circle fits both views, but the epipolar tangents disagree: the tangents of a
+        # rim seen on a small part of its perimeter are extrapolated (not a wrong rim)
+        d = min(o.detections, key=lambda det: det.coverage)
+        raise MeasurementError(
+            f"{d.camera_id or 'a camera'} sees the rim edge on only {d.coverage:.0%} of its perimeter: "
+            f"{o.cams[0]} and {o.cams[1]} cannot be checked against each other (epipolar residual "
+            f"{o.paper.epipolar_rms_px:.1f} px, limit {limit} px)",
+            hint=f"look at {d.camera_id or 'the camera'}'s image (station review): lighting, the tyre or the "
+                 "wheel arch hiding the rim")
     if o.paper.epipolar_rms_px > limit or not worst_view <= limit:
         raise MeasurementError(
             f"{o.cams[0]} and {o.cams[1]} did not find the same rim (epipolar residual "
