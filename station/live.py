@@ -29,7 +29,7 @@ from station.errors import MeasurementError, StationError
 from station.cycle import open_capture
 from station.wheel_workers import WheelWorkers, default_workers
 from station.measure import WheelObservation, check_same_rim, measure_frames
-from station.wheel3d import reconstruct_paper, refine_circle
+from station.wheel3d import WheelFit, reconstruct_paper, refine_circle
 
 AXLES = {"front": ("FL", "FR"), "rear": ("RL", "RR"), "all": WHEELS}
 
@@ -77,6 +77,7 @@ class LiveSession:
                                       progress=progress, hold=hold)
         self.cameras, self.trigger_board, self.timeout_s = open_capture(config, self.context)
         self.previous: dict = {}  # cam id -> its last RimDetection (tracking)
+        self.circles: dict = {}   # wheel -> its last 3-D circle (WheelFit), the next fit's start
         self.centers: dict = {}
         self.axes: dict = {}
         self.n = 0
@@ -112,6 +113,7 @@ class LiveSession:
             self.centers[w] = np.asarray(result["wheels"][w]["center_station_m"])
             self.axes[w] = np.asarray(result["wheels"][w]["axis_station"])
         self.previous = {c: d for o in result["_observations"].values() for c, d in zip(o.cams, o.detections)}
+        self.circles = {w: o.circle for w, o in result["_observations"].items()}
         return result
 
     # --- one live update ----------------------------------------------------------------------
@@ -126,7 +128,7 @@ class LiveSession:
         t1 = time.perf_counter()
         tasks = [(w, self.pairs[w], {c: frames[c].image for c in self.pairs[w]},
                   {c: self.models[c] for c in self.pairs[w]}, {c: self.previous.get(c) for c in self.pairs[w]},
-                  self.config) for w in self.live_wheels]
+                  self.config, self.circles.get(w)) for w in self.live_wheels]
         if self.workers is not None:
             outcomes = self.workers.map(live_wheel, tasks)
         else:
@@ -143,6 +145,7 @@ class LiveSession:
                 continue
             self.centers[o.wheel] = o.observation.circle.center_station
             self.axes[o.wheel] = o.observation.circle.axis_station
+            self.circles[o.wheel] = o.observation.circle
             reading.wheels[o.wheel] = {}
         work = {k: sum(o.timing_s[k] for o in outcomes) for k in ("detect", "reconstruct")}
         t3 = time.perf_counter()
@@ -183,7 +186,7 @@ class LiveSession:
         return rate_summary(times, elapsed, interrupted)
 
 
-LIVE_MAX_POINTS = 600  # edge points per view for the live 3-D fit (a full cycle uses all)
+LIVE_MAX_POINTS = 400  # edge points per view for the live 3-D fit (a full cycle uses all)
 
 
 def _thin(points: np.ndarray, n: int) -> np.ndarray:
@@ -204,9 +207,10 @@ class LiveWheel:
 
 
 def live_wheel(wheel: str, cams: tuple[str, str], images: dict, models: dict, previous: dict,
-               config: StationConfig) -> LiveWheel:
+               config: StationConfig, previous_circle: WheelFit | None = None) -> LiveWheel:
     """Track the rim in both cameras of a pair from their previous detections and rebuild the
-    wheel (a worker's task). The 3-D fit skips the covariance: the live display shows none."""
+    wheel (a worker's task). The 3-D fit starts from the wheel's previous circle (it moved by
+    a fraction of a degree) and skips the covariance: the live display shows none."""
     from station.rim import detect_rim
 
     t0 = time.perf_counter()
@@ -227,7 +231,7 @@ def live_wheel(wheel: str, cams: tuple[str, str], images: dict, models: dict, pr
             det_l, det_r = detections[cams[0]], detections[cams[1]]
             pl, pr = (_thin(d.points_px, LIVE_MAX_POINTS) for d in (det_l, det_r))
             paper = reconstruct_paper(pl, pr, cam_l, cam_r)
-            circle = refine_circle(pl, pr, cam_l, cam_r, paper, bias_modes=0)
+            circle = refine_circle(pl, pr, cam_l, cam_r, previous_circle or paper, bias_modes=0)
             obs = WheelObservation(wheel, cams, (det_l, det_r), paper, circle)
             check_same_rim(obs, config)
         except StationError as e:

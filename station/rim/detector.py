@@ -300,16 +300,20 @@ def _outer_mode(d: np.ndarray, window: tuple[float, float], bin_px: float = 0.5,
     return sel
 
 
-def _refine(grey: np.ndarray, e_full: Ellipse, pmap: PixelMap, passes=PASSES, blur_px: float | None = None):
+def _refine(grey: np.ndarray, e_full: Ellipse, pmap: PixelMap, passes=PASSES, blur_px: float | None = None,
+            tracking: bool = False):
     """Sub-pixel points and geometric fit, once per (half-width, method) pass; ``blur_px``
-    fixes the edge blur instead of estimating it. Returns (fit, samples, inlier mask, blur px)."""
+    fixes the edge blur instead of estimating it. ``tracking`` (the prior is last frame's
+    sub-pixel ellipse): profiles 2.5 px apart, and the robust fit starts from the prior
+    without a consensus search. Returns (fit, samples, inlier mask, blur px)."""
     fit = samples = None
     e = e_full
     sigma = None  # the edge blur: coarse in the first pass, refined near it in the last
     for k, (window, method) in enumerate(passes):
         final = k == len(passes) - 1
         samples, sigma = edge_points(grey, e, pmap, window_px=window, method=method, precise_blur=final,
-                                     spacing_px=1.5 if final else 3.0, blur_hint=sigma, sigma=blur_px)
+                                     spacing_px=(2.5 if tracking else 1.5) if final else 3.0, blur_hint=sigma,
+                                     sigma=blur_px)
         ok = samples.ok
         if ok.sum() < MIN_POINTS:
             return None, samples, ok, sigma
@@ -317,11 +321,12 @@ def _refine(grey: np.ndarray, e_full: Ellipse, pmap: PixelMap, passes=PASSES, bl
         # one curve, not a compromise between concentric edges: consensus first, then the
         # robust fit of ALL points from the consensus ellipse (a tight consensus band alone
         # would bias the fit toward the minimal sample that defined it)
-        keep = ransac_ellipse(ideal, threshold_px=_consensus_threshold(e.distance(ideal)[0]), seed=len(ideal))
-        if keep is None or keep.sum() < MIN_POINTS:
+        keep = None if tracking else ransac_ellipse(ideal, threshold_px=_consensus_threshold(e.distance(ideal)[0]),
+                                                     seed=len(ideal))
+        if not tracking and (keep is None or keep.sum() < MIN_POINTS):
             return None, samples, ok, sigma
         try:
-            e_cons = fit_direct(ideal[keep])
+            e_cons = e if tracking else fit_direct(ideal[keep])
             fit = fit_geometric(ideal, init=e_cons, iterations=12 if final else 5)
         except (ValueError, np.linalg.LinAlgError):
             return None, samples, ok, sigma
@@ -356,7 +361,8 @@ def detect_rim(image: np.ndarray, *, camera=None, prior: Ellipse | None = None, 
     info: dict = {}
     if previous is not None and previous.details.get("blur_px"):  # tracking: one pass, the blur known
         prior = previous.ellipse
-        fit, samples, mask, blur = _refine(grey, prior, pmap, passes=TRACK_PASSES, blur_px=previous.details["blur_px"])
+        fit, samples, mask, blur = _refine(grey, prior, pmap, passes=TRACK_PASSES, blur_px=previous.details["blur_px"],
+                                           tracking=True)
         if fit is not None and not _holds(fit, samples, mask, prior, TRACK_SHIFT, min(0.8, 0.9 * previous.coverage)):
             fit = None
         if fit is not None:
