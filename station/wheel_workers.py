@@ -15,8 +15,11 @@ worker by pickling, about 1 ms per 1280x1024 frame.
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import os
+import signal
+import threading
 import time
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
@@ -32,6 +35,13 @@ def default_workers() -> int:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # not on Linux
         return max(1, os.cpu_count() or 1)
+
+
+def _init_worker() -> None:
+    # Ctrl-C in a terminal reaches the whole process group: it is the main process's to handle
+    # (it ends the loop and closes the pool); a worker interrupted mid-task would only print a
+    # traceback and break the pool
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _ready(_index: int) -> int:
@@ -52,9 +62,9 @@ class WheelWorkers:
     def _start(self) -> None:
         ctx = multiprocessing.get_context("forkserver")
         ctx.set_forkserver_preload(PRELOAD)
-        self._pool = ProcessPoolExecutor(self.n, mp_context=ctx)
+        self._pool = ProcessPoolExecutor(self.n, mp_context=ctx, initializer=_init_worker)
         # start every worker now (the first cycle should not pay for it): n tasks at once
-        list(self._pool.map(_ready, range(self.n)))
+        self._pids = set(self._pool.map(_ready, range(self.n)))
 
     def map(self, fn, args: list[tuple]) -> list:
         try:
@@ -66,10 +76,20 @@ class WheelWorkers:
             raise WorkerFailure("a measurement worker process died during the cycle; the workers were restarted",
                                 hint="run the cycle again; if it repeats, check the machine's memory") from e
 
-    def close(self) -> None:
-        if self._pool is not None:
-            self._pool.shutdown(wait=True, cancel_futures=True)
-            self._pool = None
+    def close(self, timeout_s: float = 10.0) -> None:
+        """Stop the workers: queued tasks are cancelled, running ones finish. A worker still
+        busy after ``timeout_s`` is ended by the PID it reported at start (SIGTERM)."""
+        if self._pool is None:
+            return
+        pool, self._pool = self._pool, None
+        t = threading.Thread(target=pool.shutdown, kwargs={"wait": True, "cancel_futures": True}, daemon=True)
+        t.start()
+        t.join(timeout_s)
+        if t.is_alive():
+            for pid in self._pids:
+                with contextlib.suppress(ProcessLookupError, PermissionError):
+                    os.kill(pid, signal.SIGTERM)
+            t.join(timeout_s)
 
     def __enter__(self):
         return self

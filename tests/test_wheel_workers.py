@@ -2,6 +2,7 @@
 clear error and the pool recovers."""
 
 import os
+import time
 
 import numpy as np
 import pytest
@@ -15,6 +16,11 @@ def _square(x):
 
 
 def _pid(_):
+    return os.getpid()
+
+
+def _sleep(seconds):
+    time.sleep(seconds)
     return os.getpid()
 
 
@@ -52,3 +58,16 @@ def test_measure_frames_in_workers_equals_in_process(tmp_path):
     for wheel in ("FL", "FR", "RL", "RR"):
         for k in ("toe_deg", "camber_deg", "toe_std_deg"):
             assert pooled["wheels"][wheel][k] == local["wheels"][wheel][k]
+
+
+def test_close_does_not_wait_forever_for_a_stuck_worker():
+    w = WheelWorkers(1)
+    pid = w.map(_sleep, [(0.0,)])[0]
+    w._pool.submit(_sleep, 60.0)  # a task that will not finish in time
+    time.sleep(0.5)
+    t = time.monotonic()
+    w.close(timeout_s=1.0)
+    assert time.monotonic() - t < 5.0
+    time.sleep(0.5)
+    with pytest.raises(ProcessLookupError):
+        os.kill(pid, 0)
