@@ -36,11 +36,37 @@ from pymodbus.framer.rtu import FramerRTU  # noqa: E402
 from simulators.plc_sim import PlcSimulator, dry_run_expectation  # noqa: E402
 
 
+def _vmrss_kib(pid: int) -> int:
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1])
+    except OSError:  # gone meanwhile
+        pass
+    return 0
+
+
+def _descendants(pid: int) -> list[int]:
+    """Every process below ``pid`` (the measurement workers and their forkserver)."""
+    children: dict[int, list[int]] = {}
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                ppid = int((d / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            except (OSError, IndexError, ValueError):
+                continue
+            children.setdefault(ppid, []).append(int(d.name))
+    out, stack = [], [pid]
+    while stack:
+        for c in children.get(stack.pop(), []):
+            out.append(c)
+            stack.append(c)
+    return out
+
+
 def rss_kib(pid: int) -> int:
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
-            return int(line.split()[1])
-    return -1
+    """Resident memory of the station: its process and every process below it (KiB)."""
+    return _vmrss_kib(pid) + sum(_vmrss_kib(c) for c in _descendants(pid)) if Path(f"/proc/{pid}").exists() else -1
 
 
 def free_port() -> int:
@@ -161,7 +187,7 @@ def main(argv=None) -> int:
     ap.add_argument("--spec", default="toyota-echo-2003", help="vehicle spec id (config/vehicles.yaml) sent with every trigger")
     ap.add_argument("--timeout", type=float, default=2.0, help="Modbus response timeout (s)")
     ap.add_argument("--cycle-timeout", type=float, default=120.0)
-    ap.add_argument("--rss-series", action="store_true", help="print the station's RSS every 100 cycles")
+    ap.add_argument("--rss-series", action="store_true", help="print the station's RSS (with its worker processes) every 100 cycles")
     args = ap.parse_args(argv)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:

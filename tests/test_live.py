@@ -131,6 +131,10 @@ def test_cli_stops_at_seconds_and_reports_the_rate(station, session_run):
 def test_ctrl_c_exits_cleanly(station, session_run):
     config, cache = station
     cmd, env = _cli(config, cache)
+    # A shell that starts a job in the background (as a CI runner may) sets SIGINT to "ignore",
+    # and the children inherit it: give the command back the terminal's default handler.
+    cmd[1:3] = ["-c", "import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
+                      "from station.cli import main; sys.exit(main(sys.argv[1:]))"]
     # its own process group, signalled as a whole: a terminal's Ctrl-C reaches the worker
     # processes too, and they must neither print tracebacks nor hold the exit up
     p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=ROOT,
