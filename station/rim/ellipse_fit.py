@@ -136,11 +136,11 @@ def fit_geometric(pts: np.ndarray, init: Ellipse | None = None, iterations: int 
 
 def _sampson(Q: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """|Sampson distance| of points (x, y) (N,) to conics Q (M,6): (M,N)."""
-    A, B, C, D, E, F = (Q[:, i:i + 1] for i in range(6))
-    f = A * x * x + B * x * y + C * y * y + D * x + E * y + F
-    gx = 2 * A * x + B * y + D
-    gy = B * x + 2 * C * y + E
-    return np.abs(f) / np.sqrt(gx * gx + gy * gy + 1e-30)
+    one, zero = np.ones_like(x), np.zeros_like(x)
+    f = np.stack([x * x, x * y, y * y, x, y, one]).T @ Q.T          # (N,M): three small matrix
+    gx = np.stack([2 * x, y, zero, one, zero, zero]).T @ Q.T        # products instead of a dozen
+    gy = np.stack([zero, x, 2 * y, zero, one, zero]).T @ Q.T        # (M,N) temporaries
+    return (np.abs(f) / np.sqrt(gx * gx + gy * gy + 1e-30)).T
 
 
 def ransac_ellipse(pts: np.ndarray, threshold_px: float, iterations: int = 160,
