@@ -62,8 +62,25 @@ def _stated(result: dict) -> dict[str, float]:
     return out
 
 
+def _images(world, scene, scenario: str, seed: int, cache: Path | None) -> dict:
+    """The eight rendered images of one vehicle; with ``cache``, rendered once and kept there
+    (``<scenario>-<seed>.npz``) so that a change of the measurement can be re-measured on the
+    very same images in minutes instead of re-rendering them."""
+    path = cache / f"{scenario}-{seed}.npz" if cache is not None else None
+    if path is not None and path.exists():
+        with np.load(path) as z:
+            return {c: z[c] for c in world.cameras}
+    images = world.render_all(np.random.default_rng(10_000 + seed))
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(path.stem + ".part.npz")
+        np.savez(tmp, **images)
+        tmp.replace(path)
+    return images
+
+
 def run(config, cameras_by_source: dict, n: int, scenario: str, seed0: int, methods,
-        covariance_by_source: dict | None = None) -> dict:
+        covariance_by_source: dict | None = None, cache: Path | None = None) -> dict:
     from simulators.world import SimWorld
 
     sigma, dark = SCENARIOS[scenario]
@@ -73,7 +90,7 @@ def run(config, cameras_by_source: dict, n: int, scenario: str, seed0: int, meth
         seed = seed0 + i
         scene = world.vehicle_scene(seed)
         world.set_scene(scene)
-        images = world.render_all(np.random.default_rng(10_000 + seed))
+        images = _images(world, scene, scenario, seed, cache)
         truth = world.truth(scene)
         for src, cams in cameras_by_source.items():
             for m in methods:
@@ -125,6 +142,8 @@ def main() -> int:
     ap.add_argument("--scenario", choices=list(SCENARIOS) + ["all"], default="all")
     ap.add_argument("--calibration", choices=["file", "truth", "both"], default="both")
     ap.add_argument("--methods", default="circle,paper")
+    ap.add_argument("--cache", type=Path, default=None,
+                    help="keep the rendered images here and reuse them on later runs (same seeds, same images)")
     args = ap.parse_args()
     config = load_config(args.config)
     from simulators.world import SimWorld
@@ -150,7 +169,7 @@ def main() -> int:
     print(f"# Accuracy benchmark: {args.n} vehicles per scenario, seeds from {args.seed}")
     for sc in scenarios:
         srcs = sources if sc == "sigma2" else {k: v for k, v in sources.items() if k == "file"} or sources
-        rows = run(config, srcs, args.n, sc, args.seed, methods, covariances)
+        rows = run(config, srcs, args.n, sc, args.seed, methods, covariances, args.cache)
         print_table(sc, rows, args.n)
     return 0
 
