@@ -30,6 +30,10 @@ single_thread_blas()  # small least-squares problems: OpenBLAS threads cost 40x 
 
 PRUNE_FRACTION = 0.10  # the paper's Fig. 9d: 10 % of the diameter at the top and the bottom
 INWARD_WEIGHT = 0.3    # weight of residuals inside the rim's projection in the circle fit
+CIRCLE_LOSS = "soft_l1"  # robust loss of the 3-D circle fit (scipy least_squares)
+OCCLUSION_TEST = True    # test the arcs the tyre's sidewall could hide before trusting them (hidden_arcs)
+MIN_SAFE_FRACTION = 0.3  # of a view's points that no sidewall can hide, to make the test at all
+HIDDEN_SECTORS = 24      # arcs of 15 degrees
 BIAS_MODES = 1         # edge-bias Fourier modes (0: uniform, 1: + cos/sin) in the covariance
 
 
@@ -310,10 +314,34 @@ def edge_visibility(cam: CameraModel, xy: np.ndarray, circle: WheelFit) -> np.nd
     return np.einsum("ij,ij->i", d, rho)
 
 
+def hidden_arcs(r: np.ndarray, safe: np.ndarray, phi: np.ndarray, noise_px: float,
+                n_sectors: int = HIDDEN_SECTORS) -> np.ndarray:
+    """(N,) bool: the points of one view to keep. r (N,) signed image residuals (px, negative
+    inside) of the view's points against the circle fitted to the *safe* points only; safe (N,)
+    bool, points no sidewall can hide (``edge_visibility`` >= 0); phi (N,) their rim angles.
+
+    Every doubtful point is kept unless its arc (``n_sectors`` sectors of the rim) lies inside
+    the circle's projection beyond what the safe arcs' own scatter allows: the median of the
+    arc's residuals below -max(noise_px, 3 x the RMS of the safe arcs' medians). A hidden flange
+    edge is seen on the tyre's occluding contour, up to a few pixels inside; a visible one agrees
+    with the safe arcs within their bias."""
+    lab = _sector_labels(phi, n_sectors)
+    keep = safe.copy()
+    meds_safe = [np.median(r[(lab == k) & safe]) for k in range(n_sectors) if ((lab == k) & safe).sum() >= 5]
+    spread = float(np.sqrt(np.mean(np.square(meds_safe)))) if meds_safe else noise_px
+    limit = -max(noise_px, 3.0 * spread)
+    for k in np.unique(lab[~safe]):
+        arc = (lab == k) & ~safe
+        if np.median(r[arc]) >= limit:
+            keep |= arc
+    return keep
+
+
 def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: CameraModel,
                   cam_r: CameraModel, init: WheelFit, loss_scale_px: float = 0.3,
                   visibility_margin: float | None = None, jackknife_sectors: int = 0,
-                  inward_weight: float = INWARD_WEIGHT, bias_modes: int = BIAS_MODES) -> WheelFit:
+                  inward_weight: float = INWARD_WEIGHT, bias_modes: int = BIAS_MODES,
+                  occlusion_test: bool = OCCLUSION_TEST) -> WheelFit:
     """Fit one 3-D circle to both views' rim points by minimising image distance (px).
 
     Residuals of points inside the circle's projection count ``inward_weight`` times (1: a
@@ -328,6 +356,11 @@ def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: Camer
 
     Points where the tyre's sidewall may hide the flange edge (:func:`edge_visibility` below
     ``visibility_margin``) are left out; None keeps every point.
+
+    ``occlusion_test`` (default): arcs that the sidewall *could* hide are tested instead of
+    trusted (:func:`hidden_arcs`): the circle is first fitted to the points that no sidewall
+    can hide, and an arc of doubtful points whose edge lies inside that circle's projection
+    beyond the noise is left out of the final fit; arcs that agree are kept.
     """
     views = []
     for cam, pts in ((cam_l, points_l_px), (cam_r, points_r_px)):
@@ -341,21 +374,39 @@ def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: Camer
     e1 /= np.linalg.norm(e1)
     e2 = np.cross(n0, e1)
 
-    def residuals(p, keep=None):
+    def raw_residuals(p, keep=None):
         c = p[2:5]
         n = _normal_from(p[:2], n0, e1, e2)
         out = []
         for k, (cam, xy, f) in enumerate(views):
             C = circle_conic(cam.R_cam_station @ c + cam.t_cam_station, cam.R_cam_station @ n, p[5])
             out.append(sampson_px(C, xy if keep is None else xy[keep[k]], f))
-        r = np.concatenate(out)
+        return np.concatenate(out)
+
+    def residuals(p, keep=None):
+        r = raw_residuals(p, keep)
         # an edge seen inside the rim's projection is more likely a hidden or shaded flange
         # (tyre bulge, dark lip) than a real one: occlusion only ever moves the edge inward
         # beyond the noise (loss_scale_px) only; within it the fit stays unbiased
         return np.where(r < -loss_scale_px, inward_weight * (r + loss_scale_px) - loss_scale_px, r)
 
+    def solve(x0, keep=None):
+        return least_squares(lambda p: residuals(p, keep), x0, loss=CIRCLE_LOSS, f_scale=loss_scale_px,
+                             x_scale="jac", method="trf")
+
     x0 = np.concatenate([[0.0, 0.0], init.center_station, [init.radius_m]])
-    sol = least_squares(residuals, x0, loss="soft_l1", f_scale=loss_scale_px, x_scale="jac", method="trf")
+    if occlusion_test:
+        vis = [edge_visibility(cam, xy, init) for cam, xy, _ in views]
+        safe = [v >= 0.0 for v in vis]
+        if all(k.sum() >= MIN_SAFE_FRACTION * len(k) for k in safe):
+            x_safe = solve(x0, safe).x
+            r_all = np.split(raw_residuals(x_safe), np.cumsum([len(v[1]) for v in views])[:-1])
+            c_safe, n_safe = x_safe[2:5], _normal_from(x_safe[:2], n0, e1, e2)
+            keeps = [hidden_arcs(r, k, _rim_angles(cam, xy, c_safe, n_safe), loss_scale_px)
+                     for r, k, (cam, xy, _) in zip(r_all, safe, views)]
+            views = [(cam, xy[k], f) for (cam, xy, f), k in zip(views, keeps)]
+            x0 = x_safe
+    sol = solve(x0)
     r = sol.fun
     # Robust sigma of the residuals, and the parameter covariance from the Jacobian.
     mad = 1.4826 * np.median(np.abs(r - np.median(r)))

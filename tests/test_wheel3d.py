@@ -5,7 +5,7 @@ import pytest
 
 from calibration.camera_model import CameraModel, look_at
 from simulators.vehicle import random_vehicle
-from station.wheel3d import fit_conic, reconstruct_paper, refine_circle
+from station.wheel3d import edge_visibility, fit_conic, hidden_arcs, reconstruct_paper, refine_circle
 
 
 def _pair(wheel_x, wheel_y):
@@ -109,6 +109,51 @@ def test_an_arc_seen_inside_the_rim_pulls_the_inward_weighted_fit_less():
     weighted = refine_circle(pl, pr, cl, cr, paper)
     err_sym, err_w = _angle_deg(symmetric.axis_station, w), _angle_deg(weighted.axis_station, w)
     assert err_w < 0.6 * err_sym, (err_w, err_sym)
+
+
+def _hidden_side_angle(cam, X, pts_px, fit):
+    """Image angle (rad, around the rim's image centre) of the point the sidewall hides most:
+    least edge visibility."""
+    vis = edge_visibility(cam, cam.pixels_to_normalized(pts_px), fit)
+    d = pts_px[np.argmin(vis)] - pts_px.mean(axis=0)
+    return float(np.arctan2(d[1], d[0]))
+
+
+@pytest.mark.parametrize("seed,wheel", [(11, "FR"), (5, "RL")])
+def test_an_arc_hidden_by_the_sidewall_is_left_out(seed, wheel):
+    """The reference camera sees the flange edge 2.5 px inside on the arc the tyre's sidewall
+    could hide (where the ray travels inward over the tyre): the occlusion test drops that arc
+    and the axis comes out several times closer than with every point weighted in."""
+    rng = np.random.default_rng(seed)
+    v = random_vehicle(np.random.default_rng(seed))
+    c, w, X = _rim(v, wheel)
+    cl, cr = _pair(c[0], c[1])
+    pl = cl.project(X) + rng.normal(0, 0.1, (len(X), 2))
+    pr_true = cr.project(X)
+    exact = reconstruct_paper(cl.project(X), pr_true, cl, cr)
+    phi0 = _hidden_side_angle(cr, X, pr_true, exact)
+    pr = _arc_bias(cr, pr_true, pr_true.mean(axis=0), phi0, np.radians(35), 2.5) + rng.normal(0, 0.1, (len(X), 2))
+    paper = reconstruct_paper(pl, pr, cl, cr)
+    tested = refine_circle(pl, pr, cl, cr, paper)
+    trusting = refine_circle(pl, pr, cl, cr, paper, occlusion_test=False)
+    err_t, err_all = _angle_deg(tested.axis_station, w), _angle_deg(trusting.axis_station, w)
+    assert err_t < 0.35 * err_all, (err_t, err_all)
+    assert tested.n_points[1] < 0.9 * len(pr)   # the arc is gone from the reference view
+    assert tested.n_points[0] == len(pl)        # nothing of the unhidden precision view is
+
+
+def test_hidden_arcs_keeps_doubtful_arcs_that_agree_and_drops_those_inside():
+    phi = np.linspace(-np.pi, np.pi, 2400, endpoint=False)
+    rng = np.random.default_rng(0)
+    r = rng.normal(0, 0.1, len(phi))
+    safe = np.abs(phi) < 2.0                      # the arc near angle pi could be hidden
+    inside = phi > 2.5                            # on part of it the edge is 2 px inside
+    r[inside] -= 2.0
+    keep = hidden_arcs(r, safe, phi, noise_px=0.3)
+    assert keep[safe].all()
+    assert keep[inside].mean() < 0.25             # whole 15-degree arcs go (a sector half inside stays)
+    doubtful_agreeing = ~safe & (phi < -2.1)      # doubtful, but where the edge agrees
+    assert keep[doubtful_agreeing].all()
 
 
 def test_stated_uncertainty_grows_with_a_slowly_varying_edge_bias():
