@@ -121,7 +121,7 @@ def fit_geometric(pts: np.ndarray, init: Ellipse | None = None, iterations: int 
         lam = max(lam * 0.1, 1e-7)
         e, d, t = e_new, d_new, t_new
         p = e.params
-        if np.all(np.abs(step[:4]) < 1e-5) and abs(step[4]) < 1e-8:  # 1e-5 px: far below the noise
+        if np.all(np.abs(step[:4]) < 1e-4) and abs(step[4]) < 1e-7:  # 1e-4 px: far below the noise (0.05-0.2 px)
             break
     sig = 1.4826 * np.median(np.abs(d[inl])) + 1e-9
     inl = np.abs(d) < reject_sigma * sig

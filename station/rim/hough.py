@@ -38,7 +38,7 @@ from station.rim.ellipse_fit import ransac_ellipse
 
 N_DIR_BINS = 64             # gradient-direction bins for pairing (5.6 degrees)
 MIN_CHORD_COS = 0.84        # chord within 33 degrees of the gradient (b/a >= 0.55)
-MAX_VOTERS = 6000           # strongest edge pixels that vote for centres (time ~ N^2)
+MAX_VOTERS = 4000           # strongest edge pixels that vote for centres (time ~ N^2)
 CELL_PX = 2.0               # centre accumulator cell
 NORMAL_COS = 0.9            # gradient within 25 degrees of the ellipse normal
 MIN_AXIS_RATIO = 0.55

@@ -20,7 +20,7 @@ from station.errors import ImageError
 # eq. 36 weights in OpenCV's B, G, R channel order
 EQ36_BGR = np.array([[0.114, 0.587, 0.299]], dtype=np.float32)
 MIN_SIDE_PX = 48
-DETECT_MAX_SIDE_PX = 720  # the Hough search runs at most on this size
+DETECT_MAX_SIDE_PX = 440  # the Hough search runs at most on this size (1280x1024 -> 426x341)
 
 
 def to_grey(image: np.ndarray, camera_id: str = "") -> np.ndarray:
@@ -73,11 +73,8 @@ def equalize(grey_u8: np.ndarray, method: str = "clahe") -> np.ndarray:
 
 
 def detection_scale(shape: tuple[int, int]) -> int:
-    """Integer downscale factor so that the larger side is <= DETECT_MAX_SIDE_PX."""
-    s = 1
-    while max(shape) / s > DETECT_MAX_SIDE_PX:
-        s *= 2
-    return s
+    """The smallest integer downscale factor that brings the larger side to <= DETECT_MAX_SIDE_PX."""
+    return max(1, int(np.ceil(max(shape) / DETECT_MAX_SIDE_PX)))
 
 
 def downscale(grey: np.ndarray, s: int) -> np.ndarray:
