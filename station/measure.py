@@ -121,20 +121,20 @@ def check_same_rim(o: WheelObservation, config: StationConfig) -> None:
             hint="look at both cameras' images of this wheel (station review); rims outside this "
                  "range need measurement.min_rim_radius_m / max_rim_radius_m")
     worst_view = max(o.circle.view_median_px)
-    if o.paper.epipolar_rms_px > limit and worst_view <= 0.2 * limit:
+    if o.circle.epipolar_rms_px > limit and worst_view <= 0.2 * limit:
         # one circle fits both views, but the epipolar tangents disagree: the tangents of a
         # rim seen on a small part of its perimeter are extrapolated (not a wrong rim)
         d = min(o.detections, key=lambda det: det.coverage)
         raise MeasurementError(
             f"{d.camera_id or 'a camera'} sees the rim edge on only {d.coverage:.0%} of its perimeter: "
             f"{o.cams[0]} and {o.cams[1]} cannot be checked against each other (epipolar residual "
-            f"{o.paper.epipolar_rms_px:.1f} px, limit {limit} px)",
+            f"{o.circle.epipolar_rms_px:.1f} px, limit {limit} px)",
             hint=f"look at {d.camera_id or 'the camera'}'s image (station review): lighting, the tyre or the "
                  "wheel arch hiding the rim")
-    if o.paper.epipolar_rms_px > limit or not worst_view <= limit:
+    if o.circle.epipolar_rms_px > limit or not worst_view <= limit:
         raise MeasurementError(
             f"{o.cams[0]} and {o.cams[1]} did not find the same rim (epipolar residual "
-            f"{o.paper.epipolar_rms_px:.1f} px, circle fit median {worst_view:.1f} px, "
+            f"{o.circle.epipolar_rms_px:.1f} px, circle fit median {worst_view:.1f} px, "
             f"limit {limit} px)", hint="look at both cameras' images of this wheel (station review)")
 
 
@@ -270,13 +270,13 @@ def _fill_angles(result: dict, fits: dict[str, WheelFit], observations: dict, co
             "rim_radius_m": float(f.radius_m),
             "quality": {"score": float(min(det_l.score, det_r.score)),
                         "points_left": int(len(det_l.points_px)), "points_right": int(len(det_r.points_px)),
-                        "epipolar_rms_px": float(o.paper.epipolar_rms_px),
+                        "epipolar_rms_px": float(o.circle.epipolar_rms_px),
                         "reprojection_rms_px": float(o.circle.reprojection_rms_px)},
         })
         result["wheels"][w] = entry
-        if o.paper.epipolar_rms_px > limit:
+        if o.circle.epipolar_rms_px > limit:
             result["warnings"].append(
-                f"pair {w} ({o.cams[0]}, {o.cams[1]}): epipolar residual {o.paper.epipolar_rms_px:.2f} px "
+                f"pair {w} ({o.cams[0]}, {o.cams[1]}): epipolar residual {o.circle.epipolar_rms_px:.2f} px "
                 f"> {limit} px: a camera of this pair may have moved since calibration; recalibrate")
     for axle in ("front", "rear"):
         a = {k: float(v) for k, v in angles["axles"][axle].items()}

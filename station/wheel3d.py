@@ -34,6 +34,8 @@ CIRCLE_LOSS = "soft_l1"  # robust loss of the 3-D circle fit (scipy least_square
 OCCLUSION_TEST = True    # test the arcs the tyre's sidewall could hide before trusting them (hidden_arcs)
 MIN_SAFE_FRACTION = 0.3  # of a view's points that no sidewall can hide, to make the test at all
 HIDDEN_SECTORS = 24      # arcs of 15 degrees
+GROSS_PX = 1.5           # a point this far (px) off the fitted circle, and GROSS_SIGMAS robust
+GROSS_SIGMAS = 5.0       # sigmas, is on another contour: left out and the circle fitted again
 BIAS_MODES = 1         # edge-bias Fourier modes (0: uniform, 1: + cos/sin) in the covariance
 
 
@@ -121,13 +123,28 @@ def match_rim_points(xy_l: np.ndarray, xy_r: np.ndarray, R: np.ndarray, t: np.nd
     # Prune where the lines graze the rim: the top/bottom 10 % of the pencil of planes that cut it.
     e1, e2 = _pencil_basis(t, p_l.mean(axis=0))
     theta = np.arctan(np.einsum("ni,i->n", n_l, e2) / np.einsum("ni,i->n", n_l, e1))
-    lo_l, hi_l = _tangent_planes(C_l, e1, e2)
-    lo_r, hi_r = _tangent_planes(R.T @ C_r @ R, e1, e2)  # right conic as a cone in the left frame
+    (lo_l, hi_l), tangency = _tangency(C_l, C_r, R, e1, e2)
     span = hi_l - lo_l
     keep = (theta > lo_l + prune_fraction * span) & (theta < hi_l - prune_fraction * span)
     keep &= np.all(np.isfinite(chosen), axis=1)
-    tangency = float(np.sqrt(((lo_l - lo_r) ** 2 + (hi_l - hi_r) ** 2) / 2))
     return p_l[keep], homogeneous(chosen[keep]), tangency
+
+
+def _tangency(C_l: np.ndarray, C_r: np.ndarray, R: np.ndarray, e1: np.ndarray, e2: np.ndarray):
+    """((lo, hi) the left cone's tangent epipolar plane angles, RMS difference (rad) of the
+    right cone's from them)."""
+    lo_l, hi_l = _tangent_planes(C_l, e1, e2)
+    lo_r, hi_r = _tangent_planes(R.T @ C_r @ R, e1, e2)  # right conic as a cone in the left frame
+    return (lo_l, hi_l), float(np.sqrt(((lo_l - lo_r) ** 2 + (hi_l - hi_r) ** 2) / 2))
+
+
+def epipolar_tangency_px(xy_l: np.ndarray, xy_r: np.ndarray, cam_l: CameraModel, cam_r: CameraModel) -> float:
+    """The pair's epipolar tangency residual (px, as in ``reconstruct_paper``) of the rims
+    through the normalised points xy_l (N,2) and xy_r (M,2)."""
+    R, t = pair_relation(cam_l, cam_r)
+    e1, e2 = _pencil_basis(t, homogeneous(xy_l).mean(axis=0))
+    _, tangency = _tangency(fit_conic(xy_l), fit_conic(xy_r), R, e1, e2)
+    return tangency * 0.5 * (cam_l.K[0, 0] + cam_r.K[0, 0])
 
 
 def _pencil_basis(t: np.ndarray, toward: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -370,6 +387,7 @@ def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: Camer
         if visibility_margin is not None:
             xy = xy[edge_visibility(cam, xy, init) > visibility_margin]
         views.append((cam, xy, 0.5 * (cam.K[0, 0] + cam.K[1, 1])))
+    n_input = sum(len(v[1]) for v in views)
     n0 = init.axis_station / np.linalg.norm(init.axis_station)
     e1 = np.cross(n0, [0.0, 0.0, 1.0])
     e1 /= np.linalg.norm(e1)
@@ -414,6 +432,16 @@ def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: Camer
             views = [(cam, xy[k], f) for (cam, xy, f), k in zip(views, keeps)]
             x0 = x_safe
     sol = solve(x0)
+    # points far off the circle in either view are another contour (a lip's inner edge taken
+    # for the flange where the flange is shaded as dark as the tyre: in one view the union of
+    # the two is itself an ellipse, only the other view shows it): leave them out, fit again
+    r = raw_residuals(sol.x)
+    sigma = 1.4826 * float(np.median(np.abs(r - np.median(r))))
+    far = np.abs(r) > max(GROSS_PX, GROSS_SIGMAS * sigma)
+    if far.any():
+        bounds = np.cumsum([0] + [len(v[1]) for v in views])
+        views = [(cam, xy[~far[a:b]], f) for (cam, xy, f), a, b in zip(views, bounds[:-1], bounds[1:])]
+        sol = solve(sol.x)
     r = sol.fun
     # Robust sigma of the residuals, and the parameter covariance from the Jacobian.
     mad = 1.4826 * np.median(np.abs(r - np.median(r)))
@@ -436,6 +464,14 @@ def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: Camer
             cov_p = cov_jk
     if bias_modes:
         cov_p = cov_p + _bias_covariance(sol, views, n0, e1, e2, bias_modes)
+    # the pair's epipolar check on the points the circle was fitted to: an arc left out above
+    # (hidden, another contour) would otherwise move a tangent plane of its view's ellipse
+    epipolar = init.epipolar_rms_px
+    if sum(len(v[1]) for v in views) < n_input:
+        try:
+            epipolar = epipolar_tangency_px(views[0][1], views[1][1], cam_l, cam_r)
+        except (MeasurementError, np.linalg.LinAlgError):
+            pass
     n = _normal_from(sol.x[:2], n0, e1, e2)
     if n[0] * outward_sign(sol.x[2:5]) < 0:
         n = -n
@@ -447,7 +483,7 @@ def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: Camer
     return WheelFit("circle", sol.x[2:5].copy(), n, float(sol.x[5]), view_median_px=medians,
                     cov_center=cov_p[2:5, 2:5], cov_axis=cov_axis,
                     reprojection_rms_px=float(np.sqrt(np.mean(r[inlier] ** 2))) if inlier.any() else float("nan"),
-                    epipolar_rms_px=init.epipolar_rms_px,
+                    epipolar_rms_px=epipolar,
                     n_points=(len(views[0][1]), len(views[1][1])))
 
 
