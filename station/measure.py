@@ -18,6 +18,8 @@ from calibration.camera_model import CameraModel
 from station import alignment
 from station.config import WHEELS, StationConfig
 from station.errors import MeasurementError, StationError
+from station.frame_handoff import FrameHandoff
+from station.frame_handoff import resolve as resolve_frame
 from station.wheel3d import (WheelFit, calibration_covariance, pair_perturbation_covariance, reconstruct_paper,
                              refine_circle)
 
@@ -60,8 +62,10 @@ class WheelOutcome:
 
 def measure_wheel(wheel: str, cams: tuple[str, str], images: dict, cameras: dict,
                   config: StationConfig, calibration_cov: np.ndarray | None = None) -> WheelOutcome:
-    """Detect the rim in both cameras of a pair and rebuild the wheel (one worker's task)."""
+    """Detect the rim in both cameras of a pair and rebuild the wheel (one worker's task).
+    images: {camera id: array, or a FrameRef of station.frame_handoff}."""
     t0 = time.perf_counter()
+    images = {c: resolve_frame(im) for c, im in images.items()}
     detections = {c: detect_one(images[c], cameras[c], c) for c in cams}
     t1 = time.perf_counter()
     out = WheelOutcome(wheel, cams, detections)
@@ -200,16 +204,21 @@ def measure_frames(images: dict[str, np.ndarray], cameras: dict[str, CameraModel
     if method not in METHODS:
         raise MeasurementError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
     t0 = time.perf_counter()
-    tasks = []
-    for wheel in WHEELS:
-        cams = (config.pairs[wheel].precision, config.pairs[wheel].reference)
-        tasks.append((wheel, cams, {c: images[c] for c in cams}, {c: cameras[c] for c in cams}, config,
-                      (calibration_cov or {}).get(wheel)))
+
+    def tasks(frames):
+        out = []
+        for wheel in WHEELS:
+            cams = (config.pairs[wheel].precision, config.pairs[wheel].reference)
+            out.append((wheel, cams, {c: frames[c] for c in cams}, {c: cameras[c] for c in cams}, config,
+                        (calibration_cov or {}).get(wheel)))
+        return out
+
     if workers is not None:
-        outcomes = workers.map(measure_wheel, tasks)
+        with FrameHandoff(images) as frames:
+            outcomes = workers.map(measure_wheel, tasks(frames))
     else:  # threads: overlap only where OpenCV and large numpy calls release the GIL
         with ThreadPoolExecutor(max_workers=2) as pool:
-            outcomes = list(pool.map(lambda a: measure_wheel(*a), tasks))
+            outcomes = list(pool.map(lambda a: measure_wheel(*a), tasks(images)))
     timing = {"wheels": time.perf_counter() - t0,
               "detect": sum(o.timing_s["detect"] for o in outcomes),
               "reconstruct": sum(o.timing_s["reconstruct"] for o in outcomes)}
