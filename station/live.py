@@ -231,7 +231,8 @@ def live_wheel(wheel: str, cams: tuple[str, str], images: dict, models: dict, pr
             det_l, det_r = detections[cams[0]], detections[cams[1]]
             pl, pr = (_thin(d.points_px, LIVE_MAX_POINTS) for d in (det_l, det_r))
             paper = reconstruct_paper(pl, pr, cam_l, cam_r)
-            circle = refine_circle(pl, pr, cam_l, cam_r, previous_circle or paper, bias_modes=0)
+            circle = refine_circle(pl, pr, cam_l, cam_r, previous_circle or paper, bias_modes=0,
+                                   init_is_fitted=previous_circle is not None)
             obs = WheelObservation(wheel, cams, (det_l, det_r), paper, circle)
             check_same_rim(obs, config)
         except StationError as e:

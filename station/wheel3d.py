@@ -359,7 +359,7 @@ def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: Camer
                   cam_r: CameraModel, init: WheelFit, loss_scale_px: float = 0.3,
                   visibility_margin: float | None = None, jackknife_sectors: int = 0,
                   inward_weight: float = INWARD_WEIGHT, bias_modes: int = BIAS_MODES,
-                  occlusion_test: bool = OCCLUSION_TEST) -> WheelFit:
+                  occlusion_test: bool = OCCLUSION_TEST, init_is_fitted: bool = False) -> WheelFit:
     """Fit one 3-D circle to both views' rim points by minimising image distance (px).
 
     Residuals of points inside the circle's projection count ``inward_weight`` times (1: a
@@ -379,6 +379,8 @@ def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: Camer
     trusted (:func:`hidden_arcs`): the circle is first fitted to the points that no sidewall
     can hide, and an arc of doubtful points whose edge lies inside that circle's projection
     beyond the noise is left out of the final fit; arcs that agree are kept.
+    ``init_is_fitted``: ``init`` is already a circle fitted this way (``station live``'s previous
+    frame): the test is made against it, without the first fit.
     """
     views = []
     for cam, pts in ((cam_l, points_l_px), (cam_r, points_r_px)):
@@ -423,8 +425,9 @@ def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: Camer
         safe = [v >= 0.0 for v in vis]
         if all(k.sum() >= MIN_SAFE_FRACTION * len(k) for k in safe):
             # every other safe point: the test needs the circle to a tenth of a pixel, not better
+            # (or ``init`` itself when it is such a circle: the last live frame's)
             thinned = [k & (np.arange(len(k)) % 2 == 0) for k in safe]
-            x_safe = solve(x0, thinned).x
+            x_safe = x0 if init_is_fitted else solve(x0, thinned).x
             r_all = np.split(raw_residuals(x_safe), np.cumsum([len(v[1]) for v in views])[:-1])
             c_safe, n_safe = x_safe[2:5], _normal_from(x_safe[:2], n0, e1, e2)
             keeps = [hidden_arcs(r, k, _rim_angles(cam, xy, c_safe, n_safe), loss_scale_px)
