@@ -3,7 +3,7 @@
 Stages (paper section 3.1, made industrial; docs/rim-detection.md):
 
 1. grey by eq. 36 (``preprocess.to_grey``), sanity checks (black / saturated / flat image);
-2. a coarse image (larger side <= 720 px), CLAHE equalisation, Canny with thresholds from the
+2. a coarse image (larger side <= 440 px), CLAHE equalisation, Canny with thresholds from the
    image's own gradient distribution (``edges``);
 3. lens-distortion correction of the edge points when a camera model is given (``PixelMap``);
 4. the three-stage ellipse Hough vote (``hough``): centres from polarity-consistent chord
@@ -35,6 +35,7 @@ MIN_COVERAGE = 0.5         # below: "no closed rim contour" (choosing the candid
 MIN_REFINED_COVERAGE = 0.35  # the chosen rim's sub-pixel edge may be partly hidden (wheel arch,
                              # tyre bulge in oblique views): the 3-D fit works on arcs
 MIN_SCORE = 0.35
+HUB_RATIO = 2.2           # a closed contour this much larger and concentric makes this one the hub
 AMBIGUITY_RATIO = 0.85     # a second wheel-like ellipse scoring within this of the best: refuse
 MIN_POINTS = 32
 
@@ -236,14 +237,17 @@ def _choose(sc: _Scene, cands: list[hough.Candidate], tag: str) -> tuple[hough.C
                 r["score"] *= 0.5
                 r["tyre_outline"] = True
                 break
-    # a closed, tyre-bordered contour much larger and concentric: this one is the hub or disc
+    # a closed, tyre-bordered contour much larger and concentric: this one is the hub or disc;
+    # more than HUB_RATIO larger and closed, tyre-bordered or not: the hub (no tyre outline is
+    # twice its rim: even an 80-series tyre on a 14-inch rim is 1.8x)
     for r in rows:
         e = r["cand"].ellipse
         for o in rows:
             eo = o["cand"].ellipse
             if (o is not r and not o.get("tyre_outline") and eo.axes_px[0] > 1.3 * e.axes_px[0]
                     and np.linalg.norm(eo.center_px - e.center_px) < 0.08 * eo.axes_px[0]
-                    and o["cand"].coverage > 0.8 and o["ring"] > 0.8):
+                    and o["cand"].coverage > 0.8
+                    and (o["ring"] > 0.8 or eo.axes_px[0] > HUB_RATIO * e.axes_px[0])):
                 r["score"] *= 0.5
                 break
     rows.sort(key=lambda r: -r["score"])
