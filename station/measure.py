@@ -17,11 +17,11 @@ import numpy as np
 from calibration.camera_model import CameraModel
 from station import alignment
 from station.config import WHEELS, StationConfig
+from station.calibration_share import calibration_covariance, pair_perturbation_covariance
 from station.errors import MeasurementError, StationError
 from station.frame_handoff import FrameHandoff
 from station.frame_handoff import resolve as resolve_frame
-from station.wheel3d import (WheelFit, calibration_covariance, pair_perturbation_covariance, reconstruct_paper,
-                             refine_circle)
+from station.wheel3d import WheelFit, reconstruct_paper, refine_circle
 
 METHODS = ("circle", "paper")
 SCHEMA_VERSION = 1

@@ -206,7 +206,7 @@ def test_bundle_parameters_map_to_the_perturbation_parameters():
     """A small step of the bundle adjustment's camera parameters (rotation vector, centre) and
     the mapped step of perturb_camera's parameters move every projected point the same way."""
     from calibration.camera_model import matrix_to_rodrigues, rodrigues_to_matrix
-    from station.wheel3d import bundle_to_perturbation, perturb_camera
+    from station.calibration_share import bundle_to_perturbation, perturb_camera
 
     cam = _pair(0.78, 1.35)[1]
     X = np.random.default_rng(0).uniform([0.5, 1.1, 0.1], [1.0, 1.6, 0.6], (50, 3))
@@ -227,7 +227,7 @@ def test_bundle_parameters_map_to_the_perturbation_parameters():
 def test_calibration_covariance_matches_refits_with_perturbed_cameras():
     """Monte Carlo: refit the circle with cameras drawn from a parameter covariance; the spread
     of the axis matches the first-order prediction."""
-    from station.wheel3d import calibration_covariance, perturb_camera
+    from station.calibration_share import calibration_covariance, perturb_camera
 
     v = random_vehicle(np.random.default_rng(2))
     c, w, X = _rim(v, "FR")
