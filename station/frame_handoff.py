@@ -10,6 +10,7 @@ through the pipe as before: same results, only slower.
 
 from __future__ import annotations
 
+import os
 import shutil
 import tempfile
 from dataclasses import dataclass
@@ -18,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 SHM_DIR = Path("/dev/shm")
+PREFIX = "station-frames-"  # then the owner's PID: a folder whose owner is gone is an orphan
 
 
 @dataclass(frozen=True)
@@ -48,7 +50,8 @@ class FrameHandoff:
 
     def __enter__(self) -> dict:
         try:
-            self.folder = tempfile.mkdtemp(prefix="station-frames-", dir=self.shm_dir)
+            remove_orphans(self.shm_dir)
+            self.folder = tempfile.mkdtemp(prefix=f"{PREFIX}{os.getpid()}-", dir=self.shm_dir)
             refs = {}
             for cam_id, image in self.images.items():
                 path = Path(self.folder) / f"{cam_id}.npy"
@@ -66,3 +69,26 @@ class FrameHandoff:
         if self.folder is not None:
             shutil.rmtree(self.folder, ignore_errors=True)
             self.folder = None
+
+
+def remove_orphans(shm_dir: Path = SHM_DIR) -> int:
+    """Remove frame folders left by a station process that was killed mid-cycle (their owner's
+    PID no longer runs); returns how many. Folders of running processes are left alone."""
+    removed = 0
+    for folder in shm_dir.glob(f"{PREFIX}*"):
+        pid = folder.name[len(PREFIX):].split("-", 1)[0]
+        if not pid.isdigit() or _alive(int(pid)):
+            continue
+        shutil.rmtree(folder, ignore_errors=True)
+        removed += 1
+    return removed
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's process: alive
+        return True
+    return True

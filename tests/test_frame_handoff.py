@@ -49,3 +49,20 @@ def test_without_shared_memory_the_arrays_travel_as_they_are(tmp_path):
     with FrameHandoff(images, shm_dir=tmp_path / "missing") as frames:
         assert frames["cam1"] is images["cam1"]
         assert resolve(frames["cam1"]) is images["cam1"]
+
+
+def test_folders_of_a_killed_station_are_removed_and_live_ones_kept(tmp_path):
+    import subprocess
+
+    from station.frame_handoff import PREFIX, remove_orphans
+
+    dead = subprocess.Popen(["true"])
+    dead.wait()                                   # a PID that no longer runs
+    orphan = tmp_path / f"{PREFIX}{dead.pid}-abc"
+    live = tmp_path / f"{PREFIX}{os.getpid()}-def"
+    other = tmp_path / "someone-else"
+    for d in (orphan, live, other):
+        d.mkdir()
+        (d / "cam1.npy").write_bytes(b"x")
+    assert remove_orphans(tmp_path) == 1
+    assert not orphan.exists() and live.exists() and other.exists()
