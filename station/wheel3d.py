@@ -413,6 +413,10 @@ def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: Camer
         # beyond the noise (loss_scale_px) only; within it the fit stays unbiased
         return np.where(r < -loss_scale_px, inward_weight * (r + loss_scale_px) - loss_scale_px, r)
 
+    def per_view(values):
+        """A stacked (N,) array over the current views -> one array per view."""
+        return np.split(values, np.cumsum([len(v[1]) for v in views])[:-1])
+
     def solve(x0, keep=None):
         hviews = homogeneous_views(keep)
         return least_squares(lambda p: residuals(p, hviews=hviews), x0, loss="soft_l1", f_scale=loss_scale_px,
@@ -425,9 +429,8 @@ def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: Camer
         if all(k.sum() >= MIN_SAFE_FRACTION * len(k) for k in safe):
             # every other safe point: the test needs the circle to a tenth of a pixel, not better
             # (or ``init`` itself when it is such a circle: the last live frame's)
-            thinned = [k & (np.arange(len(k)) % 2 == 0) for k in safe]
-            x_safe = x0 if init_is_fitted else solve(x0, thinned).x
-            r_all = np.split(raw_residuals(x_safe), np.cumsum([len(v[1]) for v in views])[:-1])
+            x_safe = x0 if init_is_fitted else solve(x0, [k & (np.arange(len(k)) % 2 == 0) for k in safe]).x
+            r_all = per_view(raw_residuals(x_safe))
             c_safe, n_safe = x_safe[2:5], _normal_from(x_safe[:2], n0, e1, e2)
             keeps = [hidden_arcs(r, k, _rim_angles(cam, xy, c_safe, n_safe), loss_scale_px)
                      for r, k, (cam, xy, _) in zip(r_all, safe, views)]
@@ -441,8 +444,7 @@ def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: Camer
     sigma = 1.4826 * float(np.median(np.abs(r - np.median(r))))
     far = np.abs(r) > max(GROSS_PX, GROSS_SIGMAS * sigma)
     if far.any():
-        bounds = np.cumsum([0] + [len(v[1]) for v in views])
-        views = [(cam, xy[~far[a:b]], f) for (cam, xy, f), a, b in zip(views, bounds[:-1], bounds[1:])]
+        views = [(cam, xy[~out], f) for (cam, xy, f), out in zip(views, per_view(far))]
         sol = solve(sol.x)
     r = sol.fun
     # Robust sigma of the residuals, and the parameter covariance from the Jacobian.
@@ -456,10 +458,8 @@ def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: Camer
         cov_p = np.full((6, 6), np.nan)
     # Edge errors are not independent from point to point (shading, blur and occlusion move
     # whole stretches of the rim): inflate by the residuals' correlation along the rim.
-    sizes = [len(v[1]) for v in views]
-    split = np.cumsum(sizes)[:-1]
-    factors = [correlation_factor(_along_rim(res, xy)) for res, (_, xy, _) in zip(np.split(r, split), views)]
-    cov_p *= float(np.average(factors, weights=sizes))
+    factors = [correlation_factor(_along_rim(res, xy)) for res, (_, xy, _) in zip(per_view(r), views)]
+    cov_p *= float(np.average(factors, weights=[len(v[1]) for v in views]))
     if jackknife_sectors:
         cov_jk = _sector_jackknife(residuals, sol.x, views, n0, e1, e2, jackknife_sectors, loss_scale_px)
         if np.trace(cov_jk[:2, :2]) > np.trace(cov_p[:2, :2]):
@@ -481,7 +481,7 @@ def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: Camer
     B = np.stack([e1, e2], axis=1)
     Jn = (np.eye(3) - np.outer(n, n)) @ B
     cov_axis = Jn @ cov_p[:2, :2] @ Jn.T
-    medians = tuple(float(np.median(np.abs(res))) if len(res) else float("inf") for res in np.split(r, split))
+    medians = tuple(float(np.median(np.abs(res))) if len(res) else float("inf") for res in per_view(r))
     return WheelFit("circle", sol.x[2:5].copy(), n, float(sol.x[5]), view_median_px=medians,
                     cov_center=cov_p[2:5, 2:5], cov_axis=cov_axis,
                     reprojection_rms_px=float(np.sqrt(np.mean(r[inlier] ** 2))) if inlier.any() else float("nan"),
