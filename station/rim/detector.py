@@ -286,24 +286,6 @@ def _consensus_threshold(d: np.ndarray) -> float:
     return float(np.clip(3.0 * sigma, 0.25, 1.5))
 
 
-def _outer_mode(d: np.ndarray, window: tuple[float, float], bin_px: float = 0.5, min_frac: float = 0.2) -> np.ndarray:
-    """(N,) bool: the points near the outermost well-supported mode of their signed offsets d
-    (N,) from the current ellipse. Where the rounded lip is shaded as dark as the tyre the
-    strongest bright-inside edge along a normal is the lip's inner edge, a concentric curve a
-    flange-width inside; the flange edge is the outermost metal edge before the tyre."""
-    edges = np.arange(window[0], window[1] + bin_px, bin_px)
-    hist = np.histogram(d, edges)[0].astype(float)
-    support = np.convolve(hist, np.ones(7), mode="same")  # +/- 1.5 px
-    centres = 0.5 * (edges[:-1] + edges[1:])
-    peaks = np.nonzero((support >= np.roll(support, 1)) & (support >= np.roll(support, -1))
-                       & (support >= min_frac * len(d)))[0]
-    if len(peaks) == 0:
-        return np.abs(d - np.median(d)) < 2.0
-    j = peaks.max()
-    sel = np.abs(d - centres[j]) < 2.0
-    return sel
-
-
 def _refine(grey: np.ndarray, e_full: Ellipse, pmap: PixelMap, passes=PASSES, blur_px: float | None = None,
             tracking: bool = False):
     """Sub-pixel points and geometric fit, once per (half-width, method) pass; ``blur_px``
