@@ -58,9 +58,7 @@ def canny_thresholds(mag: np.ndarray, high_percentile: float = 90.0) -> tuple[fl
     noise level: most of an image is flat), so a flat noisy image yields few edges;
     low = 0.4 high.
     """
-    sample = mag[::2, ::2].ravel()
-    p_hi = float(np.percentile(sample, high_percentile))
-    noise = float(np.median(sample))
+    noise, p_hi = (float(v) for v in np.percentile(mag[::2, ::2], [50.0, high_percentile]))
     high = max(p_hi, 4.0 * noise, 8.0)
     return 0.4 * high, high
 
