@@ -32,6 +32,7 @@ PRUNE_FRACTION = 0.10  # the paper's Fig. 9d: 10 % of the diameter at the top an
 INWARD_WEIGHT = 0.3    # weight of residuals inside the rim's projection in the circle fit
 OCCLUSION_TEST = True    # test the arcs the tyre's sidewall could hide before trusting them (hidden_arcs)
 MIN_SAFE_FRACTION = 0.3  # of a view's points that no sidewall can hide, to make the test at all
+MIN_KEPT_FRACTION = 0.5   # a sidewall test leaving out more of a view is checked against the plain fit
 HIDDEN_SECTORS = 24      # arcs of 15 degrees
 GROSS_PX = 1.5           # a point this far (px) off the fitted circle, and GROSS_SIGMAS robust
 GROSS_SIGMAS = 5.0       # sigmas, is on another contour: left out and the circle fitted again
@@ -423,6 +424,7 @@ def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: Camer
                              x_scale="jac", method="trf")
 
     x0 = np.concatenate([[0.0, 0.0], init.center_station, [init.radius_m]])
+    doubtful = False
     if occlusion_test:
         vis = [edge_visibility(cam, xy, init) for cam, xy, _ in views]
         safe = [v >= 0.0 for v in vis]
@@ -434,6 +436,10 @@ def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: Camer
             c_safe, n_safe = x_safe[2:5], _normal_from(x_safe[:2], n0, e1, e2)
             keeps = [hidden_arcs(r, k, _rim_angles(cam, xy, c_safe, n_safe), loss_scale_px)
                      for r, k, (cam, xy, _) in zip(r_all, safe, views)]
+            # leaving out more than half of a view is either a camera that sees little of the
+            # flange past the sidewall or a test judged against a circle extrapolated from
+            # narrow safe arcs: fit it both ways below and keep the better-determined axis
+            doubtful = not all(k.sum() >= MIN_KEPT_FRACTION * len(k) for k in keeps)
             views = [(cam, xy[k], f) for (cam, xy, f), k in zip(views, keeps)]
             x0 = x_safe
     sol = solve(x0)
@@ -482,8 +488,14 @@ def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: Camer
     Jn = (np.eye(3) - np.outer(n, n)) @ B
     cov_axis = Jn @ cov_p[:2, :2] @ Jn.T
     medians = tuple(float(np.median(np.abs(res))) if len(res) else float("inf") for res in per_view(r))
-    return WheelFit("circle", sol.x[2:5].copy(), n, float(sol.x[5]), view_median_px=medians,
+    fit = WheelFit("circle", sol.x[2:5].copy(), n, float(sol.x[5]), view_median_px=medians,
                     cov_center=cov_p[2:5, 2:5], cov_axis=cov_axis,
                     reprojection_rms_px=float(np.sqrt(np.mean(r[inlier] ** 2))) if inlier.any() else float("nan"),
                     epipolar_rms_px=epipolar,
                     n_points=(len(views[0][1]), len(views[1][1])))
+    if doubtful:
+        plain = refine_circle(points_l_px, points_r_px, cam_l, cam_r, init, loss_scale_px, visibility_margin,
+                              jackknife_sectors, inward_weight, bias_modes, occlusion_test=False)
+        if np.trace(plain.cov_axis) < np.trace(fit.cov_axis):
+            return plain
+    return fit

@@ -135,3 +135,24 @@ def test_profiles_whose_tyre_side_climbs_back_are_rejected():
     for prof, expect in ((good, 1.0), (bright_bead, 0.0)):
         est, h, rms, ok = fit_kinks(prof, s, 0.9)
         assert _tyre_side_flat(prof, s, est, h, 0.9).mean() == pytest.approx(expect, abs=0.05)
+
+
+def test_blur_estimate_ignores_profiles_with_a_highlight_up_to_the_edge():
+    """Where a specular highlight on the lip runs down into the edge, the profile looks like a
+    broad step of high contrast. The blur is the median of the per-profile estimates: a
+    quarter of such profiles moves it little, while a least-squares blur over all profiles
+    (the estimator before 2026-12-01, which also took the highest-contrast ones) is pulled."""
+    from scipy.ndimage import gaussian_filter1d
+
+    from station.rim.subpixel import BLUR_GRID_PX, estimate_blur, fit_kinks
+    rng = np.random.default_rng(12)
+    s = np.arange(-3, 4.51, 0.5)
+    clean, _ = _kink_profiles(rng, 150, s, 0.85, metal_slope=-5.0, tyre_slope=0.0, jump=-50.0)
+    fine = np.arange(-6, 7.5, 0.05)  # rendered finely, blurred by the same PSF, then sampled
+    x = fine[None, :] - rng.uniform(-0.5, 0.5, 50)[:, None]
+    sharp = np.where(x < 0, 60 + 150 * np.exp(-((x + 3.0) / 2.0) ** 2), 20.0)
+    lit = np.stack([np.interp(s, fine, row) for row in gaussian_filter1d(sharp, 0.85 / 0.05, axis=1)])
+    prof = np.vstack([clean, lit]) + rng.normal(0, 2.0, (200, len(s)))
+    assert estimate_blur(prof, s) == pytest.approx(0.85, abs=0.08)
+    total = [np.sum(fit_kinks(prof, s, sg, refine=False)[2] ** 2) for sg in BLUR_GRID_PX]
+    assert BLUR_GRID_PX[int(np.argmin(total))] > 1.0

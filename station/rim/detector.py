@@ -273,6 +273,9 @@ def _choose(sc: _Scene, cands: list[hough.Candidate], tag: str) -> tuple[hough.C
 PASSES = (((-6.0, 6.0), "kink"), ((-3.0, 4.5), "kink"))
 PRIOR_PASSES = (((-10.0, 10.0), "peak"), ((-5.0, 5.0), "erf"), ((-3.0, 4.5), "kink"))
 TRACK_PASSES = (((-3.0, 4.5), "kink"),)  # a prior from the previous frame, the blur known
+GATE_PX, GATE_SIGMAS = 1.5, 5.0         # a later pass's points off the earlier pass's ellipse
+                                         # by more are on another contour (faint tyre shading
+                                         # where the flange edge has no contrast)
 TRACK_SHIFT = 0.03                       # of the semi-major axis: tracking lost beyond this
 
 
@@ -294,20 +297,27 @@ def _refine(grey: np.ndarray, e_full: Ellipse, pmap: PixelMap, passes=PASSES, bl
     without a consensus search. Returns (fit, samples, inlier mask, blur px)."""
     fit = samples = None
     e = e_full
-    sigma = None  # the edge blur: coarse in the first pass, refined near it in the last
+    sigma = None  # the edge blur, estimated in each pass (unless blur_px)
     for k, (window, method) in enumerate(passes):
         final = k == len(passes) - 1
-        samples, sigma = edge_points(grey, e, pmap, window_px=window, method=method, precise_blur=final,
-                                     spacing_px=(2.5 if tracking else 1.5) if final else 3.0, blur_hint=sigma,
+        samples, sigma = edge_points(grey, e, pmap, window_px=window, method=method,
+                                     spacing_px=(2.5 if tracking else 1.5) if final else 3.0,
                                      sigma=blur_px)
         ok = samples.ok
         if ok.sum() < MIN_POINTS:
             return None, samples, ok, sigma
         ideal = pmap.undistort(samples.points_px[ok])
+        d_prev = e.distance(ideal)[0]
+        if fit is not None:  # a later pass: its edge is the curve the earlier pass fitted
+            near = np.abs(d_prev) <= max(GATE_PX, GATE_SIGMAS * fit.sigma_px)
+            ok[np.nonzero(ok)[0][~near]] = False
+            if ok.sum() < MIN_POINTS:
+                return None, samples, ok, sigma
+            ideal, d_prev = ideal[near], d_prev[near]
         # one curve, not a compromise between concentric edges: consensus first, then the
         # robust fit of ALL points from the consensus ellipse (a tight consensus band alone
         # would bias the fit toward the minimal sample that defined it)
-        keep = None if tracking else ransac_ellipse(ideal, threshold_px=_consensus_threshold(e.distance(ideal)[0]),
+        keep = None if tracking else ransac_ellipse(ideal, threshold_px=_consensus_threshold(d_prev),
                                                      seed=len(ideal))
         if not tracking and (keep is None or keep.sum() < MIN_POINTS):
             return None, samples, ok, sigma

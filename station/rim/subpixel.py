@@ -206,71 +206,43 @@ def _parabola(y0, y1, y2):
     return np.clip(np.nan_to_num(off), -1, 1)
 
 
-def estimate_blur(prof: np.ndarray, s: np.ndarray, polarity: float = -1.0, refine_steps: int = 7,
-                  start: float | None = None) -> float:
-    """The image's effective edge blur sigma (px), from the sharpest-contrast profiles (N,S):
-    the sigma of the step-and-kink model with the least total residual.
-
-    Without ``start``: a 7-value grid and a parabola; then (``refine_steps`` > 0) a
-    golden-section search between the best grid value's neighbours. With ``start`` (the
-    blur of an earlier pass): a parabola through start and start +/- 0.1 px, then two
-    parabolic steps, each through the three best values so far (5 evaluations: within
-    0.013 px of a 9-evaluation golden section on 48 real images); back to the full search
-    when the minimum lies more than 0.37 px from ``start``."""
-    def total(sg):
-        return float(np.sum(np.minimum(fit_kinks(prof, s, sg, polarity, refine=False)[2], 50.0) ** 2))
-
-    if start is not None:
-        lo, hi = max(0.3, start - 0.4), start + 0.4
-        xs = [max(lo, start - 0.1), start, start + 0.1]
-        fs = [total(x) for x in xs]
-        for _ in range(2):
-            order = np.argsort(fs)[:3]
-            v = _parabola_vertex(np.asarray(xs)[order], np.asarray(fs)[order])
-            if v is None:  # no minimum between them: go downhill to the bracket's edge
-                v = lo if xs[int(np.argmin(fs))] < start else hi
-            v = float(np.clip(v, lo, hi))
-            if any(abs(v - x) < 1e-6 for x in xs):
-                break
-            xs.append(v)
-            fs.append(total(v))
-        sigma = xs[int(np.argmin(fs))]
-        if sigma < lo + 0.03 or sigma > start + 0.37:
-            return estimate_blur(prof, s, polarity, refine_steps)  # the minimum is outside the bracket
-        return sigma
-    sigmas = np.array([0.45, 0.6, 0.8, 1.05, 1.4, 1.9, 2.5])
-    tot = np.array([total(sg) for sg in sigmas])
-    j = int(np.clip(np.argmin(tot), 1, len(sigmas) - 2))
-    if refine_steps <= 0:
-        return float(np.interp(j + _parabola(tot[j - 1], tot[j], tot[j + 1]), np.arange(len(sigmas)), sigmas))
-    gr = 0.6180339887
-    lo, hi = sigmas[j - 1], sigmas[j + 1]
-    m1, m2 = hi - gr * (hi - lo), lo + gr * (hi - lo)
-    f1, f2 = total(m1), total(m2)
-    for _ in range(refine_steps):
-        if f1 < f2:
-            hi, m2, f2 = m2, m1, f1
-            m1 = hi - gr * (hi - lo)
-            f1 = total(m1)
-        else:
-            lo, m1, f1 = m1, m2, f2
-            m2 = lo + gr * (hi - lo)
-            f2 = total(m2)
-    return float(0.5 * (lo + hi))
+BLUR_GRID_PX = np.geomspace(0.4, 2.8, 13)  # blur candidates, 17.6 % apart (cached projectors)
+BLUR_PROFILES = 200                          # profiles spread round the rim that estimate it
 
 
-def _parabola_vertex(x: np.ndarray, f: np.ndarray) -> float | None:
-    """Abscissa of the minimum of the parabola through three points (x, f) (3,); None when
-    they are collinear, coincide or the parabola opens downward."""
-    (x0, x1, x2), (f0, f1, f2) = x, f
-    if x0 == x1 or x1 == x2 or x0 == x2:
-        return None
-    num = (x1 - x0) ** 2 * (f1 - f2) - (x1 - x2) ** 2 * (f1 - f0)
-    den = (x1 - x0) * (f1 - f2) - (x1 - x2) * (f1 - f0)
-    curvature = ((f0 - f1) / (x0 - x1) - (f1 - f2) / (x1 - x2)) / (x0 - x2)
-    if den == 0 or not np.isfinite(den) or curvature <= 0:
-        return None
-    return float(x1 - 0.5 * num / den)
+def estimate_blur(prof: np.ndarray, s: np.ndarray, polarity: float = -1.0) -> float:
+    """The image's effective edge blur sigma (px): the median, over profiles (N,S), of each
+    profile's own best blur for the step-and-kink model.
+
+    A profile whose metal side carries a shading ramp or a specular highlight up to the edge
+    looks like a broader step, never a sharper one; round a rim many profiles are clean, so
+    the median of the per-profile values is the PSF, where a least-squares blur over all of
+    them is pulled toward the contaminated ones (they have the most contrast). Per profile:
+    the least residual over ``BLUR_GRID_PX``, then a parabola in log sigma."""
+    rms = np.stack([fit_kinks(prof, s, sg, polarity, refine=False)[2] for sg in BLUR_GRID_PX], axis=1)  # (N,G)
+    G, r = len(BLUR_GRID_PX), np.arange(len(prof))
+    k = np.clip(np.argmin(rms, axis=1), 1, G - 2)
+    at = k + _parabola(rms[r, k - 1], rms[r, k], rms[r, k + 1])
+    return float(np.exp(np.median(np.interp(at, np.arange(G), np.log(BLUR_GRID_PX)))))
+
+
+def _centred(prof: np.ndarray, s: np.ndarray, s0: np.ndarray, half_px: float = 3.0):
+    """Each profile (N,S) cut to +/-``half_px`` around its first step estimate s0 (N,), so
+    that no neighbouring edge of a wide window enters the blur estimate: ((N,K), (K,))."""
+    step = s[1] - s[0]
+    h = min(int(round(half_px / step)), (len(s) - 1) // 2)
+    j0 = np.clip(np.round((s0 - s[0]) / step).astype(int), h, len(s) - 1 - h)
+    idx = j0[:, None] + np.arange(-h, h + 1)[None, :]
+    return np.take_along_axis(prof, idx, axis=1), np.arange(-h, h + 1) * step
+
+
+def _blur_profiles(p: np.ndarray, conv: np.ndarray) -> np.ndarray:
+    """Indices of up to ``BLUR_PROFILES`` profiles for the blur estimate, spread evenly round
+    the rim: fitted, with at least half the median contrast (params p (N,5) of fit_steps)."""
+    h = np.abs(p[:, 2])
+    use = conv & (h > 0.5 * np.median(h[conv])) if conv.sum() >= 10 else np.ones(len(h), bool)
+    idx = np.nonzero(use)[0]
+    return idx[np.linspace(0, len(idx) - 1, min(BLUR_PROFILES, len(idx))).astype(int)]
 
 
 def _tyre_side_flat(prof: np.ndarray, s: np.ndarray, s0: np.ndarray, h: np.ndarray, sigma: float,
@@ -291,8 +263,7 @@ def _tyre_side_flat(prof: np.ndarray, s: np.ndarray, s0: np.ndarray, h: np.ndarr
 
 def edge_points(grey: np.ndarray, ellipse: Ellipse, pmap: PixelMap | None = None, n: int | None = None,
                 window_px: tuple[float, float] = (-4.0, 4.0), step_px: float = 0.5, spacing_px: float = 1.5,
-                method: str = "kink", sigma: float | None = None,
-                precise_blur: bool = True, blur_hint: float | None = None) -> tuple[EdgeSamples, float | None]:
+                method: str = "kink", sigma: float | None = None) -> tuple[EdgeSamples, float | None]:
     """Sub-pixel rim points along ``ellipse`` (in ideal pinhole pixels when ``pmap`` has a
     camera, else image pixels), searched in ``window_px`` (inside, outside) along the normals.
 
@@ -329,8 +300,8 @@ def edge_points(grey: np.ndarray, ellipse: Ellipse, pmap: PixelMap | None = None
         p, r, conv = fit_steps(prof, s, iterations=8 if method == "erf" else 0)
         if method == "kink":
             if sigma is None:
-                strong = np.argsort(-np.abs(p[:, 2]) + np.where(conv, 0, 1e9))[:min(100, len(idx))]
-                sigma = estimate_blur(prof[strong], s, refine_steps=7 if precise_blur else 0, start=blur_hint)
+                sel = _blur_profiles(p, conv)
+                sigma = estimate_blur(*_centred(prof[sel], s, p[sel, 3]))
             s0, hh, r, conv = fit_kinks(prof, s, sigma, grid_step=0.125, refine=False)  # parabola on a fine grid: < 0.003 px
             conv &= _tyre_side_flat(prof, s, s0, hh, sigma)
             p[:, 3], p[:, 2], p[:, 4] = s0, hh / 2, sigma
