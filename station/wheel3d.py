@@ -207,6 +207,32 @@ def circle_conic(center_cam: np.ndarray, normal_cam: np.ndarray, radius: float) 
     return nc * nc * np.eye(3) - nc * (np.outer(n, c) + np.outer(c, n)) + (c @ c - radius * radius) * np.outer(n, n)
 
 
+def circle_conics(center_cam: np.ndarray, normal_cam: np.ndarray, radius: np.ndarray) -> np.ndarray:
+    """(K,3,3) :func:`circle_conic` of K circles at once: centres (K,3), normals (K,3), radii (K,)."""
+    c, n = center_cam, normal_cam
+    nc = np.einsum("ki,ki->k", n, c)[:, None, None]
+    nn = n[:, :, None] * n[:, None, :]
+    nc_outer = n[:, :, None] * c[:, None, :]
+    cc_rr = (np.einsum("ki,ki->k", c, c) - radius * radius)[:, None, None]
+    return nc * nc * np.eye(3) - nc * (nc_outer + np.swapaxes(nc_outer, 1, 2)) + cc_rr * nn
+
+
+def sampson_jacobian(C: np.ndarray, dC: np.ndarray, X: np.ndarray, focal_px: float) -> tuple[np.ndarray, np.ndarray]:
+    """Sampson distances (N,) px of homogeneous points X (N,3) to the conic C (3,3), and their
+    derivatives (N,K) along K conic directions dC (K,3,3): s = f F / G with F = x'Cx and
+    G = 2 |(Cx)_12|, so ds = f (dF G - F dG) / G^2, dF = x' dC x, dG = 2 g.(dC x)_12 / |g|.
+    One (N,3) x (3,3(K+1)) product for all of them."""
+    K = len(dC)
+    Y = (X @ np.concatenate([C, *dC], axis=1)).reshape(len(X), K + 1, 3)   # C and dC symmetric
+    CX, dCX = Y[:, 0], Y[:, 1:]
+    F = np.einsum("ni,ni->n", CX, X)
+    dF = np.einsum("nki,ni->nk", dCX, X)
+    g = np.hypot(CX[:, 0], CX[:, 1])
+    dG = 2 * (dCX[:, :, 0] * CX[:, :1] + dCX[:, :, 1] * CX[:, 1:2]) / g[:, None]
+    G = 2 * g
+    return focal_px * F / G, focal_px * (dF * G[:, None] - F[:, None] * dG) / (G * G)[:, None]
+
+
 def sampson_px(C: np.ndarray, xy: np.ndarray, focal_px: float) -> np.ndarray:
     """(N,) first-order geometric distance (px) of normalised points (N,2), or the same points
     already homogeneous (N,3) (a fit calls this hundreds of times on the same points), to the conic C."""
@@ -418,10 +444,26 @@ def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: Camer
         """A stacked (N,) array over the current views -> one array per view."""
         return np.split(values, np.cumsum([len(v[1]) for v in views])[:-1])
 
+    def jacobian(p, hviews):
+        """(N,6) d residuals / d p: the six conic derivatives by central differences (the
+        conic is a low-order polynomial of p: exact to ~1e-10), the points' part analytic."""
+        h = 1e-6 * np.maximum(1.0, np.abs(p))
+        P = np.vstack([p, p + np.diag(h), p - np.diag(h)])                  # (13,6)
+        n = n0 + P[:, :1] * e1 + P[:, 1:2] * e2
+        n /= np.linalg.norm(n, axis=1, keepdims=True)
+        raw, J = [], []
+        for cam, X, f in hviews:
+            C = circle_conics(P[:, 2:5] @ cam.R_cam_station.T + cam.t_cam_station, n @ cam.R_cam_station.T, P[:, 5])
+            r_k, J_k = sampson_jacobian(C[0], (C[1:7] - C[7:]) / (2 * h)[:, None, None], X, f)
+            raw.append(r_k)
+            J.append(J_k)
+        r = np.concatenate(raw)
+        return np.vstack(J) * np.where(r < -loss_scale_px, inward_weight, 1.0)[:, None]
+
     def solve(x0, keep=None):
         hviews = homogeneous_views(keep)
-        return least_squares(lambda p: residuals(p, hviews=hviews), x0, loss="soft_l1", f_scale=loss_scale_px,
-                             x_scale="jac", method="trf")
+        return least_squares(lambda p: residuals(p, hviews=hviews), x0, jac=lambda p: jacobian(p, hviews),
+                             loss="soft_l1", f_scale=loss_scale_px, x_scale="jac", method="trf")
 
     x0 = np.concatenate([[0.0, 0.0], init.center_station, [init.radius_m]])
     doubtful = False
@@ -497,5 +539,5 @@ def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: Camer
         plain = refine_circle(points_l_px, points_r_px, cam_l, cam_r, init, loss_scale_px, visibility_margin,
                               jackknife_sectors, inward_weight, bias_modes, occlusion_test=False)
         if np.trace(plain.cov_axis) < np.trace(fit.cov_axis):
-            return plain
+            fit = plain
     return fit

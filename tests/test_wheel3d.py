@@ -252,3 +252,20 @@ def test_calibration_covariance_matches_refits_with_perturbed_cameras():
             axes.append(refine_circle(pl, pr, ml, mr, fit, bias_modes=0, **kw).axis_station)
         spread = np.trace(np.cov(np.array(axes).T))
         assert 0.6 < spread / np.trace(cov_axis) < 1.6, (scale, robust, spread / np.trace(cov_axis))
+
+
+def test_sampson_jacobian_matches_finite_differences():
+    """The circle fit's analytic Jacobian: the Sampson distance's derivative along any symmetric
+    conic direction equals a central difference of sampson_px."""
+    from station.wheel3d import circle_conic, sampson_jacobian, sampson_px
+    rng = np.random.default_rng(3)
+    n = np.array([0.2, 0.1, -0.97])
+    C = circle_conic(np.array([0.1, 0.05, 1.3]), n / np.linalg.norm(n), 0.2)
+    X = np.c_[rng.normal(0, 0.1, (50, 2)), np.ones(50)]
+    dC = rng.normal(0, 1, (4, 3, 3))
+    dC = dC + np.swapaxes(dC, 1, 2)
+    r, J = sampson_jacobian(C, dC, X, 1800.0)
+    numeric = np.stack([(sampson_px(C + 1e-7 * d, X, 1800.0) - sampson_px(C - 1e-7 * d, X, 1800.0)) / 2e-7
+                        for d in dC], axis=1)
+    assert np.allclose(r, sampson_px(C, X, 1800.0))
+    assert np.abs(J - numeric).max() < 1e-6 * np.abs(numeric).max()
