@@ -231,8 +231,10 @@ def live_wheel(wheel: str, cams: tuple[str, str], images: dict, models: dict, pr
             det_l, det_r = detections[cams[0]], detections[cams[1]]
             pl, pr = (_thin(d.points_px, LIVE_MAX_POINTS) for d in (det_l, det_r))
             paper = reconstruct_paper(pl, pr, cam_l, cam_r)
+            # no second fit without the grazing points: it is chosen by the covariance, which
+            # live skips (bias_modes=0), and it would halve the all-wheel rate
             circle = refine_circle(pl, pr, cam_l, cam_r, previous_circle or paper, bias_modes=0,
-                                   init_is_fitted=previous_circle is not None)
+                                   init_is_fitted=previous_circle is not None, grazing_test=False)
             obs = WheelObservation(wheel, cams, (det_l, det_r), paper, circle)
             check_same_rim(obs, config)
         except StationError as e:
