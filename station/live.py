@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable
 
@@ -29,7 +29,7 @@ from station.errors import MeasurementError, StationError
 from station.cycle import open_capture
 from station.wheel_workers import WheelWorkers, default_workers
 from station.measure import WheelObservation, check_same_rim, measure_frames
-from station.wheel3d import WheelFit, reconstruct_paper, refine_circle
+from station.wheel3d import WheelFit, not_grazing, reconstruct_paper, refine_circle
 
 AXLES = {"front": ("FL", "FR"), "rear": ("RL", "RR"), "all": WHEELS}
 
@@ -231,10 +231,16 @@ def live_wheel(wheel: str, cams: tuple[str, str], images: dict, models: dict, pr
             det_l, det_r = detections[cams[0]], detections[cams[1]]
             pl, pr = (_thin(d.points_px, LIVE_MAX_POINTS) for d in (det_l, det_r))
             paper = reconstruct_paper(pl, pr, cam_l, cam_r)
-            # no second fit without the grazing points: it is chosen by the covariance, which
-            # live skips (bias_modes=0), and it would halve the all-wheel rate
+            # the baseline cycle chose, by the covariance, whether this wheel is fitted without
+            # the points seen across the lip at a grazing angle; live keeps that choice (no
+            # second fit per update: it would halve the all-wheel rate)
+            grazing_out = previous_circle is not None and previous_circle.grazing_left_out
+            if grazing_out:
+                keep_l, keep_r = not_grazing(previous_circle, pl, pr, cam_l, cam_r)
+                pl, pr = pl[keep_l], pr[keep_r]
             circle = refine_circle(pl, pr, cam_l, cam_r, previous_circle or paper, bias_modes=0,
                                    init_is_fitted=previous_circle is not None, grazing_test=False)
+            circle = replace(circle, grazing_left_out=grazing_out)
             obs = WheelObservation(wheel, cams, (det_l, det_r), paper, circle)
             check_same_rim(obs, config)
         except StationError as e:

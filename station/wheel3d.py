@@ -15,7 +15,7 @@ calibrated CameraModels. Outputs are in the station frame (docs/conventions.md).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -57,6 +57,7 @@ class WheelFit:
     n_points: tuple[int, int] = (0, 0)
     view_median_px: tuple[float, float] = (float("nan"), float("nan"))  # median |residual| per view
     calibration_share: tuple[float, float] | None = None  # traces of the calibration's (centre m^2, axis) covariance
+    grazing_left_out: bool = False  # fitted without the points seen across the lip at a grazing angle
 
 
 # --- pair geometry ----------------------------------------------------------------------------
@@ -565,12 +566,21 @@ def _without_grazing_points(fit: WheelFit, points_l_px: np.ndarray, points_r_px:
     fit that is better determined, by its own covariance, is kept; it is made from ``init``
     as the first was (from ``fit``, the sidewall test judged against a circle the biased
     points had shaped). At most half of a view is left out (``MIN_KEPT_FRACTION``)."""
-    keeps = []
-    for cam, pts in ((cam_l, points_l_px), (cam_r, points_r_px)):
-        grazing = edge_visibility(cam, cam.pixels_to_normalized(pts), fit) > GRAZING_VISIBILITY
-        keeps.append(~grazing if (~grazing).sum() >= MIN_KEPT_FRACTION * len(pts) else np.ones(len(pts), bool))
+    keeps = not_grazing(fit, points_l_px, points_r_px, cam_l, cam_r)
     if all(k.all() for k in keeps):
         return fit
     alt = refine_circle(points_l_px[keeps[0]], points_r_px[keeps[1]], cam_l, cam_r, init, grazing_test=False,
                         **options)
-    return alt if np.trace(alt.cov_axis) < np.trace(fit.cov_axis) else fit
+    return replace(alt, grazing_left_out=True) if np.trace(alt.cov_axis) < np.trace(fit.cov_axis) else fit
+
+
+def not_grazing(circle: WheelFit, points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: CameraModel,
+                cam_r: CameraModel) -> tuple[np.ndarray, np.ndarray]:
+    """Per view, (N,) bool: the points whose ray does not graze the lip (edge_visibility against
+    ``circle`` at most ``GRAZING_VISIBILITY``); all points of a view where that would leave
+    fewer than ``MIN_KEPT_FRACTION`` of them."""
+    keeps = []
+    for cam, pts in ((cam_l, points_l_px), (cam_r, points_r_px)):
+        keep = ~(edge_visibility(cam, cam.pixels_to_normalized(pts), circle) > GRAZING_VISIBILITY)
+        keeps.append(keep if keep.sum() >= MIN_KEPT_FRACTION * len(pts) else np.ones(len(pts), bool))
+    return keeps[0], keeps[1]

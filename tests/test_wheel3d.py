@@ -277,7 +277,7 @@ def test_points_seen_across_the_lip_at_a_grazing_angle_are_fitted_without():
     edge it sees is the lip's terminator, inside the flange edge. With those points moved
     0.8 px inward (as measured on the simulator), the second fit without them, kept because it
     is better determined, is far closer to the true axis than the fit of all points."""
-    from station.wheel3d import GRAZING_VISIBILITY, WheelFit
+    from station.wheel3d import GRAZING_VISIBILITY, WheelFit, not_grazing
     v = random_vehicle(np.random.default_rng(4))
     c, w, X = _rim(v, "FR")
     cl, cr = _pair(c[0], c[1])
@@ -295,3 +295,6 @@ def test_points_seen_across_the_lip_at_a_grazing_angle_are_fitted_without():
     without = refine_circle(pl, pr, cl, cr, paper)
     err_both, err_without = _angle_deg(both.axis_station, w), _angle_deg(without.axis_station, w)
     assert err_without < 0.4 * err_both, (err_without, err_both)
+    assert without.grazing_left_out and not both.grazing_left_out  # station live keeps the choice
+    keep_l, keep_r = not_grazing(without, pl, pr, cl, cr)
+    assert keep_l.all() and np.mean(~keep_r == grazing) > 0.98  # (judged against the fit, not the truth)
