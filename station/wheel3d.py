@@ -36,6 +36,7 @@ GRAZING_TEST = True       # also fit without the points seen across the lip at a
 GRAZING_VISIBILITY = 0.5  # edge_visibility above which a ray grazes the lip (30 deg from the wheel plane)
 MIN_KEPT_FRACTION = 0.5   # a sidewall test leaving out more of a view is checked against the plain fit
 HIDDEN_SECTORS = 24      # arcs of 15 degrees
+MIN_VIEW_POINTS = 20      # rim points a view must keep on the fitted circle
 GROSS_PX = 1.5           # a point this far (px) off the fitted circle, and GROSS_SIGMAS robust
 GROSS_SIGMAS = 5.0       # sigmas, is on another contour: left out and the circle fitted again
 BIAS_MODES = 1         # edge-bias Fourier modes (0: uniform, 1: + cos/sin) in the covariance
@@ -497,6 +498,10 @@ def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: Camer
     far = np.abs(r) > max(GROSS_PX, GROSS_SIGMAS * sigma)
     if far.any():
         views = [(cam, xy[~out], f) for (cam, xy, f), out in zip(views, per_view(far))]
+        for cam, xy, _ in views:  # a view with (almost) nothing on the circle: no 3-D rim
+            if len(xy) < MIN_VIEW_POINTS:
+                raise MeasurementError(f"{cam.name}: only {len(xy)} of its rim points lie on the 3-D circle "
+                                       "the pair's points agree on", hint="the two cameras may have found different rims")
         sol = solve(sol.x)
     r = sol.fun
     # Robust sigma of the residuals, and the parameter covariance from the Jacobian.
@@ -524,7 +529,7 @@ def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: Camer
     if sum(len(v[1]) for v in views) < n_input:
         try:
             epipolar = epipolar_tangency_px(views[0][1], views[1][1], cam_l, cam_r)
-        except (MeasurementError, np.linalg.LinAlgError):
+        except (MeasurementError, np.linalg.LinAlgError, ValueError):
             pass
     n = _normal_from(sol.x[:2], n0, e1, e2)
     if n[0] * outward_sign(sol.x[2:5]) < 0:

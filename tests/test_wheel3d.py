@@ -298,3 +298,23 @@ def test_points_seen_across_the_lip_at_a_grazing_angle_are_fitted_without():
     assert without.grazing_left_out and not both.grazing_left_out  # station live keeps the choice
     keep_l, keep_r = not_grazing(without, pl, pr, cl, cr)
     assert keep_l.all() and np.mean(~keep_r == grazing) > 0.98  # (judged against the fit, not the truth)
+
+
+def test_a_view_with_nothing_on_the_circle_is_refused_not_crashed():
+    """A runner-up pairing (the hub in one camera, the rim in the other) can leave a view with
+    almost no point on the 3-D circle the other view defines: a MeasurementError that names
+    the camera, never an exception from the conic fits downstream."""
+    from station.errors import MeasurementError
+    v = random_vehicle(np.random.default_rng(7))
+    c, w, X = _rim(v, "FR")
+    cl, cr = _pair(c[0], c[1])
+    pl, pr = cl.project(X), cr.project(X)
+    paper = reconstruct_paper(pl, pr, cl, cr)
+    rng = np.random.default_rng(8)
+    pr = pr[::12]  # 100 points, of which ten on the rim and the rest on other contours
+    d = pr - pr.mean(axis=0)
+    off = rng.choice([-1.0, 1.0], len(pr)) * rng.uniform(6.0, 30.0, len(pr))
+    off[::10] = 0.0
+    pr = pr + off[:, None] * d / np.linalg.norm(d, axis=1, keepdims=True)
+    with pytest.raises(MeasurementError, match="R: only"):
+        refine_circle(pl, pr, cl, cr, paper)
