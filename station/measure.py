@@ -283,6 +283,14 @@ def _fill_angles(result: dict, fits: dict[str, WheelFit], observations: dict, co
                         "reprojection_rms_px": float(o.circle.reprojection_rms_px)},
         })
         result["wheels"][w] = entry
+        worst = max(("toe", entry["toe_std_deg"]), ("camber", entry["camber_std_deg"]), key=lambda kv: kv[1])
+        if worst[1] > config.measurement.uncertainty_limit_deg:
+            kept = [n / max(len(d.points_px), 1) for n, d in zip(o.circle.n_points, o.detections)]
+            weak = o.cams[int(np.argmin(kept))]
+            result["warnings"].append(
+                f"{w}: {worst[0]} +/-{worst[1]:.3f} deg exceeds the {config.measurement.uncertainty_limit_deg} deg "
+                f"uncertainty limit: the 3-D rim rests on {min(kept):.0%} of {weak}'s edge points; check that "
+                f"{weak} sees the whole rim (wheel position, tyre, arch) and measure again")
         if o.circle.epipolar_rms_px > limit:
             result["warnings"].append(
                 f"pair {w} ({o.cams[0]}, {o.cams[1]}): epipolar residual {o.circle.epipolar_rms_px:.2f} px "

@@ -85,6 +85,16 @@ def test_a_knocked_camera_is_reported_as_calibration_drift(sim):
 
 
 @pytest.mark.slow
+def test_a_wheel_less_certain_than_the_limit_warns_and_names_a_camera(sim, monkeypatch):
+    cfg, world, scene, images = sim
+    result = measure_frames(images, world.cameras, cfg)
+    assert not any("uncertainty limit" in w for w in result["warnings"]), result["warnings"]
+    monkeypatch.setattr(cfg.measurement, "uncertainty_limit_deg", 0.001)  # every wheel is less certain
+    warned = [w for w in measure_frames(images, world.cameras, cfg)["warnings"] if "uncertainty limit" in w]
+    assert len(warned) == 4 and any(w.startswith("FR: ") and ("of cam1's" in w or "of cam2's" in w) for w in warned)
+
+
+@pytest.mark.slow
 def test_cameras_that_found_different_rims_fail_the_wheel(sim):
     cfg, world, scene, images = sim
     swapped = dict(images, cam2=np.flipud(images["cam2"]).copy())  # a rim, but not where cam2 sees it
