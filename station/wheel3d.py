@@ -206,9 +206,7 @@ def circle_conic(center_cam: np.ndarray, normal_cam: np.ndarray, radius: float) 
     Points X = lambda x on the cone through the circle satisfy
     (n.c)^2 x.x - 2 (n.c)(n.x)(c.x) + (c.c - r^2)(n.x)^2 = 0.
     """
-    c, n = center_cam, normal_cam
-    nc = n @ c
-    return nc * nc * np.eye(3) - nc * (np.outer(n, c) + np.outer(c, n)) + (c @ c - radius * radius) * np.outer(n, n)
+    return circle_conics(center_cam[None], normal_cam[None], np.array([radius], float))[0]
 
 
 def circle_conics(center_cam: np.ndarray, normal_cam: np.ndarray, radius: np.ndarray) -> np.ndarray:
@@ -413,13 +411,22 @@ def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: Camer
     ``init_is_fitted``: ``init`` is already a circle fitted this way (``station live``'s previous
     frame): the test is made against it, without the first fit.
     """
-    views = []
+    xys = []
     for cam, pts in ((cam_l, points_l_px), (cam_r, points_r_px)):
         xy = cam.pixels_to_normalized(pts)
         xy = xy[np.all(np.isfinite(xy), axis=1)]
         if visibility_margin is not None:
             xy = xy[edge_visibility(cam, xy, init) > visibility_margin]
-        views.append((cam, xy, 0.5 * (cam.K[0, 0] + cam.K[1, 1])))
+        xys.append(xy)
+    return _fit_circle(xys[0], xys[1], cam_l, cam_r, init, loss_scale_px, jackknife_sectors, inward_weight,
+                       bias_modes, occlusion_test, init_is_fitted, grazing_test)
+
+
+def _fit_circle(xy_l: np.ndarray, xy_r: np.ndarray, cam_l: CameraModel, cam_r: CameraModel, init: WheelFit,
+                loss_scale_px: float, jackknife_sectors: int, inward_weight: float, bias_modes: int,
+                occlusion_test: bool, init_is_fitted: bool, grazing_test: bool) -> WheelFit:
+    """:func:`refine_circle` on the views' undistorted normalised points (N,2), (M,2)."""
+    views = [(cam, xy, 0.5 * (cam.K[0, 0] + cam.K[1, 1])) for cam, xy in ((cam_l, xy_l), (cam_r, xy_r))]
     n_input = sum(len(v[1]) for v in views)
     n0 = init.axis_station / np.linalg.norm(init.axis_station)
     e1 = np.cross(n0, [0.0, 0.0, 1.0])
@@ -545,47 +552,45 @@ def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: Camer
                     epipolar_rms_px=epipolar,
                     n_points=(len(views[0][1]), len(views[1][1])))
     if doubtful:
-        plain = refine_circle(points_l_px, points_r_px, cam_l, cam_r, init, loss_scale_px, visibility_margin,
-                              jackknife_sectors, inward_weight, bias_modes, occlusion_test=False, grazing_test=False)
+        plain = _fit_circle(xy_l, xy_r, cam_l, cam_r, init, loss_scale_px, jackknife_sectors, inward_weight,
+                            bias_modes, occlusion_test=False, init_is_fitted=init_is_fitted, grazing_test=False)
         if np.trace(plain.cov_axis) < np.trace(fit.cov_axis):
             fit = plain
     if grazing_test:
-        fit = _without_grazing_points(fit, points_l_px, points_r_px, cam_l, cam_r, init=init,
-                                      loss_scale_px=loss_scale_px, inward_weight=inward_weight,
-                                      bias_modes=bias_modes, occlusion_test=occlusion_test,
-                                      init_is_fitted=init_is_fitted)
+        keep_l, keep_r = _not_grazing_xy(fit, xy_l, xy_r, cam_l, cam_r)
+        if not (keep_l.all() and keep_r.all()):
+            # the fit without the grazing points, made from ``init`` as this one was (from
+            # ``fit``, the sidewall test would be judged against a circle they had shaped)
+            alt = _fit_circle(xy_l[keep_l], xy_r[keep_r], cam_l, cam_r, init, loss_scale_px, jackknife_sectors,
+                              inward_weight, bias_modes, occlusion_test, init_is_fitted, grazing_test=False)
+            if np.trace(alt.cov_axis) < np.trace(fit.cov_axis):
+                fit = replace(alt, grazing_left_out=True)
     return fit
-
-
-def _without_grazing_points(fit: WheelFit, points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: CameraModel,
-                            cam_r: CameraModel, init: WheelFit, **options) -> WheelFit:
-    """``fit`` or the circle fitted without the points seen across the lip at a grazing angle,
-    whichever states the smaller axis uncertainty.
-
-    Where the viewing ray crosses the rounded flange lip travelling outward and low over the
-    wheel plane (:func:`edge_visibility` > ``GRAZING_VISIBILITY``: the ray within 30 degrees
-    of the plane), the lip's rim-side surface turns away from the camera before the flange
-    edge: the edge seen is the lip's terminator, up to a millimetre inside (measured on the
-    simulator: 0.65-0.8 px on such arcs of the oblique camera, against 0.05 px elsewhere).
-    Leaving such points out removes that bias but weakens the geometry of the view, so the
-    fit that is better determined, by its own covariance, is kept; it is made from ``init``
-    as the first was (from ``fit``, the sidewall test judged against a circle the biased
-    points had shaped). At most half of a view is left out (``MIN_KEPT_FRACTION``)."""
-    keeps = not_grazing(fit, points_l_px, points_r_px, cam_l, cam_r)
-    if all(k.all() for k in keeps):
-        return fit
-    alt = refine_circle(points_l_px[keeps[0]], points_r_px[keeps[1]], cam_l, cam_r, init, grazing_test=False,
-                        **options)
-    return replace(alt, grazing_left_out=True) if np.trace(alt.cov_axis) < np.trace(fit.cov_axis) else fit
 
 
 def not_grazing(circle: WheelFit, points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: CameraModel,
                 cam_r: CameraModel) -> tuple[np.ndarray, np.ndarray]:
-    """Per view, (N,) bool: the points whose ray does not graze the lip (edge_visibility against
-    ``circle`` at most ``GRAZING_VISIBILITY``); all points of a view where that would leave
-    fewer than ``MIN_KEPT_FRACTION`` of them."""
+    """Per view, (N,) bool: the points (pixels) whose ray does not graze the lip (see
+    :func:`_not_grazing_xy`)."""
+    return _not_grazing_xy(circle, cam_l.pixels_to_normalized(points_l_px), cam_r.pixels_to_normalized(points_r_px),
+                           cam_l, cam_r)
+
+
+def _not_grazing_xy(circle: WheelFit, xy_l: np.ndarray, xy_r: np.ndarray, cam_l: CameraModel,
+                    cam_r: CameraModel) -> tuple[np.ndarray, np.ndarray]:
+    """Per view, (N,) bool: the normalised points whose ray does not graze the lip
+    (:func:`edge_visibility` against ``circle`` at most ``GRAZING_VISIBILITY``); all points of
+    a view where that would leave fewer than ``MIN_KEPT_FRACTION`` of them.
+
+    Where the viewing ray crosses the rounded flange lip travelling outward and low over the
+    wheel plane (the ray within 30 degrees of the plane), the lip's rim-side surface turns away
+    from the camera before the flange edge: the edge seen is the lip's terminator, up to a
+    millimetre inside (measured on the simulator: 0.65-0.8 px on such arcs of the oblique
+    camera, against 0.05 px elsewhere). Leaving such points out removes that bias but weakens
+    the geometry of the view, so :func:`refine_circle` fits both ways and keeps the fit that
+    is better determined by its own covariance."""
     keeps = []
-    for cam, pts in ((cam_l, points_l_px), (cam_r, points_r_px)):
-        keep = ~(edge_visibility(cam, cam.pixels_to_normalized(pts), circle) > GRAZING_VISIBILITY)
-        keeps.append(keep if keep.sum() >= MIN_KEPT_FRACTION * len(pts) else np.ones(len(pts), bool))
+    for cam, xy in ((cam_l, xy_l), (cam_r, xy_r)):
+        keep = ~(edge_visibility(cam, xy, circle) > GRAZING_VISIBILITY)
+        keeps.append(keep if keep.sum() >= MIN_KEPT_FRACTION * len(xy) else np.ones(len(xy), bool))
     return keeps[0], keeps[1]

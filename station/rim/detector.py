@@ -307,7 +307,7 @@ def _refine(grey: np.ndarray, e_full: Ellipse, pmap: PixelMap, passes=PASSES, bl
         if ok.sum() < MIN_POINTS:
             return None, samples, ok, sigma
         ideal = pmap.undistort(samples.points_px[ok])
-        d_prev = e.distance(ideal)[0]
+        d_prev = None if tracking and fit is None else e.distance(ideal)[0]  # (tracking needs neither use)
         if fit is not None:  # a later pass: its edge is the curve the earlier pass fitted
             near = np.abs(d_prev) <= max(GATE_PX, GATE_SIGMAS * fit.sigma_px)
             ok[np.nonzero(ok)[0][~near]] = False
