@@ -37,6 +37,8 @@ GRAZING_VISIBILITY = 0.5  # edge_visibility above which a ray grazes the lip (30
 MIN_KEPT_FRACTION = 0.5   # a sidewall test leaving out more of a view is checked against the plain fit
 HIDDEN_SECTORS = 24      # arcs of 15 degrees
 MIN_VIEW_POINTS = 20      # rim points a view must keep on the fitted circle
+INWARD_ARC_PASSES = 3     # rounds of leaving out arcs whose edge lies inside the fitted circle
+INWARD_ARC_SIGMAS = 3.0   # beyond this many robust sigmas of the arcs' medians (inward_arcs)
 GROSS_PX = 1.5           # a point this far (px) off the fitted circle, and GROSS_SIGMAS robust
 GROSS_SIGMAS = 5.0       # sigmas, is on another contour: left out and the circle fitted again
 BIAS_MODES = 1         # edge-bias Fourier modes (0: uniform, 1: + cos/sin) in the covariance
@@ -383,6 +385,26 @@ def hidden_arcs(r: np.ndarray, safe: np.ndarray, phi: np.ndarray, noise_px: floa
     return keep
 
 
+def inward_arcs(r: np.ndarray, phi: np.ndarray, noise_px: float, n_sectors: int = HIDDEN_SECTORS) -> np.ndarray:
+    """(N,) bool: the points of one view that lie on arcs whose edge is inside the fitted
+    circle's projection beyond what the view's other arcs allow. r (N,) signed image residuals
+    (px, negative inside) against the fitted circle; phi (N,) rim angles (rad).
+
+    Occlusion (a tyre bulge), a lip shaded as dark as the tyre, or a lip's inner edge taken for
+    the flange only ever move the edge found *inward*, and over whole arcs. An arc (one of
+    ``n_sectors`` of the rim, >= 5 points) is flagged when its median residual lies below the
+    median of all arc medians by more than max(``noise_px``, INWARD_ARC_SIGMAS robust sigmas
+    (1.4826 MAD) of the arc medians). With fewer than 6 such arcs nothing is flagged."""
+    lab = _sector_labels(phi, n_sectors)
+    arcs = [k for k in np.unique(lab) if (lab == k).sum() >= 5]
+    if len(arcs) < 6:
+        return np.zeros(len(r), bool)
+    m = np.array([np.median(r[lab == k]) for k in arcs])
+    spread = 1.4826 * float(np.median(np.abs(m - np.median(m))))
+    limit = float(np.median(m)) - max(noise_px, INWARD_ARC_SIGMAS * spread)
+    return np.isin(lab, [k for k, med in zip(arcs, m) if med < limit])
+
+
 def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: CameraModel,
                   cam_r: CameraModel, init: WheelFit, loss_scale_px: float = 0.3,
                   visibility_margin: float | None = None, jackknife_sectors: int = 0,
@@ -509,6 +531,20 @@ def _fit_circle(xy_l: np.ndarray, xy_r: np.ndarray, cam_l: CameraModel, cam_r: C
             if len(xy) < MIN_VIEW_POINTS:
                 raise MeasurementError(f"{cam.name}: only {len(xy)} of its rim points lie on the 3-D circle "
                                        "the pair's points agree on", hint="the two cameras may have found different rims")
+        sol = solve(sol.x)
+    # arcs biased inward that neither test above caught (an edge moved over a whole arc by
+    # shading or a hidden flange on the side no sidewall model expects): leave them out and
+    # fit again, a few rounds, never leaving a view under MIN_KEPT_FRACTION of its points
+    n_start = [len(v[1]) for v in views]
+    for _ in range(INWARD_ARC_PASSES):
+        c_now, n_now = sol.x[2:5], _normal_from(sol.x[:2], n0, e1, e2)
+        keeps = []
+        for r_v, (cam, xy, _), n_v in zip(per_view(raw_residuals(sol.x)), views, n_start):
+            keep = ~inward_arcs(r_v, _rim_angles(cam, xy, c_now, n_now), loss_scale_px)
+            keeps.append(keep if keep.sum() >= MIN_KEPT_FRACTION * n_v else np.ones(len(xy), bool))
+        if all(k.all() for k in keeps):
+            break
+        views = [(cam, xy[k], f) for (cam, xy, f), k in zip(views, keeps)]
         sol = solve(sol.x)
     r = sol.fun
     # Robust sigma of the residuals, and the parameter covariance from the Jacobian.
