@@ -370,13 +370,15 @@ def hidden_arcs(r: np.ndarray, safe: np.ndarray, phi: np.ndarray, noise_px: floa
 
     Every doubtful point is kept unless its arc (``n_sectors`` sectors of the rim) lies inside
     the circle's projection beyond what the safe arcs' own scatter allows: the median of the
-    arc's residuals below -max(noise_px, 3 x the RMS of the safe arcs' medians). A hidden flange
-    edge is seen on the tyre's occluding contour, up to a few pixels inside; a visible one agrees
-    with the safe arcs within their bias."""
+    arc's residuals below -max(noise_px, 3 x the spread of the safe arcs' medians). A hidden
+    flange edge is seen on the tyre's occluding contour, up to a few pixels inside; a visible one
+    agrees with the safe arcs within their bias. The spread is robust (1.4826 x the median
+    absolute safe-arc median): a few safe arcs on another contour, pixels inside,
+    would otherwise widen it until every doubtful arc passed."""
     lab = _sector_labels(phi, n_sectors)
     keep = safe.copy()
     meds_safe = [np.median(r[(lab == k) & safe]) for k in range(n_sectors) if ((lab == k) & safe).sum() >= 5]
-    spread = float(np.sqrt(np.mean(np.square(meds_safe)))) if meds_safe else noise_px
+    spread = 1.4826 * float(np.median(np.abs(meds_safe))) if meds_safe else noise_px
     limit = -max(noise_px, 3.0 * spread)
     for k in np.unique(lab[~safe]):
         arc = (lab == k) & ~safe

@@ -85,6 +85,35 @@ def test_a_knocked_camera_is_reported_as_calibration_drift(sim):
 
 
 @pytest.mark.slow
+def test_a_rim_seen_on_part_of_its_perimeter_is_measured_and_its_unchecked_pair_named(sim, monkeypatch):
+    """One 3-D circle fits both views, but the epipolar tangents of a rim seen on part of its
+    perimeter are extrapolated (9 px): the wheel is measured, with a warning that this cycle
+    could not check the pair's calibration. Were the circle not to fit one view, it is refused."""
+    from dataclasses import replace
+
+    import station.measure as measure
+    from station.errors import MeasurementError
+
+    cfg, world, scene, images = sim
+    fit = measure.refine_circle
+
+    def extrapolated(pl, pr, cl, cr, init, **kw):
+        c = fit(pl, pr, cl, cr, init, **kw)
+        return replace(c, epipolar_rms_px=9.0) if cl.name == "cam5" else c
+
+    monkeypatch.setattr(measure, "refine_circle", extrapolated)
+    result = measure_frames(images, world.cameras, cfg)
+    assert result["valid"], result["failure"]
+    note = [w for w in result["warnings"] if w.startswith("pair RL")]
+    assert len(note) == 1 and "too little to check the pair's calibration" in note[0], result["warnings"]
+    assert not any("may have moved" in w for w in result["warnings"])
+    o = result["_observations"]["RL"]
+    wrong = replace(o, circle=replace(o.circle, view_median_px=(o.circle.view_median_px[0], 3.0)))
+    with pytest.raises(MeasurementError, match="did not find the same rim"):
+        measure.check_same_rim(wrong, cfg)
+
+
+@pytest.mark.slow
 def test_a_wheel_less_certain_than_the_limit_warns_and_names_a_camera(sim, monkeypatch):
     cfg, world, scene, images = sim
     result = measure_frames(images, world.cameras, cfg)
