@@ -74,6 +74,8 @@ def measure_wheel(wheel: str, cams: tuple[str, str], images: dict, cameras: dict
             out.observation = reconstruct_wheel(wheel, cams, detections, cameras, calibration_cov)
             check_same_rim(out.observation, config)
         except StationError as e:
+            # a runner-up pairing is a second guess: it must pass the full check, including
+            # the epipolar one that a first choice seen on part of its rim may be excused
             resolved = resolve_pair(wheel, cams, detections, images, cameras, config, calibration_cov)
             if resolved is None:
                 out.observation, out.error = None, e
@@ -118,7 +120,7 @@ def unverifiable_epipolar(o: WheelObservation, config: StationConfig) -> bool:
             and kept >= UNCHECKED_MIN_KEPT)
 
 
-def check_same_rim(o: WheelObservation, config: StationConfig) -> None:
+def check_same_rim(o: WheelObservation, config: StationConfig, allow_unchecked: bool = True) -> None:
     """Refuse a wheel whose two cameras did not find the same 3-D rim.
 
     A wrong ellipse in one camera (the tyre outline, a hub, the other wheel) cannot share the
@@ -141,7 +143,7 @@ def check_same_rim(o: WheelObservation, config: StationConfig) -> None:
             hint="look at both cameras' images of this wheel (station review); rims outside this "
                  "range need measurement.min_rim_radius_m / max_rim_radius_m")
     worst_view = max(o.circle.view_median_px)
-    if unverifiable_epipolar(o, config):
+    if allow_unchecked and unverifiable_epipolar(o, config):
         return  # one circle fits both views: the same rim, its tangents extrapolated (a warning says so)
     if o.circle.epipolar_rms_px > limit or not worst_view <= limit:
         raise MeasurementError(
@@ -184,7 +186,7 @@ def resolve_pair(wheel: str, cams: tuple[str, str], detections: dict, images: di
                 continue
             try:
                 o = reconstruct_wheel(wheel, cams, {cams[0]: dl, cams[1]: dr}, cameras, calibration_cov)
-                check_same_rim(o, config)
+                check_same_rim(o, config, allow_unchecked=False)
             except StationError:
                 continue
             best = (min(sl, sr), o, (i, j))
