@@ -263,6 +263,20 @@ def _sector_labels(phi: np.ndarray, n_sectors: int) -> np.ndarray:
     return ((phi + np.pi) / (2 * np.pi) * n_sectors).astype(int) % n_sectors
 
 
+def sector_medians(r: np.ndarray, lab: np.ndarray, n_sectors: int) -> tuple[np.ndarray, np.ndarray]:
+    """Median of ``r`` (N,) in each sector of ``lab`` (N,) ints in [0, n_sectors), and the
+    counts: ((n_sectors,) with NaN for empty sectors, (n_sectors,) ints). One sort for all
+    sectors; equal to np.median per sector."""
+    count = np.bincount(lab, minlength=n_sectors)
+    if len(r) == 0:
+        return np.full(n_sectors, np.nan), count
+    v = r[np.lexsort((r, lab))]
+    start = np.concatenate([[0], np.cumsum(count)[:-1]])
+    lo = np.minimum(start + (count - 1) // 2, len(v) - 1)
+    hi = np.minimum(start + count // 2, len(v) - 1)
+    return np.where(count > 0, 0.5 * (v[lo] + v[hi]), np.nan), count
+
+
 def _bias_covariance(sol, views, n0, e1, e2, n_modes: int, n_sectors: int = 18) -> np.ndarray:
     """(6,6) covariance of the circle parameters from slowly varying edge biases in each view.
 
@@ -282,9 +296,9 @@ def _bias_covariance(sol, views, n0, e1, e2, n_modes: int, n_sectors: int = 18) 
         r = sol.fun[a:b]
         phi = _rim_angles(cam, xy, c, n)
         lab = _sector_labels(phi, n_sectors)
-        count = np.bincount(lab, minlength=n_sectors)
+        med, count = sector_medians(r, lab, n_sectors)
         full = np.nonzero(count >= 3)[0]
-        meds = np.array([np.median(r[lab == k]) for k in full])
+        meds = med[full]
         noise = 1.4826 * np.median(np.abs(r - np.median(r)))  # the part of each median that is noise:
         se2 = (1.2533 * noise) ** 2 / count[full]                 # its squared standard error
         sigma_b = float(np.sqrt(max(np.mean(meds ** 2 - se2), 0.0))) if len(full) else 0.0
@@ -376,14 +390,13 @@ def hidden_arcs(r: np.ndarray, safe: np.ndarray, phi: np.ndarray, noise_px: floa
     absolute safe-arc median): a few safe arcs on another contour, pixels inside,
     would otherwise widen it until every doubtful arc passed."""
     lab = _sector_labels(phi, n_sectors)
-    keep = safe.copy()
-    meds_safe = [np.median(r[(lab == k) & safe]) for k in range(n_sectors) if ((lab == k) & safe).sum() >= 5]
-    spread = 1.4826 * float(np.median(np.abs(meds_safe))) if meds_safe else noise_px
+    med_safe, n_safe = sector_medians(r[safe], lab[safe], n_sectors)
+    meds_safe = med_safe[n_safe >= 5]
+    spread = 1.4826 * float(np.median(np.abs(meds_safe))) if len(meds_safe) else noise_px
     limit = -max(noise_px, 3.0 * spread)
-    for k in np.unique(lab[~safe]):
-        arc = (lab == k) & ~safe
-        if np.median(r[arc]) >= limit:
-            keep |= arc
+    med_doubt, n_doubt = sector_medians(r[~safe], lab[~safe], n_sectors)
+    agree = (n_doubt > 0) & (med_doubt >= limit)                   # (n_sectors,) doubtful arcs kept
+    keep = safe | (~safe & agree[lab])
     return keep
 
 
@@ -398,13 +411,14 @@ def inward_arcs(r: np.ndarray, phi: np.ndarray, noise_px: float, n_sectors: int 
     median of all arc medians by more than max(``noise_px``, INWARD_ARC_SIGMAS robust sigmas
     (1.4826 MAD) of the arc medians). With fewer than 6 such arcs nothing is flagged."""
     lab = _sector_labels(phi, n_sectors)
-    arcs = [k for k in np.unique(lab) if (lab == k).sum() >= 5]
-    if len(arcs) < 6:
+    med, count = sector_medians(r, lab, n_sectors)
+    arcs = count >= 5
+    if arcs.sum() < 6:
         return np.zeros(len(r), bool)
-    m = np.array([np.median(r[lab == k]) for k in arcs])
+    m = med[arcs]
     spread = 1.4826 * float(np.median(np.abs(m - np.median(m))))
     limit = float(np.median(m)) - max(noise_px, INWARD_ARC_SIGMAS * spread)
-    return np.isin(lab, [k for k, med in zip(arcs, m) if med < limit])
+    return (arcs & (med < limit))[lab]
 
 
 def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: CameraModel,
