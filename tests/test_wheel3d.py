@@ -6,7 +6,8 @@ import pytest
 from calibration.camera_model import CameraModel, look_at
 from simulators.vehicle import random_vehicle
 import station.wheel3d as wheel3d
-from station.wheel3d import edge_visibility, fit_conic, hidden_arcs, inward_arcs, reconstruct_paper, refine_circle
+from station.wheel3d import (edge_visibility, fit_conic, hidden_arcs, inward_arcs, reconstruct_paper, refine_circle,
+                             sector_medians)
 
 
 def _pair(wheel_x, wheel_y):
@@ -179,6 +180,17 @@ def test_hidden_arcs_keeps_doubtful_arcs_that_agree_and_drops_those_inside():
     assert keep[inside].mean() < 0.25             # whole 15-degree arcs go (a sector half inside stays)
     doubtful_agreeing = ~safe & (phi < -2.1)      # doubtful, but where the edge agrees
     assert keep[doubtful_agreeing].all()
+
+
+def test_sector_medians_equal_numpy_per_sector():
+    rng = np.random.default_rng(2)
+    lab = rng.integers(0, 9, 500)
+    lab[lab == 4] = 5                                           # one empty sector
+    r = rng.normal(0, 1, 500)
+    med, count = sector_medians(r, lab, 10)
+    assert np.array_equal(count, np.bincount(lab, minlength=10))
+    for k in range(10):
+        assert (np.isnan(med[k]) if count[k] == 0 else med[k] == np.median(r[lab == k]))
 
 
 def test_inward_arcs_flags_whole_arcs_inside_and_nothing_outside():
