@@ -219,11 +219,36 @@ def estimate_blur(prof: np.ndarray, s: np.ndarray, polarity: float = -1.0) -> fl
     the median of the per-profile values is the PSF, where a least-squares blur over all of
     them is pulled toward the contaminated ones (they have the most contrast). Per profile:
     the least residual over ``BLUR_GRID_PX``, then a parabola in log sigma."""
-    rms = np.stack([fit_kinks(prof, s, sg, polarity, refine=False)[2] for sg in BLUR_GRID_PX], axis=1)  # (N,G)
+    rms = _blur_rms(prof, s, polarity)                                               # (N,G)
     G, r = len(BLUR_GRID_PX), np.arange(len(prof))
     k = np.clip(np.argmin(rms, axis=1), 1, G - 2)
     at = k + _parabola(rms[r, k - 1], rms[r, k], rms[r, k + 1])
     return float(np.exp(np.median(np.interp(at, np.arange(G), np.log(BLUR_GRID_PX)))))
+
+
+def _blur_rms(prof: np.ndarray, s: np.ndarray, polarity: float, grid_step: float = 0.25,
+              margin: float = 1.0) -> np.ndarray:
+    """(N, len(BLUR_GRID_PX)): for every profile (N,S) and candidate blur, the residual rms of
+    the step-and-kink model at its best edge position on the grid, as ``fit_kinks(...,
+    refine=False)`` gives it, for all candidate blurs by one product with their stacked
+    projectors (cached)."""
+    n, S = prof.shape
+    grid = np.arange(s[0] + margin, s[-1] - margin + 1e-9, grid_step)
+    G, B = len(grid), len(BLUR_GRID_PX)
+    key = ("blur", s.tobytes(), grid.tobytes(), METAL_CURVATURE, TYRE_CURVATURE)
+    hit = _PROJ_CACHE.get(key)
+    if hit is None:
+        parts = [_kink_projector(s, grid, sg) for sg in BLUR_GRID_PX]
+        hit = (np.ascontiguousarray(np.concatenate([q for q, _ in parts], axis=1)),
+               np.ascontiguousarray(np.concatenate([h for _, h in parts], axis=1)))
+        _PROJ_CACHE[key] = hit
+    Q, H = hit                                                       # (S, B*G*nb), (S, B*G)
+    proj = (prof @ Q).reshape(n, B, G, -1)
+    res = np.einsum("ns,ns->n", prof, prof)[:, None, None] - np.einsum("nbgk,nbgk->nbg", proj, proj)
+    res[(prof @ H).reshape(n, B, G) * polarity <= 0] = np.inf
+    g = np.clip(np.argmin(res, axis=2), 1, G - 2)                    # (N,B), as fit_kinks clips it
+    best = np.take_along_axis(res, g[:, :, None], axis=2)[:, :, 0]
+    return np.sqrt(np.maximum(best, 0) / S)
 
 
 def _centred(prof: np.ndarray, s: np.ndarray, s0: np.ndarray, half_px: float = 3.0):
