@@ -236,6 +236,7 @@ def measure_frames(images: dict[str, np.ndarray], cameras: dict[str, CameraModel
     detections = {c: by_cam[c] for c in images if c in by_cam}
     result = _empty_result(config)
     result["warnings"] += [o.note for o in outcomes if o.note]
+    result["warning_flags"] += [{"kind": "runner_up", "wheel": o.wheel} for o in outcomes if o.note]
     failures = [(cid, d) for cid, d in detections.items() if isinstance(d, StationError)]
     if failures:
         cid, err = failures[0]
@@ -297,12 +298,14 @@ def _fill_angles(result: dict, fits: dict[str, WheelFit], observations: dict, co
         if worst[1] > config.measurement.uncertainty_limit_deg:
             kept = [n / max(len(d.points_px), 1) for n, d in zip(o.circle.n_points, o.detections)]
             weak = o.cams[int(np.argmin(kept))]
+            result["warning_flags"].append({"kind": "uncertain", "wheel": w})
             result["warnings"].append(
                 f"{w}: {worst[0]} +/-{worst[1]:.3f} deg exceeds the {config.measurement.uncertainty_limit_deg} deg "
                 f"uncertainty limit: the 3-D rim rests on {min(kept):.0%} of {weak}'s edge points; check that "
                 f"{weak} sees the whole rim (wheel position, tyre, arch) and measure again")
         if unverifiable_epipolar(o, config):
             d = min(o.detections, key=lambda det: det.coverage)
+            result["warning_flags"].append({"kind": "unchecked", "wheel": w})
             result["warnings"].append(
                 f"pair {w} ({o.cams[0]}, {o.cams[1]}): {d.camera_id or 'a camera'} sees the rim edge on only "
                 f"{d.coverage:.0%} of its perimeter, too little to check the pair's calibration this cycle "
@@ -310,6 +313,7 @@ def _fill_angles(result: dict, fits: dict[str, WheelFit], observations: dict, co
                 f"fits both views within {max(o.circle.view_median_px):.2f} px); if this persists, look at "
                 f"{d.camera_id or 'the camera'}'s image (lighting, the tyre or the wheel arch hiding the rim) and recalibrate")
         elif o.circle.epipolar_rms_px > limit:
+            result["warning_flags"].append({"kind": "drift", "wheel": w})
             result["warnings"].append(
                 f"pair {w} ({o.cams[0]}, {o.cams[1]}): epipolar residual {o.circle.epipolar_rms_px:.2f} px "
                 f"> {limit} px: a camera of this pair may have moved since calibration; recalibrate")
@@ -346,7 +350,7 @@ def _detection_summary(detections: dict) -> dict:
 
 def _empty_result(config: StationConfig) -> dict:
     return {"schema_version": SCHEMA_VERSION, "station": config.name, "valid": False, "failure": None,
-            "warnings": [], "wheels": {}, "axles": {}, "thrust_deg": None}
+            "warnings": [], "warning_flags": [], "wheels": {}, "axles": {}, "thrust_deg": None}
 
 
 def add_truth(result: dict, truth: dict) -> None:

@@ -106,6 +106,7 @@ def test_a_rim_seen_on_part_of_its_perimeter_is_measured_and_its_unchecked_pair_
     assert result["valid"], result["failure"]
     note = [w for w in result["warnings"] if w.startswith("pair RL")]
     assert len(note) == 1 and "too little to check the pair's calibration" in note[0], result["warnings"]
+    assert {"kind": "unchecked", "wheel": "RL"} in result["warning_flags"]
     assert not any("may have moved" in w for w in result["warnings"])
     o = result["_observations"]["RL"]
     wrong = replace(o, circle=replace(o.circle, view_median_px=(o.circle.view_median_px[0], 3.0)))
@@ -119,7 +120,10 @@ def test_a_wheel_less_certain_than_the_limit_warns_and_names_a_camera(sim, monke
     result = measure_frames(images, world.cameras, cfg)
     assert not any("uncertainty limit" in w for w in result["warnings"]), result["warnings"]
     monkeypatch.setattr(cfg.measurement, "uncertainty_limit_deg", 0.001)  # every wheel is less certain
-    warned = [w for w in measure_frames(images, world.cameras, cfg)["warnings"] if "uncertainty limit" in w]
+    uncertain = measure_frames(images, world.cameras, cfg)
+    warned = [w for w in uncertain["warnings"] if "uncertainty limit" in w]
+    flags = sorted(f["wheel"] for f in uncertain["warning_flags"] if f["kind"] == "uncertain")
+    assert flags == ["FL", "FR", "RL", "RR"]                     # the PLC's warning_bits 0-3
     assert len(warned) == 4 and any(w.startswith("FR: ") and ("of cam1's" in w or "of cam2's" in w) for w in warned)
 
 

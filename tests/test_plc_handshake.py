@@ -11,7 +11,7 @@ from station.plc import register_map as rm
 from station.plc.handshake import (PLC_EVENTS, REFUSALS, TRANSITIONS, Event, PlcBusy, PlcNotAcknowledged,
                                    PlcNothingToAcknowledge, PlcUnknownCommand, State, event_for_command,
                                    markdown_table, next_state)
-from station.plc.results import result_angles, result_registers, result_verdicts
+from station.plc.results import result_angles, result_registers, result_verdicts, result_warning_bits
 from station.plc.runner import CycleRequest, job_number, synthetic_result
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -149,6 +149,21 @@ def test_result_registers_round_trip_through_the_decoder():
         assert (block["judged_bits"] >> i) & 1 == 1
         assert (block["pass_bits"] >> i) & 1 == verdict[name]
     assert (block["pass_bits"] >> rm.OVERALL_BIT) & 1 == verdict["overall"]
+
+
+def test_warning_bits_name_the_kind_and_the_wheel():
+    result = synthetic_result(CycleRequest("measure", "JOB-000004", None, 1))
+    result["warnings"], result["warning_flags"] = [], []
+    assert result_warning_bits(result) == 0
+    result["warnings"] = ["RL: toe +/-0.28 deg exceeds ...", "pair RR (cam7, cam8): ... could not check ..."]
+    result["warning_flags"] = [{"kind": "uncertain", "wheel": "RL"}, {"kind": "unchecked", "wheel": "RR"},
+                               {"kind": "drift", "wheel": "FL"}, {"kind": "no such kind", "wheel": "FL"}]
+    bits = result_warning_bits(result)
+    assert bits == (1 << 2) | (1 << 11) | (1 << 4) | (1 << rm.ANY_WARNING_BIT)
+    regs = result_registers(result, "JOB-000004")
+    assert regs[rm.FIELDS["warning_bits"].address] == [bits]
+    result["warning_flags"] = []                          # a warning text alone still sets bit 15
+    assert result_warning_bits(result) == 1 << rm.ANY_WARNING_BIT
 
 
 def test_verdicts_without_spec_are_unjudged_and_wheel_pass_is_read():

@@ -42,7 +42,12 @@ COMMANDS = {0: "none", 1: "measure", 2: "calibration_check", 3: "reset_fault", 4
 COMMAND_CODES = {name: code for code, name in COMMANDS.items()}
 STATES = {0: "idle", 1: "busy", 2: "done", 3: "fault"}
 STATE_CODES = {name: code for code, name in STATES.items()}
-MAP_VERSION = 1
+MAP_VERSION = 2  # 2: warning_bits (113) added; nothing else moved
+# bits of warning_bits: (first bit, kind of the result's warning_flags); bit first + i for wheel i
+# of FL, FR, RL, RR
+WARNING_KINDS = ((0, "uncertain"), (4, "drift"), (8, "unchecked"), (12, "runner_up"))
+WARNING_WHEELS = ("FL", "FR", "RL", "RR")
+ANY_WARNING_BIT = 15
 
 
 @dataclass(frozen=True)
@@ -98,6 +103,10 @@ STATION_FIELDS = [
     Field("judged_bits", 109, "bits", 1, "bit i: angle i was judged against a spec; bit 15: overall"),
     Field("cycle_time_us", 110, "u32", 2, "time the measurement itself took", unit="us"),
     Field("map_version", 112, "u16", 1, f"version of this register map ({MAP_VERSION})"),
+    Field("warning_bits", 113, "bits", 1, "warnings of the last valid result, bit first + wheel (FL 0, FR 1, "
+          "RL 2, RR 3): 0 the wheel's toe or camber is less certain than the limit, 4 the pair's "
+          "calibration may have drifted, 8 the pair's calibration could not be checked, 12 a runner-up "
+          "rim candidate was taken; bit 15: any warning (the texts: the result's `warnings`)"),
     *_angle_fields(),
     Field("result_job_id", 160, "ascii", 16, "job id of the cycle the result belongs to"),
     Field("fault_reason", 176, "ascii", 32, "readable reason of the fault, up to 64 characters"),

@@ -64,6 +64,19 @@ def result_verdicts(result: dict) -> tuple[int, int]:
     return passed, judged
 
 
+def result_warning_bits(result: dict) -> int:
+    """warning_bits (register_map.WARNING_KINDS) from the result's ``warning_flags``; bit 15 is
+    also set by any warning text without a flag."""
+    first = dict((kind, bit) for bit, kind in rm.WARNING_KINDS)
+    bits = 0
+    for flag in result.get("warning_flags") or []:
+        if isinstance(flag, dict) and flag.get("kind") in first and flag.get("wheel") in rm.WARNING_WHEELS:
+            bits |= 1 << (first[flag["kind"]] + rm.WARNING_WHEELS.index(flag["wheel"]))
+    if bits or result.get("warnings"):
+        bits |= 1 << rm.ANY_WARNING_BIT
+    return bits
+
+
 def result_registers(result: dict, job_id: str | None, angles_required: bool = True) -> dict[int, list[int]]:
     """{address: register values} for a finished, valid result."""
     angles = result_angles(result, angles_required)
@@ -75,6 +88,7 @@ def result_registers(result: dict, job_id: str | None, angles_required: bool = T
         out[rm.FIELDS[f"{key}_i16"].address] = [rm.deg_to_i16(value)]
     out[rm.FIELDS["pass_bits"].address] = [passed]
     out[rm.FIELDS["judged_bits"].address] = [judged]
+    out[rm.FIELDS["warning_bits"].address] = [result_warning_bits(result)]
     f = rm.FIELDS["result_job_id"]
     out[f.address] = rm.ascii_to_regs(job_id, f.count)
     return out
@@ -89,5 +103,6 @@ def cleared_registers() -> dict[int, list[int]]:
         out[rm.FIELDS[f"{key}_i16"].address] = [rm.deg_to_i16(None)]
     out[rm.FIELDS["pass_bits"].address] = [0]
     out[rm.FIELDS["judged_bits"].address] = [0]
+    out[rm.FIELDS["warning_bits"].address] = [0]
     out[rm.FIELDS["result_job_id"].address] = [0] * rm.FIELDS["result_job_id"].count
     return out
