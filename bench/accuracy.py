@@ -27,10 +27,11 @@ from station.config import WHEELS, load_config  # noqa: E402
 from station.measure import add_truth, measure_frames  # noqa: E402
 
 SCENARIOS = {
-    # name: (noise sigma, darker camera or None)
-    "sigma2": (2.0, None),
-    "sigma5": (5.0, None),
-    "dark-cam": (2.0, "cam2"),
+    # name: (noise sigma, darker camera or None, rim albedo range or None (the random vehicle's))
+    "sigma2": (2.0, None, None),
+    "sigma5": (5.0, None, None),
+    "dark-cam": (2.0, "cam2", None),
+    "dark-rim": (2.0, None, (0.2, 0.4)),  # anthracite rims: the flange little brighter than the tyre
 }
 GROUPS = {
     "toe": [f"{w}.toe" for w in WHEELS],
@@ -83,12 +84,15 @@ def run(config, cameras_by_source: dict, n: int, scenario: str, seed0: int, meth
         covariance_by_source: dict | None = None, cache: Path | None = None) -> dict:
     from simulators.world import SimWorld
 
-    sigma, dark = SCENARIOS[scenario]
+    sigma, dark, albedo = SCENARIOS[scenario]
     world = SimWorld.from_config(config, noise_sigma=sigma, gain_override={dark: 0.8} if dark else None)
     rows = {(src, m): {"err": [], "std": [], "failed": 0, "time": []} for src in cameras_by_source for m in methods}
     for i in range(n):
         seed = seed0 + i
-        scene = world.vehicle_scene(seed)
+        over = {}
+        if albedo is not None:  # its own stream: the vehicle itself stays that of the seed
+            over["rim_albedo"] = float(np.random.default_rng([seed, 1]).uniform(*albedo))
+        scene = world.vehicle_scene(seed, **over)
         world.set_scene(scene)
         images = _images(world, scene, scenario, seed, cache)
         truth = world.truth(scene)

@@ -154,3 +154,26 @@ def test_bad_arrays():
         detect_rim(np.zeros((100, 100, 5), np.uint8))
     with pytest.raises(ImageError, match="pixel type"):
         detect_rim(np.zeros((100, 100), np.int32))
+
+
+def test_a_hub_loses_to_a_concentric_dark_rim_seen_on_less_than_80_percent(monkeypatch):
+    """Anthracite rim (simulated dark-rim seed 6004, cam4): the hub's contour is closed (82 %),
+    the rim's flange shows on 77 % of its perimeter with a weak tyre band. A contour over
+    HUB_RATIO times larger and concentric, closed as well as any chosen rim must be, makes
+    the small one the hub."""
+    import station.rim.detector as det
+    from station.rim.hough import Candidate
+
+    hub = Candidate(Ellipse((684, 473), (80.4, 72.8), 0.1), 50.0, 0.82, 300)
+    rim = Candidate(Ellipse((692, 467), (309.1, 287.6), 0.1), 40.0, 0.77, 900)
+    looks = {80.4: (0.66, 0.68), 309.1: (0.47, 0.94)}                       # (ring, outer) measured
+    monkeypatch.setattr(det, "_ring_darkness", lambda sc, e: looks[e.axes_px[0]][0])
+    monkeypatch.setattr(det, "_outer_contour", lambda sc, e: looks[e.axes_px[0]][1])
+
+    class Scene:
+        s = 1.0
+
+    best, info = det._choose(Scene(), [hub, rim], "cam4")
+    assert best is rim, info["candidates"]
+    monkeypatch.setattr(det, "MIN_COVERAGE", 0.8)        # asking the rim for 80 %, as before: the hub wins
+    assert det._choose(Scene(), [hub, rim], "cam4")[0] is hub

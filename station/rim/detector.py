@@ -238,16 +238,17 @@ def _choose(sc: _Scene, cands: list[hough.Candidate], tag: str) -> tuple[hough.C
                 r["tyre_outline"] = True
                 break
     # a closed, tyre-bordered contour much larger and concentric: this one is the hub or disc;
-    # more than HUB_RATIO larger and closed, tyre-bordered or not: the hub (no tyre outline is
-    # twice its rim: even an 80-series tyre on a 14-inch rim is 1.8x)
+    # more than HUB_RATIO larger, tyre-bordered or not, and closed as well as a rim must be to
+    # be chosen at all: the hub (no tyre outline is twice its rim: even an 80-series tyre on a
+    # 14-inch rim is 1.8x; a dark rim's flange shows on less of its perimeter than 80 %)
     for r in rows:
         e = r["cand"].ellipse
         for o in rows:
             eo = o["cand"].ellipse
             if (o is not r and not o.get("tyre_outline") and eo.axes_px[0] > 1.3 * e.axes_px[0]
                     and np.linalg.norm(eo.center_px - e.center_px) < 0.08 * eo.axes_px[0]
-                    and o["cand"].coverage > 0.8
-                    and (o["ring"] > 0.8 or eo.axes_px[0] > HUB_RATIO * e.axes_px[0])):
+                    and ((o["cand"].coverage > 0.8 and o["ring"] > 0.8)
+                         or (o["cand"].coverage >= MIN_COVERAGE and eo.axes_px[0] > HUB_RATIO * e.axes_px[0]))):
                 r["score"] *= 0.5
                 break
     rows.sort(key=lambda r: -r["score"])
