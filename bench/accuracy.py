@@ -10,6 +10,9 @@ matches the observed spread.
 
     .venv/bin/python bench/accuracy.py --n 50            # all scenarios
     .venv/bin/python bench/accuracy.py --n 10 --scenario sigma2
+
+Scenarios: sigma2 (the issue's), sigma5 (more sensor noise), dark-cam (cam2 20 % darker than
+its pair), dark-rim (rim albedo 0.2-0.4: anthracite rims against black tyres).
 """
 
 from __future__ import annotations
