@@ -177,3 +177,24 @@ def test_a_hub_loses_to_a_concentric_dark_rim_seen_on_less_than_80_percent(monke
     assert best is rim, info["candidates"]
     monkeypatch.setattr(det, "MIN_COVERAGE", 0.8)        # asking the rim for 80 %, as before: the hub wins
     assert det._choose(Scene(), [hub, rim], "cam4")[0] is hub
+
+
+def test_an_ellipse_inside_the_rim_is_not_another_wheel(monkeypatch):
+    """Dark-rim seed 6001, cam7: spoke arcs make a flat ellipse inside the rim that scores
+    within AMBIGUITY_RATIO of it. Two wheels never hold each other's centre, so that is no
+    second wheel; the same ellipse beside the rim still is."""
+    import station.rim.detector as det
+    from station.rim.hough import Candidate
+
+    monkeypatch.setattr(det, "_ring_darkness", lambda sc, e: 0.5)
+    monkeypatch.setattr(det, "_outer_contour", lambda sc, e: 0.5)
+
+    class Scene:
+        s = 1.0
+
+    rim = Candidate(Ellipse((677, 448), (339.0, 337.0), 0.0), 40.0, 0.62, 900)
+    inside = Candidate(Ellipse((640, 260), (267.0, 169.0), 0.0), 40.0, 0.58, 500)
+    assert det._choose(Scene(), [rim, inside], "cam7")[0] is rim
+    beside = Candidate(Ellipse((1400, 448), (267.0, 169.0), 0.0), 40.0, 0.58, 500)
+    with pytest.raises(RimNotFound, match="two wheel-like ellipses"):
+        det._choose(Scene(), [rim, beside], "cam7")

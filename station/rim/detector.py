@@ -257,10 +257,11 @@ def _choose(sc: _Scene, cands: list[hough.Candidate], tag: str) -> tuple[hough.C
         raise RimNotFound(f"{tag}: no closed rim contour{best}",
                           hint="check that the wheel is in view, lit, and in focus")
     best = rows[0]
-    for r in rows[1:]:  # another wheel: a non-concentric, similarly good ellipse
+    for r in rows[1:]:  # another wheel: a non-concentric, similarly good ellipse outside this one
         e, eb = r["cand"].ellipse, best["cand"].ellipse
+        apart = (eb.radius_ratio(e.center_px[None])[0] > 1.0 and e.radius_ratio(eb.center_px[None])[0] > 1.0)
         if np.linalg.norm(e.center_px - eb.center_px) > 0.5 * eb.axes_px[1] and r["score"] >= AMBIGUITY_RATIO * best["score"] \
-                and r["cand"].coverage >= MIN_COVERAGE:
+                and r["cand"].coverage >= MIN_COVERAGE and apart:  # two wheels never hold each other's centre
             raise RimNotFound(f"{tag}: two wheel-like ellipses of similar score "
                               f"({best['score']:.2f} at ({eb.center_px[0] * sc.s:.0f}, {eb.center_px[1] * sc.s:.0f}) px and "
                               f"{r['score']:.2f} at ({e.center_px[0] * sc.s:.0f}, {e.center_px[1] * sc.s:.0f}) px)",
