@@ -29,7 +29,8 @@ from station.errors import MeasurementError, StationError
 from station.cycle import open_capture
 from station.wheel_workers import WheelWorkers, default_workers
 from station.measure import WheelObservation, check_same_rim, measure_frames
-from station.wheel3d import WheelFit, not_grazing, reconstruct_paper, refine_circle
+from station.wheel3d import WheelFit, reconstruct_paper, refine_circle
+from station.wheel_arcs import not_grazing
 
 AXLES = {"front": ("FL", "FR"), "rear": ("RL", "RR"), "all": WHEELS}
 

@@ -115,9 +115,13 @@ def unverifiable_epipolar(o: WheelObservation, config: StationConfig) -> bool:
     that a circle fits on a few of its points only - 6 % on a camera whose image was flipped,
     tests/test_measure.py - is not: the hidden true rim of held-out seed 2010 RR kept 48 %.)"""
     limit = config.measurement.mismatch_limit_px
-    kept = min(n / max(len(d.points_px), 1) for n, d in zip(o.circle.n_points, o.detections))
     return (o.circle.epipolar_rms_px > limit and max(o.circle.view_median_px) <= 0.2 * limit
-            and kept >= UNCHECKED_MIN_KEPT)
+            and min(kept_fractions(o)) >= UNCHECKED_MIN_KEPT)
+
+
+def kept_fractions(o: WheelObservation) -> list[float]:
+    """Per camera of the pair, the fraction of its detected edge points the 3-D circle rests on."""
+    return [n / max(len(d.points_px), 1) for n, d in zip(o.circle.n_points, o.detections)]
 
 
 def check_same_rim(o: WheelObservation, config: StationConfig, allow_unchecked: bool = True) -> None:
@@ -296,7 +300,7 @@ def _fill_angles(result: dict, fits: dict[str, WheelFit], observations: dict, co
         result["wheels"][w] = entry
         worst = max(("toe", entry["toe_std_deg"]), ("camber", entry["camber_std_deg"]), key=lambda kv: kv[1])
         if worst[1] > config.measurement.uncertainty_limit_deg:
-            kept = [n / max(len(d.points_px), 1) for n, d in zip(o.circle.n_points, o.detections)]
+            kept = kept_fractions(o)
             weak = o.cams[int(np.argmin(kept))]
             result["warning_flags"].append({"kind": "uncertain", "wheel": w})
             result["warnings"].append(

@@ -25,6 +25,8 @@ from calibration.triangulation import homogeneous, triangulate_paper
 from station.blas_threads import single_thread_blas
 from station.errors import MeasurementError
 from station.rim.ellipse_fit import fit_direct
+from station.wheel_arcs import (MIN_KEPT_FRACTION, edge_visibility, hidden_arcs, inward_arcs, not_grazing_xy,
+                                rim_angles, sector_labels, sector_medians)
 
 single_thread_blas()  # small least-squares problems: OpenBLAS threads cost 40x here (station/blas_threads.py)
 
@@ -33,12 +35,8 @@ INWARD_WEIGHT = 0.3    # weight of residuals inside the rim's projection in the 
 OCCLUSION_TEST = True    # test the arcs the tyre's sidewall could hide before trusting them (hidden_arcs)
 MIN_SAFE_FRACTION = 0.3  # of a view's points that no sidewall can hide, to make the test at all
 GRAZING_TEST = True       # also fit without the points seen across the lip at a grazing angle
-GRAZING_VISIBILITY = 0.5  # edge_visibility above which a ray grazes the lip (30 deg from the wheel plane)
-MIN_KEPT_FRACTION = 0.5   # a sidewall test leaving out more of a view is checked against the plain fit
-HIDDEN_SECTORS = 24      # arcs of 15 degrees
 MIN_VIEW_POINTS = 20      # rim points a view must keep on the fitted circle
 INWARD_ARC_PASSES = 3     # rounds of leaving out arcs whose edge lies inside the fitted circle
-INWARD_ARC_SIGMAS = 3.0   # beyond this many robust sigmas of the arcs' medians (inward_arcs)
 GROSS_PX = 1.5           # a point this far (px) off the fitted circle, and GROSS_SIGMAS robust
 GROSS_SIGMAS = 5.0       # sigmas, is on another contour: left out and the circle fitted again
 BIAS_MODES = 1         # edge-bias Fourier modes (0: uniform, 1: + cos/sin) in the covariance
@@ -247,36 +245,6 @@ def sampson_px(C: np.ndarray, xy: np.ndarray, focal_px: float) -> np.ndarray:
     return focal_px * f / grad
 
 
-def _rim_angles(cam: CameraModel, xy: np.ndarray, c: np.ndarray, n: np.ndarray) -> np.ndarray:
-    """(N,) angle (rad) around the circle (centre c (3,), unit normal n (3,), station frame) of
-    the points where the rays of ``cam``'s normalised points xy (N,2) meet the circle's plane."""
-    u = np.cross(n, [0.0, 0.0, 1.0])
-    u /= np.linalg.norm(u)
-    v = np.cross(n, u)
-    C0 = cam.center_station
-    d = np.concatenate([xy, np.ones((len(xy), 1))], axis=1) @ cam.R_cam_station
-    P = C0 + (((c - C0) @ n) / (d @ n))[:, None] * d
-    return np.arctan2((P - c) @ v, (P - c) @ u)
-
-
-def _sector_labels(phi: np.ndarray, n_sectors: int) -> np.ndarray:
-    return ((phi + np.pi) / (2 * np.pi) * n_sectors).astype(int) % n_sectors
-
-
-def sector_medians(r: np.ndarray, lab: np.ndarray, n_sectors: int) -> tuple[np.ndarray, np.ndarray]:
-    """Median of ``r`` (N,) in each sector of ``lab`` (N,) ints in [0, n_sectors), and the
-    counts: ((n_sectors,) with NaN for empty sectors, (n_sectors,) ints). One sort for all
-    sectors; equal to np.median per sector."""
-    count = np.bincount(lab, minlength=n_sectors)
-    if len(r) == 0:
-        return np.full(n_sectors, np.nan), count
-    v = r[np.lexsort((r, lab))]
-    start = np.concatenate([[0], np.cumsum(count)[:-1]])
-    lo = np.minimum(start + (count - 1) // 2, len(v) - 1)
-    hi = np.minimum(start + count // 2, len(v) - 1)
-    return np.where(count > 0, 0.5 * (v[lo] + v[hi]), np.nan), count
-
-
 def _bias_covariance(sol, views, n0, e1, e2, n_modes: int, n_sectors: int = 18) -> np.ndarray:
     """(6,6) covariance of the circle parameters from slowly varying edge biases in each view.
 
@@ -294,8 +262,8 @@ def _bias_covariance(sol, views, n0, e1, e2, n_modes: int, n_sectors: int = 18) 
     cov = np.zeros((6, 6))
     for (cam, xy, _), a, b in zip(views, bounds[:-1], bounds[1:]):
         r = sol.fun[a:b]
-        phi = _rim_angles(cam, xy, c, n)
-        lab = _sector_labels(phi, n_sectors)
+        phi = rim_angles(cam, xy, c, n)
+        lab = sector_labels(phi, n_sectors)
         med, count = sector_medians(r, lab, n_sectors)
         full = np.nonzero(count >= 3)[0]
         meds = med[full]
@@ -312,7 +280,7 @@ def _sector_jackknife(residuals, x, views, n0, e1, e2, n_sectors: int, loss_scal
     """Block-jackknife covariance (6,6) of the circle parameters, leaving out one rim sector at a time."""
     c = x[2:5]
     n = _normal_from(x[:2], n0, e1, e2)
-    labels = [_sector_labels(_rim_angles(cam, xy, c, n), n_sectors) for cam, xy, _ in views]
+    labels = [sector_labels(rim_angles(cam, xy, c, n), n_sectors) for cam, xy, _ in views]
     estimates = []
     for k in range(n_sectors):
         keep = [lab != k for lab in labels]
@@ -354,71 +322,6 @@ def correlation_factor(r: np.ndarray, max_lag_fraction: float = 0.25) -> float:
 def _normal_from(params, n0, e1, e2):
     n = n0 + params[0] * e1 + params[1] * e2
     return n / np.linalg.norm(n)
-
-
-def edge_visibility(cam: CameraModel, xy: np.ndarray, circle: WheelFit) -> np.ndarray:
-    """(N,) how safely each rim point is seen past the tyre: the cosine between the viewing ray
-    at the point and the rim's outward radial direction there.
-
-    The tyre's sidewall stands outside the flange edge and bulges toward the cameras. A ray that
-    reaches the edge travelling radially outward has passed over the rim, never the tyre; one
-    travelling inward has passed over the sidewall, which may hide the edge (oblique views, the
-    side of the rim nearer the camera). xy: (N,2) normalised points of ``cam``.
-    """
-    C = cam.center_station
-    d = np.concatenate([xy, np.ones((len(xy), 1))], axis=1) @ cam.R_cam_station  # rays, station frame
-    n, c = circle.axis_station, circle.center_station
-    s = ((c - C) @ n) / (d @ n)
-    P = C + s[:, None] * d                     # where each ray meets the rim plane
-    rho = (P - c) - np.outer((P - c) @ n, n)
-    rho /= np.linalg.norm(rho, axis=1, keepdims=True)
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    return np.einsum("ij,ij->i", d, rho)
-
-
-def hidden_arcs(r: np.ndarray, safe: np.ndarray, phi: np.ndarray, noise_px: float,
-                n_sectors: int = HIDDEN_SECTORS) -> np.ndarray:
-    """(N,) bool: the points of one view to keep. r (N,) signed image residuals (px, negative
-    inside) of the view's points against the circle fitted to the *safe* points only; safe (N,)
-    bool, points no sidewall can hide (``edge_visibility`` >= 0); phi (N,) their rim angles.
-
-    Every doubtful point is kept unless its arc (``n_sectors`` sectors of the rim) lies inside
-    the circle's projection beyond what the safe arcs' own scatter allows: the median of the
-    arc's residuals below -max(noise_px, 3 x the spread of the safe arcs' medians). A hidden
-    flange edge is seen on the tyre's occluding contour, up to a few pixels inside; a visible one
-    agrees with the safe arcs within their bias. The spread is robust (1.4826 x the median
-    absolute safe-arc median): a few safe arcs on another contour, pixels inside,
-    would otherwise widen it until every doubtful arc passed."""
-    lab = _sector_labels(phi, n_sectors)
-    med_safe, n_safe = sector_medians(r[safe], lab[safe], n_sectors)
-    meds_safe = med_safe[n_safe >= 5]
-    spread = 1.4826 * float(np.median(np.abs(meds_safe))) if len(meds_safe) else noise_px
-    limit = -max(noise_px, 3.0 * spread)
-    med_doubt, n_doubt = sector_medians(r[~safe], lab[~safe], n_sectors)
-    agree = (n_doubt > 0) & (med_doubt >= limit)                   # (n_sectors,) doubtful arcs kept
-    keep = safe | (~safe & agree[lab])
-    return keep
-
-
-def inward_arcs(r: np.ndarray, phi: np.ndarray, noise_px: float, n_sectors: int = HIDDEN_SECTORS) -> np.ndarray:
-    """(N,) bool: the points of one view that lie on arcs whose edge is inside the fitted
-    circle's projection beyond what the view's other arcs allow. r (N,) signed image residuals
-    (px, negative inside) against the fitted circle; phi (N,) rim angles (rad).
-
-    Occlusion (a tyre bulge), a lip shaded as dark as the tyre, or a lip's inner edge taken for
-    the flange only ever move the edge found *inward*, and over whole arcs. An arc (one of
-    ``n_sectors`` of the rim, >= 5 points) is flagged when its median residual lies below the
-    median of all arc medians by more than max(``noise_px``, INWARD_ARC_SIGMAS robust sigmas
-    (1.4826 MAD) of the arc medians). With fewer than 6 such arcs nothing is flagged."""
-    lab = _sector_labels(phi, n_sectors)
-    med, count = sector_medians(r, lab, n_sectors)
-    arcs = count >= 5
-    if arcs.sum() < 6:
-        return np.zeros(len(r), bool)
-    m = med[arcs]
-    spread = 1.4826 * float(np.median(np.abs(m - np.median(m))))
-    limit = float(np.median(m)) - max(noise_px, INWARD_ARC_SIGMAS * spread)
-    return (arcs & (med < limit))[lab]
 
 
 def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: CameraModel,
@@ -526,7 +429,7 @@ def _fit_circle(xy_l: np.ndarray, xy_r: np.ndarray, cam_l: CameraModel, cam_r: C
             x_safe = x0 if init_is_fitted else solve(x0, [k & (np.arange(len(k)) % 2 == 0) for k in safe]).x
             r_all = per_view(raw_residuals(x_safe))
             c_safe, n_safe = x_safe[2:5], _normal_from(x_safe[:2], n0, e1, e2)
-            keeps = [hidden_arcs(r, k, _rim_angles(cam, xy, c_safe, n_safe), loss_scale_px)
+            keeps = [hidden_arcs(r, k, rim_angles(cam, xy, c_safe, n_safe), loss_scale_px)
                      for r, k, (cam, xy, _) in zip(r_all, safe, views)]
             # leaving out more than half of a view is either a camera that sees little of the
             # flange past the sidewall or a test judged against a circle extrapolated from
@@ -556,7 +459,7 @@ def _fit_circle(xy_l: np.ndarray, xy_r: np.ndarray, cam_l: CameraModel, cam_r: C
         c_now, n_now = sol.x[2:5], _normal_from(sol.x[:2], n0, e1, e2)
         keeps = []
         for r_v, (cam, xy, _), n_v in zip(per_view(raw_residuals(sol.x)), views, n_start):
-            keep = ~inward_arcs(r_v, _rim_angles(cam, xy, c_now, n_now), loss_scale_px)
+            keep = ~inward_arcs(r_v, rim_angles(cam, xy, c_now, n_now), loss_scale_px)
             keeps.append(keep if keep.sum() >= MIN_KEPT_FRACTION * n_v else np.ones(len(xy), bool))
         if all(k.all() for k in keeps):
             break
@@ -609,7 +512,7 @@ def _fit_circle(xy_l: np.ndarray, xy_r: np.ndarray, cam_l: CameraModel, cam_r: C
         if np.trace(plain.cov_axis) < np.trace(fit.cov_axis):
             fit = plain
     if grazing_test:
-        keep_l, keep_r = _not_grazing_xy(fit, xy_l, xy_r, cam_l, cam_r)
+        keep_l, keep_r = not_grazing_xy(fit, xy_l, xy_r, cam_l, cam_r)
         if not (keep_l.all() and keep_r.all()):
             # the fit without the grazing points, made from ``init`` as this one was (from
             # ``fit``, the sidewall test would be judged against a circle they had shaped)
@@ -618,31 +521,3 @@ def _fit_circle(xy_l: np.ndarray, xy_r: np.ndarray, cam_l: CameraModel, cam_r: C
             if np.trace(alt.cov_axis) < np.trace(fit.cov_axis):
                 fit = replace(alt, grazing_left_out=True)
     return fit
-
-
-def not_grazing(circle: WheelFit, points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: CameraModel,
-                cam_r: CameraModel) -> tuple[np.ndarray, np.ndarray]:
-    """Per view, (N,) bool: the points (pixels) whose ray does not graze the lip (see
-    :func:`_not_grazing_xy`)."""
-    return _not_grazing_xy(circle, cam_l.pixels_to_normalized(points_l_px), cam_r.pixels_to_normalized(points_r_px),
-                           cam_l, cam_r)
-
-
-def _not_grazing_xy(circle: WheelFit, xy_l: np.ndarray, xy_r: np.ndarray, cam_l: CameraModel,
-                    cam_r: CameraModel) -> tuple[np.ndarray, np.ndarray]:
-    """Per view, (N,) bool: the normalised points whose ray does not graze the lip
-    (:func:`edge_visibility` against ``circle`` at most ``GRAZING_VISIBILITY``); all points of
-    a view where that would leave fewer than ``MIN_KEPT_FRACTION`` of them.
-
-    Where the viewing ray crosses the rounded flange lip travelling outward and low over the
-    wheel plane (the ray within 30 degrees of the plane), the lip's rim-side surface turns away
-    from the camera before the flange edge: the edge seen is the lip's terminator, up to a
-    millimetre inside (measured on the simulator: 0.65-0.8 px on such arcs of the oblique
-    camera, against 0.05 px elsewhere). Leaving such points out removes that bias but weakens
-    the geometry of the view, so :func:`refine_circle` fits both ways and keeps the fit that
-    is better determined by its own covariance."""
-    keeps = []
-    for cam, xy in ((cam_l, xy_l), (cam_r, xy_r)):
-        keep = ~(edge_visibility(cam, xy, circle) > GRAZING_VISIBILITY)
-        keeps.append(keep if keep.sum() >= MIN_KEPT_FRACTION * len(xy) else np.ones(len(xy), bool))
-    return keeps[0], keeps[1]

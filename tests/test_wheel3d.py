@@ -6,8 +6,8 @@ import pytest
 from calibration.camera_model import CameraModel, look_at
 from simulators.vehicle import random_vehicle
 import station.wheel3d as wheel3d
-from station.wheel3d import (edge_visibility, fit_conic, hidden_arcs, inward_arcs, reconstruct_paper, refine_circle,
-                             sector_medians)
+from station.wheel3d import fit_conic, reconstruct_paper, refine_circle
+from station.wheel_arcs import HIDDEN_SECTORS, edge_visibility, hidden_arcs, inward_arcs, sector_medians
 
 
 def _pair(wheel_x, wheel_y):
@@ -203,7 +203,7 @@ def test_inward_arcs_flags_whole_arcs_inside_and_nothing_outside():
     r[outside] += 0.8                                           # occlusion never moves an edge outward
     flagged = inward_arcs(r, phi, noise_px=0.3)
     assert flagged[inside].mean() > 0.75 and not flagged[outside].any()
-    sector = 2 * np.pi / wheel3d.HIDDEN_SECTORS                 # whole arcs: at most one arc's width more
+    sector = 2 * np.pi / HIDDEN_SECTORS                 # whole arcs: at most one arc's width more
     assert np.all((phi[flagged] > 0.3 - sector) & (phi[flagged] < 0.8 + sector))
     few = np.abs(phi) < 0.5                                     # fewer than 6 arcs: no judgement
     assert not inward_arcs(r[few], phi[few], noise_px=0.3).any()
@@ -333,7 +333,8 @@ def test_points_seen_across_the_lip_at_a_grazing_angle_are_fitted_without(monkey
     is better determined, is far closer to the true axis than the fit of all points (the
     rounds of inward arcs, which catch much of it too, are off to show this test alone)."""
     monkeypatch.setattr(wheel3d, "INWARD_ARC_PASSES", 0)
-    from station.wheel3d import GRAZING_VISIBILITY, WheelFit, not_grazing
+    from station.wheel3d import WheelFit
+    from station.wheel_arcs import GRAZING_VISIBILITY, not_grazing
     v = random_vehicle(np.random.default_rng(4))
     c, w, X = _rim(v, "FR")
     cl, cr = _pair(c[0], c[1])
