@@ -177,6 +177,7 @@ def fit_kinks(prof: np.ndarray, s: np.ndarray, sigma: float, polarity: float = -
 
 
 _PROJ_CACHE: dict = {}
+_BLUR_STACKS: dict = {}
 
 
 def _kink_projector(s: np.ndarray, grid: np.ndarray, sigma: float):
@@ -190,8 +191,8 @@ def _kink_projector(s: np.ndarray, grid: np.ndarray, sigma: float):
         Q, R = np.linalg.qr(B)                                       # (G,S,nb), (G,nb,nb)
         H = np.einsum("gsk,gk->sg", Q, np.linalg.inv(R)[:, 1, :])    # h = R^-1 Q^T prof, row 1
         hit = (np.ascontiguousarray(Q.transpose(1, 0, 2).reshape(len(s), -1)), np.ascontiguousarray(H))
-        if len(_PROJ_CACHE) > 16:
-            _PROJ_CACHE.clear()
+        if len(_PROJ_CACHE) >= 64:  # the oldest out: every camera's blur differs a little
+            _PROJ_CACHE.pop(next(iter(_PROJ_CACHE)))
         _PROJ_CACHE[key] = hit
     return hit
 
@@ -235,13 +236,13 @@ def _blur_rms(prof: np.ndarray, s: np.ndarray, polarity: float, grid_step: float
     n, S = prof.shape
     grid = np.arange(s[0] + margin, s[-1] - margin + 1e-9, grid_step)
     G, B = len(grid), len(BLUR_GRID_PX)
-    key = ("blur", s.tobytes(), grid.tobytes(), METAL_CURVATURE, TYRE_CURVATURE)
-    hit = _PROJ_CACHE.get(key)
-    if hit is None:
+    key = (s.tobytes(), grid.tobytes(), METAL_CURVATURE, TYRE_CURVATURE)
+    hit = _BLUR_STACKS.get(key)
+    if hit is None:  # one per window of the passes: kept apart from the per-blur projectors
         parts = [_kink_projector(s, grid, sg) for sg in BLUR_GRID_PX]
         hit = (np.ascontiguousarray(np.concatenate([q for q, _ in parts], axis=1)),
                np.ascontiguousarray(np.concatenate([h for _, h in parts], axis=1)))
-        _PROJ_CACHE[key] = hit
+        _BLUR_STACKS[key] = hit
     Q, H = hit                                                       # (S, B*G*nb), (S, B*G)
     proj = (prof @ Q).reshape(n, B, G, -1)
     res = np.einsum("ns,ns->n", prof, prof)[:, None, None] - np.einsum("nbgk,nbgk->nbg", proj, proj)
