@@ -24,6 +24,7 @@ from calibration.camera_model import CameraModel
 from calibration.triangulation import homogeneous, triangulate_paper
 from station.blas_threads import single_thread_blas
 from station.errors import MeasurementError
+from station.robust_lsq import soft_l1_least_squares
 from station.rim.ellipse_fit import fit_direct
 from station.wheel_arcs import (MIN_KEPT_FRACTION, edge_visibility, hidden_arcs, inward_arcs, not_grazing_xy,
                                 rim_angles, sector_labels, sector_medians)
@@ -397,9 +398,10 @@ def _fit_circle(xy_l: np.ndarray, xy_r: np.ndarray, cam_l: CameraModel, cam_r: C
         """A stacked (N,) array over the current views -> one array per view."""
         return np.split(values, np.cumsum([len(v[1]) for v in views])[:-1])
 
-    def jacobian(p, hviews):
-        """(N,6) d residuals / d p: the six conic derivatives by central differences (the
-        conic is a low-order polynomial of p: exact to ~1e-10), the points' part analytic."""
+    def residuals_and_jacobian(p, hviews):
+        """:func:`residuals` (N,) and their derivatives (N,6) d residuals / d p: the six conic
+        derivatives by central differences (the conic is a low-order polynomial of p: exact to
+        ~1e-10), the points' part analytic."""
         h = 1e-6 * np.maximum(1.0, np.abs(p))
         P = np.vstack([p, p + np.diag(h), p - np.diag(h)])                  # (13,6)
         n = n0 + P[:, :1] * e1 + P[:, 1:2] * e2
@@ -411,12 +413,13 @@ def _fit_circle(xy_l: np.ndarray, xy_r: np.ndarray, cam_l: CameraModel, cam_r: C
             raw.append(r_k)
             J.append(J_k)
         r = np.concatenate(raw)
-        return np.vstack(J) * np.where(r < -loss_scale_px, inward_weight, 1.0)[:, None]
+        inward = r < -loss_scale_px
+        return (np.where(inward, inward_weight * (r + loss_scale_px) - loss_scale_px, r),
+                np.vstack(J) * np.where(inward, inward_weight, 1.0)[:, None])
 
     def solve(x0, keep=None):
         hviews = homogeneous_views(keep)
-        return least_squares(lambda p: residuals(p, hviews=hviews), x0, jac=lambda p: jacobian(p, hviews),
-                             loss="soft_l1", f_scale=loss_scale_px, x_scale="jac", method="trf")
+        return soft_l1_least_squares(lambda p: residuals_and_jacobian(p, hviews), x0, f_scale=loss_scale_px)
 
     x0 = np.concatenate([[0.0, 0.0], init.center_station, [init.radius_m]])
     doubtful = False
