@@ -178,10 +178,10 @@ def _ring_darkness(sc: _Scene, e: Ellipse, n_angles: int = 96) -> float:
     """Fraction of the visible angles where the band just outside ``e`` is clearly darker than
     the band just inside: a tyre all round (1.0) versus a disc seen between spokes (< 0.8)."""
     t = (np.arange(n_angles) + 0.5) * (2 * np.pi / n_angles)
-    inner = np.stack([sc.sample_coarse(Ellipse(e.center_px, e.axes_px * f, e.angle_rad).point_at(t))
-                      for f in (0.95, 0.975)]).mean(axis=0)
-    outer = np.stack([sc.sample_coarse(Ellipse(e.center_px, e.axes_px * f, e.angle_rad).point_at(t))
-                      for f in (1.03, 1.06, 1.10)])
+    rings = sc.sample_coarse(np.concatenate([Ellipse(e.center_px, e.axes_px * f, e.angle_rad).point_at(t)
+                                             for f in (0.95, 0.975, 1.03, 1.06, 1.10)])).reshape(5, n_angles)
+    inner = rings[:2].mean(axis=0)
+    outer = rings[2:]                                 # one lookup for the five rings
     with np.errstate(all="ignore"):
         outer = np.where(np.isfinite(outer).any(axis=0), np.nanmax(np.where(np.isfinite(outer), outer, -np.inf), axis=0), np.nan)
     contrast = inner - outer
