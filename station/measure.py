@@ -21,6 +21,7 @@ from station.calibration_share import calibration_covariance, pair_perturbation_
 from station.errors import MeasurementError, StationError
 from station.frame_handoff import FrameHandoff
 from station.frame_handoff import resolve as resolve_frame
+from station.other_contour import refit_other_contour
 from station.wheel3d import WheelFit, reconstruct_paper, refine_circle
 
 METHODS = ("circle", "paper")
@@ -71,7 +72,8 @@ def measure_wheel(wheel: str, cams: tuple[str, str], images: dict, cameras: dict
     out = WheelOutcome(wheel, cams, detections)
     if not any(isinstance(d, StationError) for d in detections.values()):
         try:
-            out.observation = reconstruct_wheel(wheel, cams, detections, cameras, calibration_cov)
+            out.observation = reconstruct_wheel(wheel, cams, detections, cameras, calibration_cov,
+                                                config.measurement.uncertainty_limit_deg)
             check_same_rim(out.observation, config)
         except StationError as e:
             # a runner-up pairing is a second guess: it must pass the full check, including
@@ -87,14 +89,20 @@ def measure_wheel(wheel: str, cams: tuple[str, str], images: dict, cameras: dict
 
 
 def reconstruct_wheel(wheel: str, cams: tuple[str, str], detections: dict, cameras: dict,
-                      calibration_cov: np.ndarray | None = None) -> WheelObservation:
+                      calibration_cov: np.ndarray | None = None,
+                      uncertainty_limit_deg: float | None = None) -> WheelObservation:
     """Both 3-D methods for one pair. calibration_cov: the pair's (30,30) joint camera-parameter
     covariance from the calibration (StationCalibration.pair_covariance); when given, its share
-    of the circle's uncertainty is added to the circle's centre and axis covariance."""
+    of the circle's uncertainty is added to the circle's centre and axis covariance.
+    uncertainty_limit_deg: a circle less certain than this is tested for arcs on another
+    concentric contour of the wheel (station/other_contour.py)."""
     cam_l, cam_r = (cameras[c] for c in cams)
     det_l, det_r = detections[cams[0]], detections[cams[1]]
     paper = reconstruct_paper(det_l.points_px, det_r.points_px, cam_l, cam_r)
     circle = refine_circle(det_l.points_px, det_r.points_px, cam_l, cam_r, paper)
+    if uncertainty_limit_deg is not None:
+        circle = refit_other_contour(det_l.points_px, det_r.points_px, cam_l, cam_r, circle,
+                                     uncertainty_limit_deg) or circle
     if calibration_cov is not None:
         cov_pair = pair_perturbation_covariance(cam_l, cam_r, calibration_cov)
         cc, ca = calibration_covariance(det_l.points_px, det_r.points_px, cam_l, cam_r, circle, cov_pair=cov_pair)
@@ -189,7 +197,8 @@ def resolve_pair(wheel: str, cams: tuple[str, str], detections: dict, images: di
             if i == j == 0 or (best is not None and min(sl, sr) <= best[0]):
                 continue
             try:
-                o = reconstruct_wheel(wheel, cams, {cams[0]: dl, cams[1]: dr}, cameras, calibration_cov)
+                o = reconstruct_wheel(wheel, cams, {cams[0]: dl, cams[1]: dr}, cameras, calibration_cov,
+                                      config.measurement.uncertainty_limit_deg)
                 check_same_rim(o, config, allow_unchecked=False)
             except StationError:
                 continue
@@ -295,7 +304,10 @@ def _fill_angles(result: dict, fits: dict[str, WheelFit], observations: dict, co
             "quality": {"score": float(min(det_l.score, det_r.score)),
                         "points_left": int(len(det_l.points_px)), "points_right": int(len(det_r.points_px)),
                         "epipolar_rms_px": float(o.circle.epipolar_rms_px),
-                        "reprojection_rms_px": float(o.circle.reprojection_rms_px)},
+                        "reprojection_rms_px": float(o.circle.reprojection_rms_px),
+                        "arcs_left_out": bool(o.circle.arcs_left_out),
+                        "other_contour_mm": (None if o.circle.other_contour_mm is None
+                                             else round(float(o.circle.other_contour_mm), 2))},
         })
         result["wheels"][w] = entry
         worst = max(("toe", entry["toe_std_deg"]), ("camber", entry["camber_std_deg"]), key=lambda kv: kv[1])

@@ -60,6 +60,8 @@ class WheelFit:
     view_median_px: tuple[float, float] = (float("nan"), float("nan"))  # median |residual| per view
     calibration_share: tuple[float, float] | None = None  # traces of the calibration's (centre m^2, axis) covariance
     grazing_left_out: bool = False  # fitted without the points seen across the lip at a grazing angle
+    arcs_left_out: bool = False  # arcs that do not follow the circle of the other half of the rim left out
+    other_contour_mm: float | None = None  # some on another concentric contour, this much outside (station/other_contour.py)
 
 
 # --- pair geometry ----------------------------------------------------------------------------
@@ -247,7 +249,8 @@ def sampson_px(C: np.ndarray, xy: np.ndarray, focal_px: float) -> np.ndarray:
 
 
 def _bias_covariance(sol, views, n0, e1, e2, n_modes: int, n_sectors: int = 18) -> np.ndarray:
-    """(6,6) covariance of the circle parameters from slowly varying edge biases in each view.
+    """(P,P) covariance of the circle parameters (P = 6, or more for a model whose first six
+    parameters are the circle's) from slowly varying edge biases in each view.
 
     The edge a camera sees may sit off the flange edge by a bias that changes slowly around
     the rim (a shaded lip, the tyre bulge, the blur model): it does not average out over the
@@ -258,9 +261,9 @@ def _bias_covariance(sol, views, n0, e1, e2, n_modes: int, n_sectors: int = 18) 
     c = sol.x[2:5]
     n = _normal_from(sol.x[:2], n0, e1, e2)
     J = sol.jac
-    pinv = np.linalg.pinv(J.T @ J) @ J.T                                  # (6, N)
+    pinv = np.linalg.pinv(J.T @ J) @ J.T                                  # (P, N)
     bounds = np.cumsum([0] + [len(v[1]) for v in views])
-    cov = np.zeros((6, 6))
+    cov = np.zeros((J.shape[1], J.shape[1]))
     for (cam, xy, _), a, b in zip(views, bounds[:-1], bounds[1:]):
         r = sol.fun[a:b]
         phi = rim_angles(cam, xy, c, n)
@@ -272,7 +275,7 @@ def _bias_covariance(sol, views, n0, e1, e2, n_modes: int, n_sectors: int = 18) 
         se2 = (1.2533 * noise) ** 2 / count[full]                 # its squared standard error
         sigma_b = float(np.sqrt(max(np.mean(meds ** 2 - se2), 0.0))) if len(full) else 0.0
         modes = [np.ones_like(phi)] + [f(k * phi) for k in range(1, n_modes + 1) for f in (np.cos, np.sin)]
-        dp = pinv[:, a:b] @ (np.stack(modes, axis=1) * sigma_b)            # (6, modes)
+        dp = pinv[:, a:b] @ (np.stack(modes, axis=1) * sigma_b)            # (P, modes)
         cov += dp @ dp.T
     return cov
 
