@@ -328,6 +328,16 @@ def _fill_angles(result: dict, fits: dict[str, WheelFit], observations: dict, co
                 f"(epipolar residual {o.circle.epipolar_rms_px:.1f} px from extrapolated tangents; one 3-D circle "
                 f"fits both views within {max(o.circle.view_median_px):.2f} px); if this persists, look at "
                 f"{d.camera_id or 'the camera'}'s image (lighting, the tyre or the wheel arch hiding the rim) and recalibrate")
+        elif o.circle.epipolar_rms_px > limit and o.circle.arcs_left_out:
+            # the tangents of the arcs kept are extrapolated over those left out: no check
+            kept = kept_fractions(o)
+            weak = o.cams[int(np.argmin(kept))]
+            result["warning_flags"].append({"kind": "unchecked", "wheel": w})
+            result["warnings"].append(
+                f"pair {w} ({o.cams[0]}, {o.cams[1]}): arcs of the rim that follow another contour were left "
+                f"out; the 3-D rim rests on {min(kept):.0%} of {weak}'s edge points, too little to check the "
+                f"pair's calibration this cycle (epipolar residual {o.circle.epipolar_rms_px:.1f} px from "
+                f"extrapolated tangents); if this persists on bright rims too, recalibrate")
         elif o.circle.epipolar_rms_px > limit:
             result["warning_flags"].append({"kind": "drift", "wheel": w})
             result["warnings"].append(

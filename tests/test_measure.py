@@ -115,6 +115,32 @@ def test_a_rim_seen_on_part_of_its_perimeter_is_measured_and_its_unchecked_pair_
 
 
 @pytest.mark.slow
+def test_a_pair_fitted_without_its_arcs_on_another_contour_is_unchecked_not_drifted(sim, monkeypatch):
+    """Tangents of the arcs kept after those on another contour were left out are extrapolated:
+    an epipolar residual over the limit there is no evidence that a camera moved."""
+    from dataclasses import replace
+
+    import station.measure as measure
+
+    cfg, world, scene, images = sim
+    fit = measure.refine_circle
+
+    def partial(pl, pr, cl, cr, init, **kw):
+        c = fit(pl, pr, cl, cr, init, **kw)
+        return replace(c, epipolar_rms_px=2.0, arcs_left_out=True) if cl.name == "cam5" else c
+
+    monkeypatch.setattr(measure, "refine_circle", partial)
+    result = measure_frames(images, world.cameras, cfg)
+    assert result["valid"], result["failure"]
+    assert {"kind": "unchecked", "wheel": "RL"} in result["warning_flags"]
+    assert {"kind": "drift", "wheel": "RL"} not in result["warning_flags"]
+    note = [w for w in result["warnings"] if w.startswith("pair RL")]
+    assert len(note) == 1 and "follow another contour" in note[0] and "too little to check" in note[0]
+    assert result["wheels"]["RL"]["quality"]["arcs_left_out"] is True
+    assert result["wheels"]["FL"]["quality"]["arcs_left_out"] is False
+
+
+@pytest.mark.slow
 def test_a_wheel_less_certain_than_the_limit_warns_and_names_a_camera(sim, monkeypatch):
     cfg, world, scene, images = sim
     result = measure_frames(images, world.cameras, cfg)
