@@ -113,6 +113,7 @@ def reconstruct_wheel(wheel: str, cams: tuple[str, str], detections: dict, camer
 
 
 UNCHECKED_MIN_KEPT = 1 / 3  # of each view's edge points the circle must rest on to be taken unchecked
+TANGENT_GAP_DEG = 15.0      # the drift check needs rim points this near where the epipolar planes touch
 
 
 def unverifiable_epipolar(o: WheelObservation, config: StationConfig) -> bool:
@@ -328,16 +329,18 @@ def _fill_angles(result: dict, fits: dict[str, WheelFit], observations: dict, co
                 f"(epipolar residual {o.circle.epipolar_rms_px:.1f} px from extrapolated tangents; one 3-D circle "
                 f"fits both views within {max(o.circle.view_median_px):.2f} px); if this persists, look at "
                 f"{d.camera_id or 'the camera'}'s image (lighting, the tyre or the wheel arch hiding the rim) and recalibrate")
-        elif o.circle.epipolar_rms_px > limit and o.circle.arcs_left_out:
-            # the tangents of the arcs kept are extrapolated over those left out: no check
-            kept = kept_fractions(o)
-            weak = o.cams[int(np.argmin(kept))]
+        elif o.circle.epipolar_rms_px > limit and not np.max(o.circle.tangent_gap_deg) <= TANGENT_GAP_DEG:
+            # the epipolar planes touch the rim where a camera did not see it: the tangents
+            # there are extrapolated, and their disagreement is no evidence that a camera moved
+            gaps = np.nan_to_num(np.asarray(o.circle.tangent_gap_deg, float), nan=360.0)
+            k = int(np.argmax(gaps))
+            where = f"nearest edge point {gaps[k]:.0f} deg of the rim away" if gaps[k] < 360 else "no tangent point found"
             result["warning_flags"].append({"kind": "unchecked", "wheel": w})
             result["warnings"].append(
-                f"pair {w} ({o.cams[0]}, {o.cams[1]}): arcs of the rim that follow another contour were left "
-                f"out; the 3-D rim rests on {min(kept):.0%} of {weak}'s edge points, too little to check the "
-                f"pair's calibration this cycle (epipolar residual {o.circle.epipolar_rms_px:.1f} px from "
-                f"extrapolated tangents); if this persists on bright rims too, recalibrate")
+                f"pair {w} ({o.cams[0]}, {o.cams[1]}): {o.cams[k]} did not see the rim where the epipolar planes "
+                f"touch it ({where}), too little "
+                f"to check the pair's calibration this cycle (epipolar residual {o.circle.epipolar_rms_px:.1f} px "
+                f"from extrapolated tangents); if this persists on well-lit, fully visible rims, recalibrate")
         elif o.circle.epipolar_rms_px > limit:
             result["warning_flags"].append({"kind": "drift", "wheel": w})
             result["warnings"].append(

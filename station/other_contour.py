@@ -29,7 +29,8 @@ from calibration.triangulation import homogeneous
 from station.errors import MeasurementError
 from station.robust_lsq import soft_l1_least_squares
 from station.wheel3d import (BIAS_MODES, WheelFit, _along_rim, _bias_covariance, _normal_from, circle_conics,
-                             correlation_factor, epipolar_tangency_px, sampson_jacobian)
+                             correlation_factor, epipolar_tangency_px, sampson_jacobian,
+                             tangent_point_gaps_deg)
 from station.wheel_arcs import rim_angles
 
 WINDOWS = 4               # half-rim windows, centred 90 degrees apart
@@ -220,13 +221,15 @@ def fit_two_contours(views, labels, init, loss_scale_px: float = 0.3, bias_modes
     try:  # the pair's epipolar check on the points of the contour reported, as the circle fit does
         ones = [xy[lab == 1] for _, xy, lab, _ in used]
         epipolar = epipolar_tangency_px(ones[0], ones[1], used[0][0], used[1][0])
+        g = tangent_point_gaps_deg(views[0][1], views[1][1], views[0][0], views[1][0])  # all points found
+        gap = (float(np.max(g[:2])), float(np.max(g[2:])))
     except (MeasurementError, np.linalg.LinAlgError, ValueError):
-        epipolar = init.epipolar_rms_px
+        epipolar, gap = init.epipolar_rms_px, (float("nan"), float("nan"))
     return WheelFit("circle", sol.x[2:5].copy(), n, float(sol.x[5]),
                     view_median_px=tuple(float(np.median(np.abs(v))) for v in per_view),
                     cov_center=cov_p[2:5, 2:5], cov_axis=Jn @ cov_p[:2, :2] @ Jn.T,
                     reprojection_rms_px=float(np.sqrt(np.mean(r[inlier] ** 2))),
-                    epipolar_rms_px=epipolar,
+                    epipolar_rms_px=epipolar, tangent_gap_deg=gap,
                     n_points=(len(used[0][1]), len(used[1][1])),
                     other_contour_mm=float(1e3 * (sol.x[6] - sol.x[5])) if second else None)
 

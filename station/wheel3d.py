@@ -61,6 +61,8 @@ class WheelFit:
     calibration_share: tuple[float, float] | None = None  # traces of the calibration's (centre m^2, axis) covariance
     grazing_left_out: bool = False  # fitted without the points seen across the lip at a grazing angle
     arcs_left_out: bool = False  # arcs that do not follow the circle of the other half of the rim left out
+    tangent_gap_deg: tuple[float, float] = (float("nan"), float("nan"))  # per view, the larger of its
+    # tangent_point_gaps_deg on all its rim points: whether it saw the rim where the epipolar planes touch
     other_contour_mm: float | None = None  # some on another concentric contour, this much outside (station/other_contour.py)
 
 
@@ -152,6 +154,45 @@ def epipolar_tangency_px(xy_l: np.ndarray, xy_r: np.ndarray, cam_l: CameraModel,
     e1, e2 = _pencil_basis(t, homogeneous(xy_l).mean(axis=0))
     _, tangency = _tangency(fit_conic(xy_l), fit_conic(xy_r), R, e1, e2)
     return tangency * 0.5 * (cam_l.K[0, 0] + cam_r.K[0, 0])
+
+
+def epipolar_tangent_points(xy: np.ndarray, epipole: np.ndarray):
+    """The two points (2,2) where lines from the ``epipole`` (3,) (homogeneous, normalised
+    coordinates) touch the ellipse through normalised points xy (N,2), and that ellipse; None
+    when the epipole is not outside it. They lie on the epipole's polar line C e."""
+    e = fit_direct(xy)
+    A, B, Cc, D, E, F = e.to_conic()
+    C = np.array([[A, B / 2, D / 2], [B / 2, Cc, E / 2], [D / 2, E / 2, F]])
+    a, b, c = C @ epipole
+    n2 = a * a + b * b
+    p0 = np.array([-a * c / n2, -b * c / n2, 1.0])                   # the polar's point nearest the origin
+    d = np.array([-b, a, 0.0]) / np.sqrt(n2)                          # and its direction
+    qa, qb, qc = d @ C @ d, 2 * d @ C @ p0, p0 @ C @ p0
+    disc = qb * qb - 4 * qa * qc
+    if not disc > 0:
+        return None
+    roots = (-qb + np.array([-1.0, 1.0]) * np.sqrt(disc)) / (2 * qa)
+    return p0[:2][None, :] + roots[:, None] * d[None, :2], e
+
+
+def tangent_point_gaps_deg(xy_l: np.ndarray, xy_r: np.ndarray, cam_l: CameraModel, cam_r: CameraModel) -> np.ndarray:
+    """(4,) for each point where an epipolar plane touches the rim (two per view), how far
+    (degrees of the ellipse parameter) it lies from the nearest of the view's rim points
+    xy (N,2) (normalised): the epipolar check measures the tangents there, and interpolates
+    them only where the rim was seen near those points. NaN where no tangent point exists."""
+    R, t = pair_relation(cam_l, cam_r)
+    gaps = []
+    for xy, epipole in ((xy_l, t), (xy_r, -R @ t)):   # the other camera's centre in this one's frame
+        found = epipolar_tangent_points(xy, epipole)
+        if found is None:
+            gaps += [np.nan, np.nan]
+            continue
+        feet, e = found
+        le = e.to_local(np.vstack([feet, xy]))
+        ang = np.arctan2(le[:, 1] / e.axes_px[1], le[:, 0] / e.axes_px[0])
+        diff = np.abs(np.angle(np.exp(1j * (ang[:2, None] - ang[None, 2:]))))  # (2,N)
+        gaps += list(np.degrees(diff.min(axis=1)))
+    return np.array(gaps)
 
 
 def _pencil_basis(t: np.ndarray, toward: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -499,6 +540,11 @@ def _fit_circle(xy_l: np.ndarray, xy_r: np.ndarray, cam_l: CameraModel, cam_r: C
             epipolar = epipolar_tangency_px(views[0][1], views[1][1], cam_l, cam_r)
         except (MeasurementError, np.linalg.LinAlgError, ValueError):
             pass
+    try:  # on every point the cameras found: did they see the rim where the planes touch it?
+        g = tangent_point_gaps_deg(xy_l, xy_r, cam_l, cam_r)
+        gap = (float(np.max(g[:2])), float(np.max(g[2:])))
+    except (np.linalg.LinAlgError, ValueError):
+        gap = (float("nan"), float("nan"))
     n = _normal_from(sol.x[:2], n0, e1, e2)
     if n[0] * outward_sign(sol.x[2:5]) < 0:
         n = -n
@@ -510,7 +556,7 @@ def _fit_circle(xy_l: np.ndarray, xy_r: np.ndarray, cam_l: CameraModel, cam_r: C
     fit = WheelFit("circle", sol.x[2:5].copy(), n, float(sol.x[5]), view_median_px=medians,
                     cov_center=cov_p[2:5, 2:5], cov_axis=cov_axis,
                     reprojection_rms_px=float(np.sqrt(np.mean(r[inlier] ** 2))) if inlier.any() else float("nan"),
-                    epipolar_rms_px=epipolar,
+                    epipolar_rms_px=epipolar, tangent_gap_deg=gap,
                     n_points=(len(views[0][1]), len(views[1][1])))
     if doubtful:
         plain = _fit_circle(xy_l, xy_r, cam_l, cam_r, init, loss_scale_px, jackknife_sectors, inward_weight,

@@ -375,3 +375,26 @@ def test_a_view_with_nothing_on_the_circle_is_refused_not_crashed():
     pr = pr + off[:, None] * d / np.linalg.norm(d, axis=1, keepdims=True)
     with pytest.raises(MeasurementError, match="R: only"):
         refine_circle(pl, pr, cl, cr, paper)
+
+
+def test_the_epipolar_tangent_points_and_how_far_the_rim_seen_is_from_them():
+    from station.wheel3d import epipolar_tangent_points, pair_relation, tangent_point_gaps_deg
+
+    v = random_vehicle(np.random.default_rng(4))
+    c, w, X = _rim(v, "FL", n=1440)
+    cl, cr = _pair(c[0], c[1])
+    xy_l, xy_r = (cam.pixels_to_normalized(cam.project(X)) for cam in (cl, cr))
+    R, t = pair_relation(cl, cr)
+    feet, e = epipolar_tangent_points(xy_l, t)
+    A, B, C, D, E, F = e.to_conic()
+    Q = np.array([[A, B / 2, D / 2], [B / 2, C, E / 2], [D / 2, E / 2, F]])
+    for x in np.hstack([feet, np.ones((2, 1))]):
+        assert abs(x @ Q @ x) < 1e-9 * np.abs(Q).max()                  # on the ellipse
+        assert abs(t @ Q @ x) < 1e-9 * np.abs(Q).max() * np.linalg.norm(t)  # its tangent holds the epipole
+    assert tangent_point_gaps_deg(xy_l, xy_r, cl, cr).max() < 0.3        # seen all round: 0.25 deg apart
+    # leave out the arc within 20 deg of one tangent point of the left view: the gap is 20 deg
+    le = e.to_local(np.vstack([feet, xy_l]))
+    ang = np.arctan2(le[:, 1] / e.axes_px[1], le[:, 0] / e.axes_px[0])
+    near = np.abs(np.angle(np.exp(1j * (ang[2:] - ang[0])))) < np.radians(20)
+    gaps = tangent_point_gaps_deg(xy_l[~near], xy_r, cl, cr)
+    assert gaps[0] == pytest.approx(20, abs=0.5) and gaps[1:].max() < 0.3
