@@ -99,33 +99,54 @@ def angle_vector(angles: dict) -> np.ndarray:
     return np.array(out, float)
 
 
+def angle_vectors(C: np.ndarray, A: np.ndarray) -> np.ndarray:
+    """``angle_vector(compute_angles(...))`` of K configurations at once: centres C (K,4,3) and
+    outward axes A (K,4,3), wheels in WHEELS order. Returns (K,11) degrees."""
+    def unit(v):
+        return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+    FL, FR, RL, RR = (C[:, i] for i in range(4))
+    x = unit(RR - RL)
+    z = unit(np.cross(x, FL - RL))                                   # the paper's z'
+    line = (FL + FR) / 2 - (RL + RR) / 2                             # the geometric centreline
+    y = unit(line - z * np.einsum("ki,ki->k", z, line)[:, None])
+    xa = np.cross(y, z)
+    a = unit(A)
+    wx, wy, wz = (np.einsum("kwi,ki->kw", a, e) for e in (xa, y, z))  # (K,4) in the alignment frame
+    side = np.array([SIDE[w] for w in WHEELS])
+    toe, camber = np.arctan2(wy, side * wx), np.arctan2(-wz, side * wx)
+    out = np.stack([toe[:, 0], camber[:, 0], toe[:, 1], camber[:, 1], toe[:, 2], camber[:, 2],
+                    toe[:, 3], camber[:, 3], toe[:, 0] + toe[:, 1], toe[:, 2] + toe[:, 3],
+                    (toe[:, 2] - toe[:, 3]) / 2], axis=1)
+    return np.degrees(out)
+
+
 def angle_covariance(centers: dict, axes: dict, cov_center: dict, cov_axis: dict,
                      step: float = 1e-7) -> np.ndarray:
     """Covariance (11,11) in deg^2 of ``angle_vector`` by first-order propagation.
 
     cov_center[W], cov_axis[W]: (3,3) covariances of each wheel's centre (m^2) and axis.
-    The Jacobian is taken numerically (central differences); inputs are independent per wheel.
+    The Jacobian is taken numerically (central differences, all 48 perturbed configurations in
+    one :func:`angle_vectors` call); inputs are independent per wheel.
     """
-    base = {w: np.asarray(centers[w], float) for w in WHEELS}
-    ax = {w: _unit(np.asarray(axes[w], float)) for w in WHEELS}
-    n_out = len(ANGLE_NAMES)
-    cov = np.zeros((n_out, n_out))
-    for w in WHEELS:
-        for which, source, C in (("c", base, cov_center[w]), ("a", ax, cov_axis[w])):
-            J = np.empty((n_out, 3))
-            for k in range(3):
-                dv = np.zeros(3)
-                dv[k] = step
-                plus = dict(source)
-                minus = dict(source)
-                plus[w] = source[w] + dv
-                minus[w] = source[w] - dv
-                if which == "c":
-                    fp, fm = compute_angles(plus, ax), compute_angles(minus, ax)
-                else:
-                    fp, fm = compute_angles(base, plus), compute_angles(base, minus)
-                J[:, k] = (angle_vector(fp) - angle_vector(fm)) / (2 * step)
-            cov += J @ np.asarray(C, float) @ J.T
+    c0 = np.stack([np.asarray(centers[w], float) for w in WHEELS])
+    a0 = np.stack([_unit(np.asarray(axes[w], float)) for w in WHEELS])
+    d = step * np.eye(3)
+    C, A = [], []
+    for i in range(4):
+        for which in (0, 1):                   # the centre, then the axis, of wheel i
+            for sign in (1.0, -1.0):
+                dc = np.zeros((3, 4, 3))
+                dc[:, i, :] = sign * d
+                C.append(c0 + dc * (which == 0))           # (3,4,3): the three coordinates
+                A.append(a0 + dc * (which == 1))
+    V = angle_vectors(np.concatenate(C), np.concatenate(A)).reshape(4, 2, 2, 3, -1)  # wheel, which, sign, k
+    J = (V[:, :, 0] - V[:, :, 1]) / (2 * step)                                        # (4,2,3,11)
+    cov = np.zeros((len(ANGLE_NAMES),) * 2)
+    for i, w in enumerate(WHEELS):
+        for which, S in ((0, cov_center[w]), (1, cov_axis[w])):
+            Jw = J[i, which].T                                                           # (11,3)
+            cov += Jw @ np.asarray(S, float) @ Jw.T
     return cov
 
 

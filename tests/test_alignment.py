@@ -87,3 +87,33 @@ def test_covariance_propagation_matches_monte_carlo():
     std_mc = np.std(samples, axis=0)
     np.testing.assert_allclose(np.sqrt(np.diag(cov)), std_mc, rtol=0.15)
     assert len(ANGLE_NAMES) == cov.shape[0]
+
+
+def test_the_batched_angles_and_their_covariance_are_those_of_compute_angles():
+    from station.alignment import ANGLE_NAMES, SIDE, WHEELS, angle_covariance, angle_vector, angle_vectors, compute_angles
+
+    rng = np.random.default_rng(11)
+    nominal = {"FL": [-0.8, 1.4, 0.33], "FR": [0.8, 1.4, 0.33], "RL": [-0.8, -1.3, 0.33], "RR": [0.8, -1.3, 0.33]}
+    centers = {w: np.array(c) + rng.normal(0, 0.03, 3) for w, c in nominal.items()}
+    axes = {w: np.array([SIDE[w], 0, 0]) + rng.normal(0, 0.03, 3) for w in WHEELS}
+    axes = {w: a / np.linalg.norm(a) for w, a in axes.items()}  # the covariance is of unit axes
+    C = np.stack([centers[w] for w in WHEELS])[None]
+    A = np.stack([axes[w] for w in WHEELS])[None]
+    np.testing.assert_allclose(angle_vectors(C, A)[0], angle_vector(compute_angles(centers, axes)), atol=1e-12)
+    cov_c = {w: np.diag(rng.uniform(1e-8, 1e-6, 3)) for w in WHEELS}
+    cov_a = {w: np.diag(rng.uniform(1e-8, 1e-6, 3)) for w in WHEELS}
+    # the reference: central differences of compute_angles, one coordinate at a time
+    ref = np.zeros((len(ANGLE_NAMES),) * 2)
+    h = 1e-7
+    for w in WHEELS:
+        for source, S in ((centers, cov_c[w]), (axes, cov_a[w])):
+            J = np.empty((len(ANGLE_NAMES), 3))
+            for k in range(3):
+                plus, minus = dict(source), dict(source)
+                plus[w] = source[w] + h * np.eye(3)[k]
+                minus[w] = source[w] - h * np.eye(3)[k]
+                args_p = (plus, axes) if source is centers else (centers, plus)
+                args_m = (minus, axes) if source is centers else (centers, minus)
+                J[:, k] = (angle_vector(compute_angles(*args_p)) - angle_vector(compute_angles(*args_m))) / (2 * h)
+            ref += J @ S @ J.T
+    np.testing.assert_allclose(angle_covariance(centers, axes, cov_c, cov_a), ref, rtol=1e-6, atol=1e-12)
