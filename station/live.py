@@ -29,6 +29,7 @@ from station.errors import MeasurementError, StationError
 from station.cycle import open_capture
 from station.wheel_workers import WheelWorkers, default_workers
 from station.measure import WheelObservation, check_same_rim, measure_frames
+from station.other_contour import on_circle
 from station.wheel3d import WheelFit, reconstruct_paper, refine_circle
 from station.wheel_arcs import not_grazing
 
@@ -239,9 +240,16 @@ def live_wheel(wheel: str, cams: tuple[str, str], images: dict, models: dict, pr
             if grazing_out:
                 keep_l, keep_r = not_grazing(previous_circle, pl, pr, cam_l, cam_r)
                 pl, pr = pl[keep_l], pr[keep_r]
+            # and whether arcs on another concentric contour are left out (station/other_contour.py)
+            other_out = previous_circle is not None and previous_circle.arcs_left_out
+            if other_out:
+                views = [(cam, cam.pixels_to_normalized(p)) for cam, p in ((cam_l, pl), (cam_r, pr))]
+                keep_l, keep_r = on_circle(views, previous_circle)
+                pl, pr = pl[keep_l], pr[keep_r]
             circle = refine_circle(pl, pr, cam_l, cam_r, previous_circle or paper, bias_modes=0,
                                    init_is_fitted=previous_circle is not None, grazing_test=False)
-            circle = replace(circle, grazing_left_out=grazing_out)
+            circle = replace(circle, grazing_left_out=grazing_out, arcs_left_out=other_out,
+                             other_contour_mm=previous_circle.other_contour_mm if other_out else None)
             obs = WheelObservation(wheel, cams, (det_l, det_r), paper, circle)
             check_same_rim(obs, config)
         except StationError as e:

@@ -261,3 +261,15 @@ def refit_other_contour(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l:
     if alt.other_contour_mm is None and info["offset_mm"] is not None:
         alt = replace(alt, other_contour_mm=info["offset_mm"])  # found, too short to fit: left out
     return replace(alt, arcs_left_out=True)
+
+
+LIVE_TOL_PX = 1.5  # station live: a point this near the last circle, in its plane, is on its contour
+
+
+def on_circle(views, circle: WheelFit, tol_px: float = LIVE_TOL_PX) -> list[np.ndarray]:
+    """Per view (camera, normalised points (N,2)), the (N,) bool mask of the points whose
+    radial offset from ``circle`` in its plane is within ``tol_px`` pixels at the wheel:
+    ``station live`` keeps a wheel's arcs on another contour out, update after update, as
+    its baseline cycle did, without searching again."""
+    return [np.abs(radial_offsets_m(cam, xy, circle.center_station, circle.axis_station, circle.radius_m))
+            <= tol_px * metres_per_px(cam, circle.center_station) for cam, xy in views]

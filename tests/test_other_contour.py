@@ -81,3 +81,21 @@ def test_a_clean_rim_is_left_alone_and_a_certain_circle_is_not_tested():
     _, _, _, _, _, (qp, qr) = _views(3)
     mixed = refine_circle(qp, qr, cp, cr, reconstruct_paper(qp, qr, cp, cr))
     assert refit_other_contour(qp, qr, cp, cr, mixed, above_deg=90.0) is None  # within the limit: no test
+
+
+def test_live_keeps_the_arcs_on_the_other_contour_out_by_the_last_circle():
+    from station.other_contour import on_circle
+
+    v, c, w, radius, (cp, cr), (pp, pr) = _views(4)
+    circle = refine_circle(pp, pr, cp, cr, reconstruct_paper(pp, pr, cp, cr))
+    alt = refit_other_contour(pp, pr, cp, cr, circle, above_deg=0.0)
+    views = [(cam, cam.pixels_to_normalized(p)) for cam, p in ((cp, pp), (cr, pr))]
+    for (cam, xy), keep in zip(views, on_circle(views, alt)):
+        off = radial_offsets_m(cam, xy, c, w, radius)
+        inner = off < -FLANGE_M / 2                       # the points generated on the inner edge
+        assert not keep[inner].any()
+        assert keep[~inner].mean() > 0.97
+    # and the fit of what is kept is the wheel
+    keep_p, keep_r = on_circle(views, alt)
+    again = refine_circle(pp[keep_p], pr[keep_r], cp, cr, alt, init_is_fitted=True)
+    assert _angle_deg(again.axis_station, w) < 0.02
