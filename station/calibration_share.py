@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from calibration.camera_model import CameraModel
-from station.wheel3d import WheelFit, _normal_from, circle_conic, sampson_px
+from station.wheel3d import WheelFit, normal_from, circle_conic, sampson_px
 
 CAMERA_PARAMS = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "rx", "ry", "rz", "tx", "ty", "tz")
 
@@ -88,7 +88,7 @@ def calibration_covariance(points_l_px: np.ndarray, points_r_px: np.ndarray, cam
 
     def residuals(x, cams, xys=xy0):
         c = x[2:5]
-        nn = _normal_from(x[:2], n, e1, e2)
+        nn = normal_from(x[:2], n, e1, e2)
         out = []
         for cam, xy in zip(cams, xys):
             C = circle_conic(cam.R_cam_station @ c + cam.t_cam_station, cam.R_cam_station @ nn, x[5])

@@ -12,10 +12,11 @@ same centre: in the plane of the right circle, the points of both contours sit a
 This module tests that explanation. Each hypothesis is a circle fitted to the points on one
 half of the rim (a half that holds one contour only, in the failing cases); every point's ray
 is then met with that circle's plane, and its distance from the centre (``radial_offsets_m``)
-is compared with the circle's radius. The hypothesis that
-explains the most points by its own radius and one other is kept, when it explains clearly
-more of them than the original circle did; the points at the radius with the most support
-are then fitted alone.
+is compared with the circle's radius. The hypothesis that explains the most points by its
+own radius and one other is kept when it explains clearly more of them than the original
+circle did. Then both contours are fitted together (``fit_two_contours``: one axis and
+centre, a radius each, the second's plane offset along the axis); points on neither are left
+out.
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ from calibration.camera_model import CameraModel
 from calibration.triangulation import homogeneous
 from station.errors import MeasurementError
 from station.robust_lsq import soft_l1_least_squares
-from station.wheel3d import (BIAS_MODES, WheelFit, _along_rim, _bias_covariance, _normal_from, circle_conics,
+from station.wheel3d import (BIAS_MODES, WheelFit, along_rim, bias_covariance, normal_from, circle_conics,
                              correlation_factor, epipolar_tangency_px, sampson_jacobian,
                              tangent_point_gaps_deg)
 from station.wheel_arcs import rim_angles
@@ -37,9 +38,9 @@ WINDOWS = 4               # half-rim windows, centred 90 degrees apart
 MIN_WINDOW_POINTS = 40    # per view, for a hypothesis circle
 TOL_PX = (0.5, 1.5)       # radial tolerance: 3 robust sigmas of the hypothesis' own offsets, clipped
 MIN_SECOND = 0.10         # the second contour holds at least this fraction of the points
-MIN_GAIN = 0.15          # and the hypothesis explains this much more of them than the circle did
+MIN_GAIN = 0.15           # and the hypothesis explains this much more of them than the circle did
 MAX_OFFSET = 0.12         # the second contour lies within this fraction of the radius
-REFITS = 2               # rounds of refitting a hypothesis to every point it explains
+REFITS = 2                # rounds of refitting a hypothesis to every point it explains
 SEPARATION = 3.0          # and at least this many tolerances from the first (not its noise tail)
 
 
@@ -100,8 +101,9 @@ def other_contour_points(views, circle, fit_plain):
         for _ in range(1 + REFITS):  # the window's circle, then refitted to all points on it
             try:
                 hyp = fit_plain(sel[0], sel[1], hyp)
-            except Exception:  # noqa: BLE001 - a hypothesis that cannot be fitted is no explanation
+            except (MeasurementError, np.linalg.LinAlgError, ValueError):
                 hyp = None
+            if hyp is None:  # a hypothesis that cannot be fitted is no explanation
                 break
             c, n = hyp.center_station, hyp.axis_station
             scale = [metres_per_px(cam, c) for cam, _ in views]
@@ -209,11 +211,11 @@ def fit_two_contours(views, labels, init, loss_scale_px: float = 0.3, bias_modes
     split = np.cumsum([len(xy) for _, xy, _, _ in used])[:-1]
     per_view = np.split(r, split)
     fviews = [(cam, xy, f) for cam, xy, _, f in used]
-    factors = [correlation_factor(_along_rim(res, xy)) for res, (_, xy, _) in zip(per_view, fviews)]
+    factors = [correlation_factor(along_rim(res, xy)) for res, (_, xy, _) in zip(per_view, fviews)]
     cov_p *= float(np.average(factors, weights=[len(v[1]) for v in fviews]))
     if bias_modes:
-        cov_p = cov_p + _bias_covariance(sol, fviews, n0, e1, e2, bias_modes)
-    n = _normal_from(sol.x[:2], n0, e1, e2)
+        cov_p = cov_p + bias_covariance(sol, fviews, n0, e1, e2, bias_modes)
+    n = normal_from(sol.x[:2], n0, e1, e2)
     if n @ init.axis_station < 0:
         n = -n
     B = np.stack([e1, e2], axis=1)

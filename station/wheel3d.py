@@ -289,7 +289,7 @@ def sampson_px(C: np.ndarray, xy: np.ndarray, focal_px: float) -> np.ndarray:
     return focal_px * f / grad
 
 
-def _bias_covariance(sol, views, n0, e1, e2, n_modes: int, n_sectors: int = 18) -> np.ndarray:
+def bias_covariance(sol, views, n0, e1, e2, n_modes: int, n_sectors: int = 18) -> np.ndarray:
     """(P,P) covariance of the circle parameters (P = 6, or more for a model whose first six
     parameters are the circle's) from slowly varying edge biases in each view.
 
@@ -300,7 +300,7 @@ def _bias_covariance(sol, views, n0, e1, e2, n_modes: int, n_sectors: int = 18) 
     ``n_sectors`` sectors: the part of the bias the fit could not absorb), and propagate each
     mode through the least-squares solution (dp = (J^T J)^-1 J^T dr)."""
     c = sol.x[2:5]
-    n = _normal_from(sol.x[:2], n0, e1, e2)
+    n = normal_from(sol.x[:2], n0, e1, e2)
     J = sol.jac
     pinv = np.linalg.pinv(J.T @ J) @ J.T                                  # (P, N)
     bounds = np.cumsum([0] + [len(v[1]) for v in views])
@@ -324,7 +324,7 @@ def _bias_covariance(sol, views, n0, e1, e2, n_modes: int, n_sectors: int = 18) 
 def _sector_jackknife(residuals, x, views, n0, e1, e2, n_sectors: int, loss_scale_px: float) -> np.ndarray:
     """Block-jackknife covariance (6,6) of the circle parameters, leaving out one rim sector at a time."""
     c = x[2:5]
-    n = _normal_from(x[:2], n0, e1, e2)
+    n = normal_from(x[:2], n0, e1, e2)
     labels = [sector_labels(rim_angles(cam, xy, c, n), n_sectors) for cam, xy, _ in views]
     estimates = []
     for k in range(n_sectors):
@@ -337,7 +337,7 @@ def _sector_jackknife(residuals, x, views, n0, e1, e2, n_sectors: int, loss_scal
     return (n_sectors - 1) / n_sectors * dev.T @ dev
 
 
-def _along_rim(residuals: np.ndarray, xy: np.ndarray) -> np.ndarray:
+def along_rim(residuals: np.ndarray, xy: np.ndarray) -> np.ndarray:
     """Residuals (N,) reordered by the polar angle of their points (N,2) around the centroid."""
     d = xy - xy.mean(axis=0)
     return residuals[np.argsort(np.arctan2(d[:, 1], d[:, 0]))]
@@ -364,7 +364,7 @@ def correlation_factor(r: np.ndarray, max_lag_fraction: float = 0.25) -> float:
     return 1.0 + 2.0 * s
 
 
-def _normal_from(params, n0, e1, e2):
+def normal_from(params, n0, e1, e2):
     n = n0 + params[0] * e1 + params[1] * e2
     return n / np.linalg.norm(n)
 
@@ -382,7 +382,7 @@ def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: Camer
     on whole arcs of an oblique view, and then the edge the detector finds lies inside it.
 
     The covariance is (a) the Jacobian's, inflated by the residuals' correlation along the rim,
-    plus (b) slowly varying edge biases (:func:`_bias_covariance`, Fourier modes up to
+    plus (b) slowly varying edge biases (:func:`bias_covariance`, Fourier modes up to
     ``bias_modes`` of the rim angle; 0 skips it). Optionally (``jackknife_sectors`` > 0) the
     larger of that and a block jackknife over sectors of the rim (the same physical sector left
     out of both views in turn); docs/accuracy.md compares the two against the observed errors.
@@ -424,7 +424,7 @@ def _fit_circle(xy_l: np.ndarray, xy_r: np.ndarray, cam_l: CameraModel, cam_r: C
 
     def raw_residuals(p, keep=None, hviews=None):
         c = p[2:5]
-        n = _normal_from(p[:2], n0, e1, e2)
+        n = normal_from(p[:2], n0, e1, e2)
         out = []
         for cam, X, f in hviews or homogeneous_views(keep):
             C = circle_conic(cam.R_cam_station @ c + cam.t_cam_station, cam.R_cam_station @ n, p[5])
@@ -475,7 +475,7 @@ def _fit_circle(xy_l: np.ndarray, xy_r: np.ndarray, cam_l: CameraModel, cam_r: C
             # (or ``init`` itself when it is such a circle: the last live frame's)
             x_safe = x0 if init_is_fitted else solve(x0, [k & (np.arange(len(k)) % 2 == 0) for k in safe]).x
             r_all = per_view(raw_residuals(x_safe))
-            c_safe, n_safe = x_safe[2:5], _normal_from(x_safe[:2], n0, e1, e2)
+            c_safe, n_safe = x_safe[2:5], normal_from(x_safe[:2], n0, e1, e2)
             keeps = [hidden_arcs(r, k, rim_angles(cam, xy, c_safe, n_safe), loss_scale_px)
                      for r, k, (cam, xy, _) in zip(r_all, safe, views)]
             # leaving out more than half of a view is either a camera that sees little of the
@@ -503,7 +503,7 @@ def _fit_circle(xy_l: np.ndarray, xy_r: np.ndarray, cam_l: CameraModel, cam_r: C
     # fit again, a few rounds, never leaving a view under MIN_KEPT_FRACTION of its points
     n_start = [len(v[1]) for v in views]
     for _ in range(INWARD_ARC_PASSES):
-        c_now, n_now = sol.x[2:5], _normal_from(sol.x[:2], n0, e1, e2)
+        c_now, n_now = sol.x[2:5], normal_from(sol.x[:2], n0, e1, e2)
         keeps = []
         for r_v, (cam, xy, _), n_v in zip(per_view(raw_residuals(sol.x)), views, n_start):
             keep = ~inward_arcs(r_v, rim_angles(cam, xy, c_now, n_now), loss_scale_px)
@@ -524,14 +524,14 @@ def _fit_circle(xy_l: np.ndarray, xy_r: np.ndarray, cam_l: CameraModel, cam_r: C
         cov_p = np.full((6, 6), np.nan)
     # Edge errors are not independent from point to point (shading, blur and occlusion move
     # whole stretches of the rim): inflate by the residuals' correlation along the rim.
-    factors = [correlation_factor(_along_rim(res, xy)) for res, (_, xy, _) in zip(per_view(r), views)]
+    factors = [correlation_factor(along_rim(res, xy)) for res, (_, xy, _) in zip(per_view(r), views)]
     cov_p *= float(np.average(factors, weights=[len(v[1]) for v in views]))
     if jackknife_sectors:
         cov_jk = _sector_jackknife(residuals, sol.x, views, n0, e1, e2, jackknife_sectors, loss_scale_px)
         if np.trace(cov_jk[:2, :2]) > np.trace(cov_p[:2, :2]):
             cov_p = cov_jk
     if bias_modes:
-        cov_p = cov_p + _bias_covariance(sol, views, n0, e1, e2, bias_modes)
+        cov_p = cov_p + bias_covariance(sol, views, n0, e1, e2, bias_modes)
     # the pair's epipolar check on the points the circle was fitted to: an arc left out above
     # (hidden, another contour) would otherwise move a tangent plane of its view's ellipse
     epipolar = init.epipolar_rms_px
@@ -545,7 +545,7 @@ def _fit_circle(xy_l: np.ndarray, xy_r: np.ndarray, cam_l: CameraModel, cam_r: C
         gap = (float(np.max(g[:2])), float(np.max(g[2:])))
     except (np.linalg.LinAlgError, ValueError):
         gap = (float("nan"), float("nan"))
-    n = _normal_from(sol.x[:2], n0, e1, e2)
+    n = normal_from(sol.x[:2], n0, e1, e2)
     if n[0] * outward_sign(sol.x[2:5]) < 0:
         n = -n
     # d n / d (a, b) = (I - n n^T) [e1 e2] / |n0 + a e1 + b e2| ~ the tangent basis at the solution.
