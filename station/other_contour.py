@@ -29,9 +29,9 @@ from calibration.camera_model import CameraModel
 from calibration.triangulation import homogeneous
 from station.errors import MeasurementError
 from station.robust_lsq import soft_l1_least_squares
-from station.wheel3d import (BIAS_MODES, WheelFit, along_rim, bias_covariance, normal_from, circle_conics,
-                             correlation_factor, epipolar_tangency_px, sampson_jacobian,
-                             tangent_point_gaps_deg)
+from station.epipolar import epipolar_tangency_px, tangent_point_gaps_deg
+from station.wheel3d import (BIAS_MODES, WheelFit, along_rim, bias_covariance, circle_conics, correlation_factor,
+                             normal_from, sampson_jacobian)
 from station.wheel_arcs import rim_angles
 
 WINDOWS = 4               # half-rim windows, centred 90 degrees apart

@@ -6,7 +6,8 @@ import pytest
 from calibration.camera_model import CameraModel, look_at
 from simulators.vehicle import random_vehicle
 import station.wheel3d as wheel3d
-from station.wheel3d import fit_conic, reconstruct_paper, refine_circle
+from station.epipolar import fit_conic
+from station.wheel3d import reconstruct_paper, refine_circle
 from station.wheel_arcs import HIDDEN_SECTORS, edge_visibility, hidden_arcs, inward_arcs, sector_medians
 
 
@@ -378,7 +379,7 @@ def test_a_view_with_nothing_on_the_circle_is_refused_not_crashed():
 
 
 def test_the_epipolar_tangent_points_and_how_far_the_rim_seen_is_from_them():
-    from station.wheel3d import epipolar_tangent_points, pair_relation, tangent_point_gaps_deg
+    from station.epipolar import epipolar_tangent_points, pair_relation, tangent_point_gaps_deg
 
     v = random_vehicle(np.random.default_rng(4))
     c, w, X = _rim(v, "FL", n=1440)
