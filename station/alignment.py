@@ -29,22 +29,32 @@ def paper_car_frame(centers: dict[str, np.ndarray]) -> np.ndarray:
     return np.stack([x, y, z], axis=1)
 
 
+def alignment_frames(C: np.ndarray) -> np.ndarray:
+    """Frames of the signed angles for K sets of wheel centres C (K,4,3) (WHEELS order): z as
+    the paper's, y along the geometric centreline. Returns R_station_align (K,3,3), columns
+    x_a (right), y_a (forward), z_a (up)."""
+    def unit(v):
+        return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+    FL, FR, RL, RR = (C[:, i] for i in range(4))
+    z = unit(np.cross(unit(RR - RL), FL - RL))                       # the paper's z'
+    line = (FL + FR) / 2 - (RL + RR) / 2                             # the geometric centreline
+    y = unit(line - z * np.einsum("ki,ki->k", z, line)[:, None])
+    return np.stack([np.cross(y, z), y, z], axis=2)
+
+
 def alignment_frame(centers: dict[str, np.ndarray]) -> np.ndarray:
-    """Frame of the signed angles: z as the paper's, y along the geometric centreline.
-
-    Returns R_station_align (3,3) with columns x_a (right), y_a (forward), z_a (up).
-    """
-    z = paper_car_frame(centers)[:, 2]
-    centreline = (centers["FL"] + centers["FR"]) / 2 - (centers["RL"] + centers["RR"]) / 2
-    y = _unit(centreline - z * (z @ centreline))
-    x = np.cross(y, z)
-    return np.stack([x, y, z], axis=1)
+    """:func:`alignment_frames` of one set of centres {W: (3,)}: (3,3)."""
+    return alignment_frames(np.stack([np.asarray(centers[w], float) for w in WHEELS])[None])[0]
 
 
-def wheel_angles_rad(axis_align: np.ndarray, side: float) -> tuple[float, float]:
-    """(toe, camber) in radians of one wheel from its outward axis in the alignment frame."""
-    wx, wy, wz = axis_align
-    return float(np.arctan2(wy, side * wx)), float(np.arctan2(-wz, side * wx))
+def toe_camber_rad(R_a: np.ndarray, A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(toe (K,4), camber (K,4)) in radians of the wheels' outward axes A (K,4,3) (WHEELS order,
+    any length) in the alignment frames R_a (K,3,3)."""
+    a = A / np.linalg.norm(A, axis=-1, keepdims=True)
+    wx, wy, wz = np.moveaxis(np.einsum("kwi,kij->kwj", a, R_a), 2, 0)  # (K,4) each, alignment frame
+    side = np.array([SIDE[w] for w in WHEELS])
+    return np.arctan2(wy, side * wx), np.arctan2(-wz, side * wx)
 
 
 def compute_angles(centers: dict[str, np.ndarray], axes: dict[str, np.ndarray]) -> dict:
@@ -56,10 +66,9 @@ def compute_angles(centers: dict[str, np.ndarray], axes: dict[str, np.ndarray]) 
     """
     centers = {w: np.asarray(centers[w], float) for w in WHEELS}
     R_a = alignment_frame(centers)
-    toe, camber = {}, {}
-    for w in WHEELS:
-        axis = _unit(np.asarray(axes[w], float))
-        toe[w], camber[w] = wheel_angles_rad(R_a.T @ axis, SIDE[w])
+    t, c = toe_camber_rad(R_a[None], np.stack([np.asarray(axes[w], float) for w in WHEELS])[None])
+    toe = {w: float(t[0, i]) for i, w in enumerate(WHEELS)}
+    camber = {w: float(c[0, i]) for i, w in enumerate(WHEELS)}
     thrust = (toe["RL"] - toe["RR"]) / 2
     local = {w: R_a.T @ (centers[w] - centers["RL"]) for w in WHEELS}
     wheels = {}
@@ -102,19 +111,7 @@ def angle_vector(angles: dict) -> np.ndarray:
 def angle_vectors(C: np.ndarray, A: np.ndarray) -> np.ndarray:
     """``angle_vector(compute_angles(...))`` of K configurations at once: centres C (K,4,3) and
     outward axes A (K,4,3), wheels in WHEELS order. Returns (K,11) degrees."""
-    def unit(v):
-        return v / np.linalg.norm(v, axis=-1, keepdims=True)
-
-    FL, FR, RL, RR = (C[:, i] for i in range(4))
-    x = unit(RR - RL)
-    z = unit(np.cross(x, FL - RL))                                   # the paper's z'
-    line = (FL + FR) / 2 - (RL + RR) / 2                             # the geometric centreline
-    y = unit(line - z * np.einsum("ki,ki->k", z, line)[:, None])
-    xa = np.cross(y, z)
-    a = unit(A)
-    wx, wy, wz = (np.einsum("kwi,ki->kw", a, e) for e in (xa, y, z))  # (K,4) in the alignment frame
-    side = np.array([SIDE[w] for w in WHEELS])
-    toe, camber = np.arctan2(wy, side * wx), np.arctan2(-wz, side * wx)
+    toe, camber = toe_camber_rad(alignment_frames(C), A)
     out = np.stack([toe[:, 0], camber[:, 0], toe[:, 1], camber[:, 1], toe[:, 2], camber[:, 2],
                     toe[:, 3], camber[:, 3], toe[:, 0] + toe[:, 1], toe[:, 2] + toe[:, 3],
                     (toe[:, 2] - toe[:, 3]) / 2], axis=1)

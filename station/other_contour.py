@@ -29,9 +29,9 @@ from calibration.camera_model import CameraModel
 from calibration.triangulation import homogeneous
 from station.errors import MeasurementError
 from station.robust_lsq import soft_l1_least_squares
-from station.epipolar import epipolar_tangency_px, tangent_point_gaps_deg
-from station.wheel3d import (BIAS_MODES, WheelFit, along_rim, bias_covariance, circle_conics, correlation_factor,
-                             normal_from, sampson_jacobian)
+from station.epipolar import epipolar_tangency_px
+from station.wheel3d import (BIAS_MODES, WheelFit, axis_basis, axis_covariance, bias_covariance, circle_conics,
+                             noise_covariance, normal_from, sampson_jacobian, tangent_gaps)
 from station.wheel_arcs import rim_angles
 
 WINDOWS = 4               # half-rim windows, centred 90 degrees apart
@@ -154,10 +154,7 @@ def fit_two_contours(views, labels, init, loss_scale_px: float = 0.3, bias_modes
     contour 2 (c + h2 n, n, R2). Residuals: Sampson distances (px), soft-L1 at
     ``loss_scale_px``. Returns a WheelFit of contour 1, its covariances as the circle fit
     states them (Jacobian, residual correlation along the rim, slow edge biases)."""
-    n0 = init.axis_station / np.linalg.norm(init.axis_station)
-    e1 = np.cross(n0, [0.0, 0.0, 1.0])
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(n0, e1)
+    n0, e1, e2 = axis_basis(init.axis_station)
     used = [(cam, xy[lab > 0], lab[lab > 0], 0.5 * (cam.K[0, 0] + cam.K[1, 1])) for (cam, xy), lab in zip(views, labels)]
     hviews = [(cam, homogeneous(xy), lab, f) for cam, xy, lab, f in used]
     second = all(int((lab == 2).sum()) >= MIN_SECOND_PER_VIEW for _, _, lab, _ in used)
@@ -200,39 +197,22 @@ def fit_two_contours(views, labels, init, loss_scale_px: float = 0.3, bias_modes
               for cam, xy, lab, _ in used]
         x0 = np.concatenate([x0, [init.radius_m + float(np.mean(r2)), 0.0]])
     sol = soft_l1_least_squares(residuals_and_jacobian, x0, f_scale=loss_scale_px)
-    r = sol.fun
-    mad = 1.4826 * np.median(np.abs(r - np.median(r)))
-    inlier = np.abs(r) < max(3 * mad, 1e-6)
-    sigma2 = float(np.sum(r[inlier] ** 2) / max(inlier.sum() - n_par, 1))
-    try:
-        cov_p = np.linalg.inv(sol.jac.T @ sol.jac) * sigma2
-    except np.linalg.LinAlgError:
-        return None
-    split = np.cumsum([len(xy) for _, xy, _, _ in used])[:-1]
-    per_view = np.split(r, split)
     fviews = [(cam, xy, f) for cam, xy, _, f in used]
-    factors = [correlation_factor(along_rim(res, xy)) for res, (_, xy, _) in zip(per_view, fviews)]
-    cov_p *= float(np.average(factors, weights=[len(v[1]) for v in fviews]))
+    cov_p, inlier = noise_covariance(sol, fviews)
+    if cov_p is None:
+        return None
     if bias_modes:
         cov_p = cov_p + bias_covariance(sol, fviews, n0, e1, e2, bias_modes)
     n = normal_from(sol.x[:2], n0, e1, e2)
     if n @ init.axis_station < 0:
         n = -n
-    B = np.stack([e1, e2], axis=1)
-    Jn = (np.eye(3) - np.outer(n, n)) @ B
-    try:  # the pair's epipolar check on the points of the contour reported, as the circle fit does
-        ones = [xy[lab == 1] for _, xy, lab, _ in used]
-        epipolar = epipolar_tangency_px(ones[0], ones[1], used[0][0], used[1][0])
-        g = tangent_point_gaps_deg(views[0][1], views[1][1], views[0][0], views[1][0])  # all points found
-        gap = (float(np.max(g[:2])), float(np.max(g[2:])))
-    except (MeasurementError, np.linalg.LinAlgError, ValueError):
-        epipolar, gap = init.epipolar_rms_px, (float("nan"), float("nan"))
+    r = sol.fun
     return WheelFit("circle", sol.x[2:5].copy(), n, float(sol.x[5]),
-                    view_median_px=tuple(float(np.median(np.abs(v))) for v in per_view),
-                    cov_center=cov_p[2:5, 2:5], cov_axis=Jn @ cov_p[:2, :2] @ Jn.T,
+                    view_median_px=tuple(float(np.median(np.abs(v)))
+                                         for v in np.split(r, np.cumsum([len(xy) for _, xy, _ in fviews])[:-1])),
+                    cov_center=cov_p[2:5, 2:5], cov_axis=axis_covariance(n, e1, e2, cov_p[:2, :2]),
                     reprojection_rms_px=float(np.sqrt(np.mean(r[inlier] ** 2))),
-                    epipolar_rms_px=epipolar, tangent_gap_deg=gap,
-                    n_points=(len(used[0][1]), len(used[1][1])),
+                    epipolar_rms_px=init.epipolar_rms_px, n_points=(len(used[0][1]), len(used[1][1])),
                     other_contour_mm=float(1e3 * (sol.x[6] - sol.x[5])) if second else None)
 
 
@@ -262,7 +242,13 @@ def refit_other_contour(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l:
         return None
     if alt.other_contour_mm is None and info["offset_mm"] is not None:
         alt = replace(alt, other_contour_mm=info["offset_mm"])  # found, too short to fit: left out
-    return replace(alt, arcs_left_out=True)
+    try:  # the pair's epipolar check on the contour reported, as the circle fit does
+        ones = [xy[lab == 1] for (_, xy), lab in zip(views, labels)]
+        alt = replace(alt, epipolar_rms_px=epipolar_tangency_px(ones[0], ones[1], cam_l, cam_r))
+    except (MeasurementError, np.linalg.LinAlgError, ValueError):
+        pass
+    # and, on every point found, whether the cameras saw the rim where the epipolar planes touch it
+    return replace(alt, arcs_left_out=True, tangent_gap_deg=tangent_gaps(views[0][1], views[1][1], cam_l, cam_r))
 
 
 LIVE_TOL_PX = 1.5  # station live: a point this near the last circle, in its plane, is on its contour

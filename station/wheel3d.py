@@ -270,6 +270,51 @@ def correlation_factor(r: np.ndarray, max_lag_fraction: float = 0.25) -> float:
     return 1.0 + 2.0 * s
 
 
+def axis_basis(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(n0, e1, e2): the unit ``axis`` (3,) and two unit vectors across it, in which the circle
+    fits move the normal (n = n0 + a e1 + b e2, normalised)."""
+    n0 = axis / np.linalg.norm(axis)
+    e1 = np.cross(n0, [0.0, 0.0, 1.0])
+    e1 /= np.linalg.norm(e1)
+    return n0, e1, np.cross(n0, e1)
+
+
+def noise_covariance(sol, views) -> tuple[np.ndarray | None, np.ndarray]:
+    """(P,P) covariance of a fit's parameters from its residuals' robust sigma and the Jacobian
+    (None if singular), inflated by the residuals' correlation along the rim, and the (N,)
+    inlier mask it was estimated on. sol: fun (N,), jac (N,P); views: [(camera, points, f)]
+    in the order of the residuals."""
+    r, J = sol.fun, sol.jac
+    mad = 1.4826 * np.median(np.abs(r - np.median(r)))
+    inlier = np.abs(r) < max(3 * mad, 1e-6)
+    sigma2 = float(np.sum(r[inlier] ** 2) / max(inlier.sum() - J.shape[1], 1))
+    try:
+        cov_p = np.linalg.inv(J.T @ J) * sigma2
+    except np.linalg.LinAlgError:
+        return None, inlier
+    # Edge errors are not independent from point to point (shading, blur and occlusion move
+    # whole stretches of the rim): inflate by the residuals' correlation along the rim.
+    per_view = np.split(r, np.cumsum([len(v[1]) for v in views])[:-1])
+    factors = [correlation_factor(along_rim(res, xy)) for res, (_, xy, _) in zip(per_view, views)]
+    return cov_p * float(np.average(factors, weights=[len(v[1]) for v in views])), inlier
+
+
+def axis_covariance(n: np.ndarray, e1: np.ndarray, e2: np.ndarray, cov_ab: np.ndarray) -> np.ndarray:
+    """(3,3) covariance of the unit normal n from that (2,2) of its parameters (a, b):
+    d n / d (a, b) = (I - n n^T) [e1 e2] / |n0 + a e1 + b e2|, ~ the tangent basis at the solution."""
+    Jn = (np.eye(3) - np.outer(n, n)) @ np.stack([e1, e2], axis=1)
+    return Jn @ cov_ab @ Jn.T
+
+
+def tangent_gaps(xy_l: np.ndarray, xy_r: np.ndarray, cam_l: CameraModel, cam_r: CameraModel) -> tuple[float, float]:
+    """Per view, the larger of its ``tangent_point_gaps_deg`` (NaN where they cannot be found)."""
+    try:
+        g = tangent_point_gaps_deg(xy_l, xy_r, cam_l, cam_r)
+        return float(np.max(g[:2])), float(np.max(g[2:]))
+    except (np.linalg.LinAlgError, ValueError):
+        return float("nan"), float("nan")
+
+
 def normal_from(params, n0, e1, e2):
     n = n0 + params[0] * e1 + params[1] * e2
     return n / np.linalg.norm(n)
@@ -310,8 +355,10 @@ def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: Camer
         if visibility_margin is not None:
             xy = xy[edge_visibility(cam, xy, init) > visibility_margin]
         xys.append(xy)
-    return _fit_circle(xys[0], xys[1], cam_l, cam_r, init, loss_scale_px, jackknife_sectors, inward_weight,
-                       bias_modes, occlusion_test, init_is_fitted, grazing_test)
+    fit = _fit_circle(xys[0], xys[1], cam_l, cam_r, init, loss_scale_px, jackknife_sectors, inward_weight,
+                      bias_modes, occlusion_test, init_is_fitted, grazing_test)
+    # on every point the cameras found: did they see the rim where the epipolar planes touch it?
+    return replace(fit, tangent_gap_deg=tangent_gaps(xys[0], xys[1], cam_l, cam_r))
 
 
 def _fit_circle(xy_l: np.ndarray, xy_r: np.ndarray, cam_l: CameraModel, cam_r: CameraModel, init: WheelFit,
@@ -320,10 +367,7 @@ def _fit_circle(xy_l: np.ndarray, xy_r: np.ndarray, cam_l: CameraModel, cam_r: C
     """:func:`refine_circle` on the views' undistorted normalised points (N,2), (M,2)."""
     views = [(cam, xy, 0.5 * (cam.K[0, 0] + cam.K[1, 1])) for cam, xy in ((cam_l, xy_l), (cam_r, xy_r))]
     n_input = sum(len(v[1]) for v in views)
-    n0 = init.axis_station / np.linalg.norm(init.axis_station)
-    e1 = np.cross(n0, [0.0, 0.0, 1.0])
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(n0, e1)
+    n0, e1, e2 = axis_basis(init.axis_station)
 
     def homogeneous_views(keep=None):
         return [(cam, homogeneous(xy if keep is None else xy[keep[k]]), f) for k, (cam, xy, f) in enumerate(views)]
@@ -419,19 +463,9 @@ def _fit_circle(xy_l: np.ndarray, xy_r: np.ndarray, cam_l: CameraModel, cam_r: C
         views = [(cam, xy[k], f) for (cam, xy, f), k in zip(views, keeps)]
         sol = solve(sol.x)
     r = sol.fun
-    # Robust sigma of the residuals, and the parameter covariance from the Jacobian.
-    mad = 1.4826 * np.median(np.abs(r - np.median(r)))
-    inlier = np.abs(r) < max(3 * mad, 1e-6)
-    sigma2 = float(np.sum(r[inlier] ** 2) / max(inlier.sum() - 6, 1))
-    J = sol.jac
-    try:
-        cov_p = np.linalg.inv(J.T @ J) * sigma2
-    except np.linalg.LinAlgError:
+    cov_p, inlier = noise_covariance(sol, views)
+    if cov_p is None:
         cov_p = np.full((6, 6), np.nan)
-    # Edge errors are not independent from point to point (shading, blur and occlusion move
-    # whole stretches of the rim): inflate by the residuals' correlation along the rim.
-    factors = [correlation_factor(along_rim(res, xy)) for res, (_, xy, _) in zip(per_view(r), views)]
-    cov_p *= float(np.average(factors, weights=[len(v[1]) for v in views]))
     if jackknife_sectors:
         cov_jk = _sector_jackknife(residuals, sol.x, views, n0, e1, e2, jackknife_sectors, loss_scale_px)
         if np.trace(cov_jk[:2, :2]) > np.trace(cov_p[:2, :2]):
@@ -446,24 +480,15 @@ def _fit_circle(xy_l: np.ndarray, xy_r: np.ndarray, cam_l: CameraModel, cam_r: C
             epipolar = epipolar_tangency_px(views[0][1], views[1][1], cam_l, cam_r)
         except (MeasurementError, np.linalg.LinAlgError, ValueError):
             pass
-    try:  # on every point the cameras found: did they see the rim where the planes touch it?
-        g = tangent_point_gaps_deg(xy_l, xy_r, cam_l, cam_r)
-        gap = (float(np.max(g[:2])), float(np.max(g[2:])))
-    except (np.linalg.LinAlgError, ValueError):
-        gap = (float("nan"), float("nan"))
     n = normal_from(sol.x[:2], n0, e1, e2)
     if n[0] * outward_sign(sol.x[2:5]) < 0:
         n = -n
-    # d n / d (a, b) = (I - n n^T) [e1 e2] / |n0 + a e1 + b e2| ~ the tangent basis at the solution.
-    B = np.stack([e1, e2], axis=1)
-    Jn = (np.eye(3) - np.outer(n, n)) @ B
-    cov_axis = Jn @ cov_p[:2, :2] @ Jn.T
+    cov_axis = axis_covariance(n, e1, e2, cov_p[:2, :2])
     medians = tuple(float(np.median(np.abs(res))) if len(res) else float("inf") for res in per_view(r))
     fit = WheelFit("circle", sol.x[2:5].copy(), n, float(sol.x[5]), view_median_px=medians,
                     cov_center=cov_p[2:5, 2:5], cov_axis=cov_axis,
                     reprojection_rms_px=float(np.sqrt(np.mean(r[inlier] ** 2))) if inlier.any() else float("nan"),
-                    epipolar_rms_px=epipolar, tangent_gap_deg=gap,
-                    n_points=(len(views[0][1]), len(views[1][1])))
+                    epipolar_rms_px=epipolar, n_points=(len(views[0][1]), len(views[1][1])))
     if doubtful:
         plain = _fit_circle(xy_l, xy_r, cam_l, cam_r, init, loss_scale_px, jackknife_sectors, inward_weight,
                             bias_modes, occlusion_test=False, init_is_fitted=init_is_fitted, grazing_test=False)
