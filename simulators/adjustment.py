@@ -129,8 +129,12 @@ class AdjustmentWorld:
         return self.step_of(max(self._calls.get(cam_id, 1) - 1, 0))
 
     def truth(self, scene=None) -> dict:
-        cams = list(self._calls) or list(self.cameras)
-        return self.world.truth(scene or self.scenes[self.current_step(cams[0])])
+        """The scene of the step the adjusted wheel's cameras served last. (Not the first camera
+        ever served: the baseline captures all cameras in threads, in no fixed order, and a camera
+        outside the live axle stays at step 0.)"""
+        live = sorted(self.steps[-1]) if len(self.steps) > 1 else sorted(self.cameras)
+        served = [c for c in live if c in self._calls]
+        return self.world.truth(scene or self.scenes[self.current_step(served[0]) if served else 0])
 
 
 def install(context: dict, config, seed: int, wheel: str, toe_steps_deg, live_cams: list[str],
