@@ -62,18 +62,7 @@ def fit_steps(prof: np.ndarray, s: np.ndarray, polarity: float = -1.0, iteration
     ``polarity`` -1: intensity falls with s (bright inside), +1: rises.
     """
     n, S = prof.shape
-    # initial step position: the strongest derivative of the expected sign (parabolic peak)
-    d = np.gradient(prof, s, axis=1) * polarity
-    j = np.clip(np.argmax(d, axis=1), 1, S - 2)
-    r = np.arange(n)
-    y0, y1, y2 = d[r, j - 1], d[r, j], d[r, j + 1]
-    den = y0 - 2 * y1 + y2
-    off = np.where(np.abs(den) > 1e-12, 0.5 * (y0 - y2) / np.where(den == 0, 1, den), 0.0)
-    step = s[1] - s[0]
-    s0 = s[j] + np.clip(off, -1, 1) * step
-    q = max(2, S // 5)
-    lo, hi = prof[:, :q].mean(axis=1), prof[:, -q:].mean(axis=1)
-    p = np.stack([(lo + hi) / 2, np.zeros(n), (hi - lo) / 2, s0, np.full(n, 1.0)], axis=1)
+    p = initial_steps(prof, s, polarity)
     lam = np.full(n, 1e-3)
 
     def model(p):
@@ -112,8 +101,30 @@ def fit_steps(prof: np.ndarray, s: np.ndarray, polarity: float = -1.0, iteration
         cost = np.where(better, cost_new, cost)
         lam = np.where(better, lam * 0.3, lam * 10)
     rms = np.sqrt(cost / S)
-    converged = np.isfinite(p).all(axis=1) & (np.abs(p[:, 3]) < s[-1] - 0.75) & (p[:, 2] * polarity > 0)
-    return p, rms, converged
+    return p, rms, _step_found(p, s, polarity)
+
+
+def _step_found(p: np.ndarray, s: np.ndarray, polarity: float) -> np.ndarray:
+    """(N,) bool: a finite step of the expected polarity, not at the window's end (params p (N,5))."""
+    return np.isfinite(p).all(axis=1) & (np.abs(p[:, 3]) < s[-1] - 0.75) & (p[:, 2] * polarity > 0)
+
+
+def initial_steps(prof: np.ndarray, s: np.ndarray, polarity: float = -1.0) -> np.ndarray:
+    """Step parameters (N,5) (m, k, h, s0, w) of each profile (N,S) without any fit: s0 at the
+    strongest derivative of the expected sign (parabolic peak), levels from the window's ends,
+    w = 1 px (fit_steps' start, and all the kink model needs of it)."""
+    n, S = prof.shape
+    d = np.gradient(prof, s, axis=1) * polarity
+    j = np.clip(np.argmax(d, axis=1), 1, S - 2)
+    r = np.arange(n)
+    y0, y1, y2 = d[r, j - 1], d[r, j], d[r, j + 1]
+    den = y0 - 2 * y1 + y2
+    off = np.where(np.abs(den) > 1e-12, 0.5 * (y0 - y2) / np.where(den == 0, 1, den), 0.0)
+    step = s[1] - s[0]
+    s0 = s[j] + np.clip(off, -1, 1) * step
+    q = max(2, S // 5)
+    lo, hi = prof[:, :q].mean(axis=1), prof[:, -q:].mean(axis=1)
+    return np.stack([(lo + hi) / 2, np.zeros(n), (hi - lo) / 2, s0, np.full(n, 1.0)], axis=1)
 
 
 def _kink_basis(x: np.ndarray, sigma: float) -> np.ndarray:
@@ -323,14 +334,17 @@ def edge_points(grey: np.ndarray, ellipse: Ellipse, pmap: PixelMap | None = None
     idx = np.nonzero(inside)[0]
     if len(idx):
         prof = sample_profiles(grey, base[idx], nrm[idx], s)
-        p, r, conv = fit_steps(prof, s, iterations=8 if method == "erf" else 0)
         if method == "kink":
-            if sigma is None:
-                sel = _blur_profiles(p, conv)
+            if sigma is None:  # from the profiles' plain step positions
+                p = initial_steps(prof, s)
+                sel = _blur_profiles(p, _step_found(p, s, -1.0))
                 sigma = estimate_blur(*_centred(prof[sel], s, p[sel, 3]))
             s0, hh, r, conv = fit_kinks(prof, s, sigma, grid_step=0.125, refine=False)  # parabola on a fine grid: < 0.003 px
             conv &= _tyre_side_flat(prof, s, s0, hh, sigma)
+            p = np.zeros((len(idx), 5))
             p[:, 3], p[:, 2], p[:, 4] = s0, hh / 2, sigma
+        else:
+            p, r, conv = fit_steps(prof, s, iterations=8 if method == "erf" else 0)
         pts[idx] = base[idx] + p[:, 3:4] * nrm[idx]
         contrast[idx] = np.abs(2 * p[:, 2])
         width[idx] = p[:, 4]
