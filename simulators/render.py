@@ -21,6 +21,7 @@ import cv2
 import numpy as np
 
 from calibration.camera_model import CameraModel
+from station.bounded_cache import BoundedCache
 from simulators.rays import grid_start, normalized_to_rays_station, pixel_grid_normalized, sample_rays_station
 from simulators.render_body import floor_shadow, trace_body
 from simulators.render_wheel import BARREL, FLANGE, trace_wheel, wheel_outline_points
@@ -34,21 +35,20 @@ CLUTTER_SAMPLES = 13        # samples per edge pixel away from measured features
 PRECISE_PARTS = (FLANGE, BARREL)  # wheel parts next to the measured edge: full supersampling
 
 
-_RAY_CACHE: dict = {}
+_RAY_CACHE = BoundedCache(8)
 
 
 def _pixel_rays(camera: CameraModel, grid: np.ndarray) -> np.ndarray:
     """(H*W, 3) station-frame rays of the pixel centres, cached per camera (pose + intrinsics)."""
     key = camera.K.tobytes() + camera.dist.tobytes() + camera.R_cam_station.tobytes() + bytes(
         str((camera.width, camera.height)), "ascii")
-    rays = _RAY_CACHE.get(key)
-    if rays is None:
-        if len(_RAY_CACHE) >= 8:
-            _RAY_CACHE.pop(next(iter(_RAY_CACHE)))
+
+    def make():
         rays = normalized_to_rays_station(camera, grid.reshape(-1, 2))
         rays.flags.writeable = False
-        _RAY_CACHE[key] = rays
-    return rays
+        return rays
+
+    return _RAY_CACHE.get(key, make)
 
 
 def lattice_offsets(n: int) -> np.ndarray:

@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from station.bounded_cache import BoundedCache
 from station.errors import RimNotFound
 from station.rim import edges as edges_mod
 from station.rim import hough
@@ -107,7 +108,7 @@ def _check_exposure(grey: np.ndarray, tag: str) -> None:
                           hint="check that the camera sees the wheel and is in focus")
 
 
-_TABLES: dict = {}
+_TABLES = BoundedCache(16)  # per camera and image size
 
 
 def _ideal_table(pmap: PixelMap, shape: tuple[int, int], s: int) -> np.ndarray:
@@ -116,8 +117,8 @@ def _ideal_table(pmap: PixelMap, shape: tuple[int, int], s: int) -> np.ndarray:
     edge points per image would otherwise cost more than the Hough vote)."""
     cam = pmap.camera
     key = (cam.K.tobytes(), cam.dist.tobytes(), shape, s)
-    table = _TABLES.get(key)
-    if table is None:
+
+    def make():
         h, w = shape
         vv, uu = np.mgrid[0:h, 0:w].astype(float)
         coarse = np.stack([uu.ravel(), vv.ravel()], axis=1)
@@ -126,11 +127,9 @@ def _ideal_table(pmap: PixelMap, shape: tuple[int, int], s: int) -> np.ndarray:
         # 3e5 points, within 1e-9 px of it here, and the Hough works on coarse pixels anyway
         ideal = cv2.undistortPoints(full.reshape(-1, 1, 2), cam.K, cam.dist, None, cam.K,
                                     criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 1e-10))
-        table = ((ideal.reshape(-1, 2) + 0.5) / s - 0.5).reshape(h, w, 2)
-        if len(_TABLES) >= 16:
-            _TABLES.pop(next(iter(_TABLES)))
-        _TABLES[key] = table
-    return table
+        return ((ideal.reshape(-1, 2) + 0.5) / s - 0.5).reshape(h, w, 2)
+
+    return _TABLES.get(key, make)
 
 
 class _Scene:

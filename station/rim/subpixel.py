@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 from scipy.special import erf
 
+from station.bounded_cache import BoundedCache
 from station.rim.ellipse import Ellipse
 from station.rim.preprocess import PixelMap
 
@@ -187,8 +188,8 @@ def fit_kinks(prof: np.ndarray, s: np.ndarray, sigma: float, polarity: float = -
     return s0, h, rms, ok
 
 
-_PROJ_CACHE: dict = {}
-_BLUR_STACKS: dict = {}
+_PROJECTORS = BoundedCache(64)   # per (window, grid, blur): every camera's blur differs a little
+_BLUR_STACKS = BoundedCache(16)  # per (window, grid): all candidate blurs stacked
 
 
 def _kink_projector(s: np.ndarray, grid: np.ndarray, sigma: float):
@@ -196,16 +197,14 @@ def _kink_projector(s: np.ndarray, grid: np.ndarray, sigma: float):
     map from a profile to its jump coefficient h at every s0 (cached: the same window and blur
     serve every profile of an image and the next image)."""
     key = (s.tobytes(), grid.tobytes(), round(float(sigma), 6), METAL_CURVATURE, TYRE_CURVATURE)
-    hit = _PROJ_CACHE.get(key)
-    if hit is None:
+
+    def make():
         B = _kink_basis(s[None, :] - grid[:, None], sigma)           # (G,S,4)
         Q, R = np.linalg.qr(B)                                       # (G,S,nb), (G,nb,nb)
         H = np.einsum("gsk,gk->sg", Q, np.linalg.inv(R)[:, 1, :])    # h = R^-1 Q^T prof, row 1
-        hit = (np.ascontiguousarray(Q.transpose(1, 0, 2).reshape(len(s), -1)), np.ascontiguousarray(H))
-        if len(_PROJ_CACHE) >= 64:  # the oldest out: every camera's blur differs a little
-            _PROJ_CACHE.pop(next(iter(_PROJ_CACHE)))
-        _PROJ_CACHE[key] = hit
-    return hit
+        return np.ascontiguousarray(Q.transpose(1, 0, 2).reshape(len(s), -1)), np.ascontiguousarray(H)
+
+    return _PROJECTORS.get(key, make)
 
 
 def _parabola(y0, y1, y2):
@@ -248,13 +247,13 @@ def _blur_rms(prof: np.ndarray, s: np.ndarray, polarity: float, grid_step: float
     grid = np.arange(s[0] + margin, s[-1] - margin + 1e-9, grid_step)
     G, B = len(grid), len(BLUR_GRID_PX)
     key = (s.tobytes(), grid.tobytes(), METAL_CURVATURE, TYRE_CURVATURE)
-    hit = _BLUR_STACKS.get(key)
-    if hit is None:  # one per window of the passes: kept apart from the per-blur projectors
+
+    def make():  # one per window of the passes: kept apart from the per-blur projectors
         parts = [_kink_projector(s, grid, sg) for sg in BLUR_GRID_PX]
-        hit = (np.ascontiguousarray(np.concatenate([q for q, _ in parts], axis=1)),
-               np.ascontiguousarray(np.concatenate([h for _, h in parts], axis=1)))
-        _BLUR_STACKS[key] = hit
-    Q, H = hit                                                       # (S, B*G*nb), (S, B*G)
+        return (np.ascontiguousarray(np.concatenate([q for q, _ in parts], axis=1)),
+                np.ascontiguousarray(np.concatenate([h for _, h in parts], axis=1)))
+
+    Q, H = _BLUR_STACKS.get(key, make)                               # (S, B*G*nb), (S, B*G)
     proj = (prof @ Q).reshape(n, B, G, -1)
     res = np.einsum("ns,ns->n", prof, prof)[:, None, None] - np.einsum("nbgk,nbgk->nbg", proj, proj)
     res[(prof @ H).reshape(n, B, G) * polarity <= 0] = np.inf
