@@ -299,6 +299,23 @@ def noise_covariance(sol, views) -> tuple[np.ndarray | None, np.ndarray]:
     return cov_p * float(np.average(factors, weights=[len(v[1]) for v in views])), inlier
 
 
+GRAZING_CHI2 = 5.99  # chi-square, 2 degrees of freedom, 95 %: an axis difference the noise does not explain
+
+
+def differs_beyond_noise(fit: WheelFit, subset: WheelFit) -> bool:
+    """Whether the axis of a fit to a SUBSET of the points (``subset``) differs from that of the
+    fit to all of them (``fit``) by more than the noise explains: the left-out points are then
+    biased, not merely extra data (a Hausman test). For nested fits the difference has about
+    the covariance ``subset.cov_axis - fit.cov_axis``; its 2 degrees of freedom (the axis turns
+    two ways) share the excess trace, so the squared angle is compared with GRAZING_CHI2 / 2 of
+    it. A subset no less certain than the whole says nothing (the caller keeps the smaller)."""
+    excess = float(np.trace(subset.cov_axis) - np.trace(fit.cov_axis))
+    if not np.isfinite(excess) or excess <= 0:
+        return False
+    d = subset.axis_station - fit.axis_station * np.sign(subset.axis_station @ fit.axis_station)
+    return float(d @ d) > 0.5 * GRAZING_CHI2 * excess
+
+
 def axis_covariance(n: np.ndarray, e1: np.ndarray, e2: np.ndarray, cov_ab: np.ndarray) -> np.ndarray:
     """(3,3) covariance of the unit normal n from that (2,2) of its parameters (a, b):
     d n / d (a, b) = (I - n n^T) [e1 e2] / |n0 + a e1 + b e2|, ~ the tangent basis at the solution."""
@@ -501,6 +518,6 @@ def _fit_circle(xy_l: np.ndarray, xy_r: np.ndarray, cam_l: CameraModel, cam_r: C
             # ``fit``, the sidewall test would be judged against a circle they had shaped)
             alt = _fit_circle(xy_l[keep_l], xy_r[keep_r], cam_l, cam_r, init, loss_scale_px, jackknife_sectors,
                               inward_weight, bias_modes, occlusion_test, init_is_fitted, grazing_test=False)
-            if np.trace(alt.cov_axis) < np.trace(fit.cov_axis):
+            if np.trace(alt.cov_axis) < np.trace(fit.cov_axis) or differs_beyond_noise(fit, alt):
                 fit = replace(alt, grazing_left_out=True)
     return fit
