@@ -399,3 +399,83 @@ def test_the_epipolar_tangent_points_and_how_far_the_rim_seen_is_from_them():
     near = np.abs(np.angle(np.exp(1j * (ang[2:] - ang[0])))) < np.radians(20)
     gaps = tangent_point_gaps_deg(xy_l[~near], xy_r, cl, cr)
     assert gaps[0] == pytest.approx(20, abs=0.5) and gaps[1:].max() < 0.3
+
+
+def _grazing_shifted(seed, shift_px):
+    """An FR rim whose oblique view's grazing points sit ``shift_px`` inside the flange edge."""
+    from station.wheel3d import WheelFit
+    from station.wheel_arcs import GRAZING_VISIBILITY
+    v = random_vehicle(np.random.default_rng(seed))
+    c, w, X = _rim(v, "FR")
+    cl, cr = _pair(c[0], c[1])
+    rng = np.random.default_rng(5 + seed)
+    pl = cl.project(X) + rng.normal(0, 0.08, (len(X), 2))
+    pr = cr.project(X)
+    truth = WheelFit("truth", c, w, v.wheel.rim_radius_m)
+    grazing = edge_visibility(cr, cr.pixels_to_normalized(pr), truth) > GRAZING_VISIBILITY
+    d = pr - pr.mean(axis=0)
+    pr = pr - shift_px * grazing[:, None] * d / np.linalg.norm(d, axis=1, keepdims=True) + rng.normal(0, 0.08, pr.shape)
+    return pl, pr, cl, cr, w, grazing
+
+
+@pytest.mark.parametrize("seed", [2, 5])
+def test_grazing_points_a_little_inside_are_left_out_though_the_fit_with_them_states_less(seed):
+    """0.04 px inside (the simulator's grazing arcs: 0.1-0.2 px): too little for the fit with
+    them to state more uncertainty than the fit without, enough to double its error. The fit
+    with the smaller expected squared error (the bias estimated from how far the points move
+    the axis beyond their noise) is the one without."""
+    pl, pr, cl, cr, w, grazing = _grazing_shifted(seed, 0.04)
+    paper = reconstruct_paper(pl, pr, cl, cr)
+    both = refine_circle(pl, pr, cl, cr, paper, grazing_test=False)
+    without = refine_circle(pl, pr[~grazing], cl, cr, paper, grazing_test=False)
+    assert np.trace(both.cov_axis) < np.trace(without.cov_axis)  # the stated uncertainty alone keeps them
+    chosen = refine_circle(pl, pr, cl, cr, paper)
+    assert chosen.grazing_left_out
+    assert _angle_deg(chosen.axis_station, w) < 0.6 * _angle_deg(both.axis_station, w)
+
+
+def test_unbiased_grazing_points_are_kept():
+    for seed in range(4):
+        pl, pr, cl, cr, w, _ = _grazing_shifted(seed, 0.0)
+        assert not refine_circle(pl, pr, cl, cr, reconstruct_paper(pl, pr, cl, cr)).grazing_left_out, seed
+
+
+def test_extra_points_bias_is_the_axis_change_beyond_the_noise():
+    from station.wheel3d import WheelFit, extra_points_bias2
+    a = np.radians(0.05)
+    cov = lambda s: np.diag([0.0, s, s]) ** 2  # noqa: E731 - (3,3), axis std s rad across it
+    full = WheelFit("circle", np.zeros(3), np.array([1.0, 0, 0]), 0.2, cov_axis_noise=cov(np.radians(0.01)))
+    tilted = np.array([np.cos(a), np.sin(a), 0.0])
+    sub = WheelFit("circle", np.zeros(3), tilted, 0.2, cov_axis_noise=cov(np.radians(0.02)))
+    excess = 2 * (np.radians(0.02) ** 2 - np.radians(0.01) ** 2)
+    assert extra_points_bias2(full, sub) == pytest.approx(2 * (1 - np.cos(a)) - excess, rel=1e-6)
+    flipped = WheelFit("circle", np.zeros(3), -tilted, 0.2, cov_axis_noise=sub.cov_axis_noise)
+    assert extra_points_bias2(full, flipped) == pytest.approx(extra_points_bias2(full, sub))  # axis sign
+    noisy = WheelFit("circle", np.zeros(3), tilted, 0.2, cov_axis_noise=cov(np.radians(0.2)))
+    assert extra_points_bias2(full, noisy) == 0.0  # the noise explains the change
+
+
+def test_a_uniform_edge_offset_is_the_same_in_both_views():
+    """bias_covariance: where the two views' uniform offsets move a parameter in opposite
+    directions (a disparity), the same offset in both cancels; the slowly varying modes stay
+    each view's own."""
+    from types import SimpleNamespace
+    from station.wheel3d import axis_basis, bias_covariance
+    v = random_vehicle(np.random.default_rng(1))
+    c, w, X = _rim(v, "FR", n=720)
+    cl, cr = _pair(c[0], c[1])
+    views = [(cam, cam.pixels_to_normalized(cam.project(X)), 1800.0) for cam in (cl, cr)]
+    phi = np.linspace(0, 2 * np.pi, 720, endpoint=False)
+    rng = np.random.default_rng(0)
+    J = np.zeros((1440, 6))
+    J[:720, 0], J[720:, 0] = 1.0, -1.0                     # p0: the disparity of the uniform offsets
+    J[:, 1:] = rng.normal(0, 1, (1440, 5)) * 0.01
+    J[:720, 1], J[720:, 2] = np.cos(phi), np.cos(phi)      # p1, p2: each view's cos mode
+    fun = np.tile(0.05 * np.sign(np.sin(3 * phi)), 2)      # sector medians of +/-0.05 px in both views
+    n0, e1, e2 = axis_basis(w)
+    sol = SimpleNamespace(x=np.concatenate([[0.0, 0.0], c, [v.wheel.rim_radius_m]]), fun=fun, jac=J)
+    cov = bias_covariance(sol, views, n0, e1, e2, n_modes=1)
+    pinv = np.linalg.pinv(J.T @ J) @ J.T
+    per_view_uniform = sum((pinv[0, s] @ np.full(720, 0.05)) ** 2 for s in (slice(0, 720), slice(720, None)))
+    assert cov[0, 0] < 0.05 * per_view_uniform
+    assert cov[1, 1] > 0 and cov[2, 2] > 0
