@@ -321,6 +321,18 @@ def extra_points_bias2(fit: WheelFit, subset: WheelFit) -> float:
     return max(float(d @ d) - max(excess, 0.0), 0.0)
 
 
+INCONSISTENT_CHI2 = 9.21  # chi-square, 2 degrees of freedom, 99 %
+
+
+def inconsistent(fit: WheelFit, other: WheelFit) -> bool:
+    """Whether two fits' axes differ by more than even their stated uncertainties (noise and
+    biases, ``cov_axis``) allow at 99 %: then at least one of them is wrong in a way its
+    covariance does not describe, and neither difference-based estimate can be trusted."""
+    d = other.axis_station - fit.axis_station * np.sign(other.axis_station @ fit.axis_station)
+    spread = float(np.trace(fit.cov_axis) + np.trace(other.cov_axis))  # two components share it
+    return bool(np.isfinite(spread)) and float(d @ d) > 0.5 * INCONSISTENT_CHI2 * spread
+
+
 def axis_covariance(n: np.ndarray, e1: np.ndarray, e2: np.ndarray, cov_ab: np.ndarray) -> np.ndarray:
     """(3,3) covariance of the unit normal n from that (2,2) of its parameters (a, b):
     d n / d (a, b) = (I - n n^T) [e1 e2] / |n0 + a e1 + b e2|, ~ the tangent basis at the solution."""
@@ -526,7 +538,10 @@ def _fit_circle(xy_l: np.ndarray, xy_r: np.ndarray, cam_l: CameraModel, cam_r: C
             alt = _fit_circle(xy_l[keep_l], xy_r[keep_r], cam_l, cam_r, init, loss_scale_px, jackknife_sectors,
                               inward_weight, bias_modes, occlusion_test, init_is_fitted, grazing_test=False)
             # keep the fit with the smaller expected squared error: the grazing points' bias
-            # is estimated from how far they move the axis beyond what their noise explains
-            if np.trace(alt.cov_axis) < np.trace(fit.cov_axis) + extra_points_bias2(fit, alt):
+            # is estimated from how far they move the axis beyond what their noise explains,
+            # unless the two fits disagree beyond all they state (one of them is broken, say
+            # the weaker geometry without them found another minimum): the smaller stated then
+            bias2 = 0.0 if inconsistent(fit, alt) else extra_points_bias2(fit, alt)
+            if np.trace(alt.cov_axis) < np.trace(fit.cov_axis) + bias2:
                 fit = replace(alt, grazing_left_out=True)
     return fit

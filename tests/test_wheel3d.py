@@ -479,3 +479,16 @@ def test_a_uniform_edge_offset_is_the_same_in_both_views():
     per_view_uniform = sum((pinv[0, s] @ np.full(720, 0.05)) ** 2 for s in (slice(0, 720), slice(720, None)))
     assert cov[0, 0] < 0.05 * per_view_uniform
     assert cov[1, 1] > 0 and cov[2, 2] > 0
+
+
+def test_fits_that_disagree_beyond_all_they_state_are_inconsistent():
+    from station.wheel3d import WheelFit, inconsistent
+    cov = np.diag([0.0, 1.0, 1.0]) * np.radians(0.05) ** 2  # 0.05 deg each way across the axis
+    a = WheelFit("circle", np.zeros(3), np.array([1.0, 0, 0]), 0.2, cov_axis=cov)
+
+    def tilted(deg):
+        t = np.radians(deg)
+        return WheelFit("circle", np.zeros(3), -np.array([np.cos(t), 0, np.sin(t)]), 0.2, cov_axis=cov)
+
+    assert not inconsistent(a, tilted(0.1))   # 0.1 deg apart: within 0.05 + 0.05 deg stated
+    assert inconsistent(a, tilted(0.5))       # 0.5 deg: beyond what either states
