@@ -198,3 +198,32 @@ def test_an_ellipse_inside_the_rim_is_not_another_wheel(monkeypatch):
     beside = Candidate(Ellipse((1400, 448), (267.0, 169.0), 0.0), 40.0, 0.58, 500)
     with pytest.raises(RimNotFound, match="two wheel-like ellipses"):
         det._choose(Scene(), [rim, beside], "cam7")
+
+
+def test_a_large_photograph_with_edges_spread_over_pixels_is_refined_where_the_edge_model_fits(monkeypatch):
+    """A rim rendered at 1280x1024 and upscaled 3.125x (a 12-Mpx photograph whose edges spread
+    over ~3 px, JPEG-compressed, in colour): refined at full resolution alone the edge model's
+    windows and blur range do not fit and the rim comes out a pixel too large; the sub-pixel
+    stage at a third of the resolution, which fits its points better in full-resolution
+    pixels, finds it to a few hundredths."""
+    import station.rim.detector as detector
+
+    img, truth = render_wheel(WheelSpec(clutter=4), seed=8)
+    k = 4000 / img.shape[1]
+    big = cv2.resize(img, (4000, round(img.shape[0] * k)), interpolation=cv2.INTER_CUBIC)
+    ok, jpeg = cv2.imencode(".jpg", cv2.merge([big, big, big]), [cv2.IMWRITE_JPEG_QUALITY, 80])
+    photo = cv2.imdecode(jpeg, cv2.IMREAD_COLOR)
+    truth_big = truth.scaled(k)
+    det = detect_rim(photo)
+    assert det.details.get("working_scale", 1) > 1
+    assert np.linalg.norm(det.ellipse.center_px - truth_big.center_px) < 0.3
+    assert np.abs(det.ellipse.axes_px - truth_big.axes_px).max() < 0.3
+    monkeypatch.setattr(detector, "WORKING_SCALE_STEP", 1000)  # full resolution only
+    full = detect_rim(photo)
+    assert np.abs(full.ellipse.axes_px - truth_big.axes_px).max() > 3 * np.abs(det.ellipse.axes_px - truth_big.axes_px).max()
+
+
+def test_a_sharp_image_keeps_its_full_resolution_fit_within_noise():
+    img, truth = render_wheel(WheelSpec(clutter=4), seed=8)
+    det = detect_rim(img)
+    assert det.details.get("working_scale") is None  # 1280 px: the search scale is 3, no second try
