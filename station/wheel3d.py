@@ -210,8 +210,9 @@ def bias_covariance(sol, views, n0, e1, e2, n_modes: int, n_sectors: int = 18) -
     The uniform offset (mode 0) is taken as the same in both views: it comes from where the
     edge model puts a blurred, shaded flange edge, which is the same rim and the same model in
     both cameras. Taken as independent per view it acted as a disparity between the views and
-    doubled the stated toe uncertainty: over 160 benchmark vehicles the median |toe error| /
-    stated toe was 0.5-0.6 (1 is honest), 0.8-1.3 with the common offset (docs/accuracy.md).
+    doubled the stated toe uncertainty: over 160 benchmark vehicles the median of |toe error| /
+    stated toe, over 0.674 (its value for honest Gaussian errors), was 0.3-0.8 per benchmark
+    set, and is 0.8-1.3 with the common offset (docs/measurement.md).
     The slowly varying modes (cos, sin) come from the viewing geometry (a hidden strip, a
     grazing lip) and stay each view's own."""
     c = sol.x[2:5]
@@ -504,7 +505,7 @@ def _fit_circle(xy_l: np.ndarray, xy_r: np.ndarray, cam_l: CameraModel, cam_r: C
         cov_jk = _sector_jackknife(residuals, sol.x, views, n0, e1, e2, jackknife_sectors, loss_scale_px)
         if np.trace(cov_jk[:2, :2]) > np.trace(cov_p[:2, :2]):
             cov_p = cov_jk
-    cov_noise = cov_p
+    cov_noise = cov_p  # the points' noise (or the sector jackknife's, where it replaced it)
     if bias_modes:
         cov_p = cov_p + bias_covariance(sol, views, n0, e1, e2, bias_modes)
     # the pair's epipolar check on the points the circle was fitted to: an arc left out above
