@@ -148,6 +148,7 @@ def test_a_pair_that_did_not_see_the_rim_where_the_epipolar_planes_touch_it_is_u
     seen = measure_frames(images, world.cameras, cfg)
     assert {"kind": "drift", "wheel": "RL"} in seen["warning_flags"]
     assert seen["wheels"]["RL"]["quality"]["arcs_left_out"] is False
+    assert all(isinstance(seen["wheels"][w]["quality"]["grazing_left_out"], bool) for w in seen["wheels"])
 
 
 @pytest.mark.slow
