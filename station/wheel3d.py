@@ -27,8 +27,8 @@ from station.epipolar import (epipolar_tangency_px, fit_conic, pair_relation, pa
                               tangent_point_gaps_deg)
 from station.errors import MeasurementError
 from station.robust_lsq import soft_l1_least_squares
-from station.wheel_arcs import (MIN_KEPT_FRACTION, edge_visibility, hidden_arcs, inward_arcs, not_grazing_xy,
-                                rim_angles, sector_labels, sector_medians)
+from station.wheel_arcs import (MIN_KEPT_FRACTION, edge_visibility, hidden_arcs, not_grazing_xy, rim_angles,
+                                sector_labels, sector_medians, stray_arcs)
 
 single_thread_blas()  # small least-squares problems: OpenBLAS threads cost 40x here (station/blas_threads.py)
 
@@ -38,7 +38,7 @@ OCCLUSION_TEST = True    # test the arcs the tyre's sidewall could hide before t
 MIN_SAFE_FRACTION = 0.3  # of a view's points that no sidewall can hide, to make the test at all
 GRAZING_TEST = True       # also fit without the points seen across the lip at a grazing angle
 MIN_VIEW_POINTS = 20      # rim points a view must keep on the fitted circle
-INWARD_ARC_PASSES = 3     # rounds of leaving out arcs whose edge lies inside the fitted circle
+INWARD_ARC_PASSES = 3     # rounds of leaving out arcs whose edge strays from the fitted circle (stray_arcs)
 GROSS_PX = 1.5           # a point this far (px) off the fitted circle, and GROSS_SIGMAS robust
 GROSS_SIGMAS = 5.0       # sigmas, is on another contour: left out and the circle fitted again
 BIAS_MODES = 1         # edge-bias Fourier modes (0: uniform, 1: + cos/sin) in the covariance
@@ -484,14 +484,15 @@ def _fit_circle(xy_l: np.ndarray, xy_r: np.ndarray, cam_l: CameraModel, cam_r: C
                                        "the pair's points agree on", hint="the two cameras may have found different rims")
         sol = solve(sol.x)
     # arcs biased inward that neither test above caught (an edge moved over a whole arc by
-    # shading or a hidden flange on the side no sidewall model expects): leave them out and
-    # fit again, a few rounds, never leaving a view under MIN_KEPT_FRACTION of its points
+    # shading or a hidden flange on the side no sidewall model expects), or outward (a lit
+    # bead wall taken for metal): leave them out and fit again, a few rounds, never leaving a
+    # view under MIN_KEPT_FRACTION of its points
     n_start = [len(v[1]) for v in views]
     for _ in range(INWARD_ARC_PASSES):
         c_now, n_now = sol.x[2:5], normal_from(sol.x[:2], n0, e1, e2)
         keeps = []
         for r_v, (cam, xy, _), n_v in zip(per_view(raw_residuals(sol.x)), views, n_start):
-            keep = ~inward_arcs(r_v, rim_angles(cam, xy, c_now, n_now), loss_scale_px)
+            keep = ~stray_arcs(r_v, rim_angles(cam, xy, c_now, n_now), loss_scale_px)
             keeps.append(keep if keep.sum() >= MIN_KEPT_FRACTION * n_v else np.ones(len(xy), bool))
         if all(k.all() for k in keeps):
             break

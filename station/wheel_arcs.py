@@ -5,6 +5,7 @@ and the tests that leave out arcs whose edge is not the flange's (station.wheel3
   can hide it; low over the wheel plane: it grazes the lip);
 * :func:`hidden_arcs` - arcs the sidewall could hide, kept only where they agree with the others;
 * :func:`inward_arcs` - arcs whose edge lies inside the fitted circle beyond the view's scatter;
+  :func:`stray_arcs` - those, and the arcs outside it by as much;
 * :func:`not_grazing` - the points whose ray does not graze the lip.
 """
 
@@ -105,19 +106,42 @@ def inward_arcs(r: np.ndarray, phi: np.ndarray, noise_px: float, n_sectors: int 
     (px, negative inside) against the fitted circle; phi (N,) rim angles (rad).
 
     Occlusion (a tyre bulge), a lip shaded as dark as the tyre, or a lip's inner edge taken for
-    the flange only ever move the edge found *inward*, and over whole arcs. An arc (one of
-    ``n_sectors`` of the rim, >= 5 points) is flagged when its median residual lies below the
-    median of all arc medians by more than max(``noise_px``, INWARD_ARC_SIGMAS robust sigmas
-    (1.4826 MAD) of the arc medians). With fewer than 6 such arcs nothing is flagged."""
+    the flange move the edge found *inward*, over whole arcs. An arc (one of ``n_sectors`` of
+    the rim, >= 5 points) is flagged when its median residual lies below the median of all arc
+    medians by more than max(``noise_px``, INWARD_ARC_SIGMAS robust sigmas (1.4826 MAD) of the
+    arc medians). With fewer than 6 such arcs nothing is flagged."""
+    off, lab, arcs = _arc_offsets(r, phi, noise_px, n_sectors)
+    return (arcs & (off < 0))[lab]
+
+
+def stray_arcs(r: np.ndarray, phi: np.ndarray, noise_px: float, n_sectors: int = HIDDEN_SECTORS) -> np.ndarray:
+    """(N,) bool: :func:`inward_arcs`, and the arcs whose edge lies *outside* the fitted circle
+    by as much. A lit tyre bead wall next to the flange looks like metal: on a small rim under
+    a tall sidewall (seed 955116, RL) the oblique camera saw the edge 0.4-1.5 px outside the
+    flange on a third of the rim, just under the gross-outlier limit, and they tilted the
+    circle by 0.25 deg."""
+    off, lab, arcs = _arc_offsets(r, phi, noise_px, n_sectors)
+    return (arcs & (off != 0))[lab]
+
+
+def _arc_offsets(r: np.ndarray, phi: np.ndarray, noise_px: float, n_sectors: int):
+    """Per sector: -1 / +1 where the arc's median residual lies below / above the median of
+    all arc medians by more than max(noise_px, INWARD_ARC_SIGMAS robust sigmas of them), else
+    0; with the points' sector labels and which sectors are arcs (>= 5 points). All 0 with
+    fewer than 6 arcs."""
     lab = sector_labels(phi, n_sectors)
     med, count = sector_medians(r, lab, n_sectors)
     arcs = count >= 5
+    off = np.zeros(n_sectors, int)
     if arcs.sum() < 6:
-        return np.zeros(len(r), bool)
+        return off, lab, arcs
     m = med[arcs]
-    spread = 1.4826 * float(np.median(np.abs(m - np.median(m))))
-    limit = float(np.median(m)) - max(noise_px, INWARD_ARC_SIGMAS * spread)
-    return (arcs & (med < limit))[lab]
+    centre = float(np.median(m))
+    limit = max(noise_px, INWARD_ARC_SIGMAS * 1.4826 * float(np.median(np.abs(m - centre))))
+    with np.errstate(invalid="ignore"):
+        off[arcs & (med < centre - limit)] = -1
+        off[arcs & (med > centre + limit)] = 1
+    return off, lab, arcs
 
 
 def not_grazing(circle: WheelFit, points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: CameraModel,
