@@ -311,13 +311,18 @@ def noise_covariance(sol, views) -> tuple[np.ndarray | None, np.ndarray]:
     return cov_p * float(np.average(factors, weights=[len(v[1]) for v in views])), inlier
 
 
+def _axis_difference(fit: WheelFit, other: WheelFit) -> np.ndarray:
+    """(3,) other's axis minus fit's, the sign of one flipped if they point opposite ways."""
+    return other.axis_station - fit.axis_station * np.sign(other.axis_station @ fit.axis_station)
+
+
 def extra_points_bias2(fit: WheelFit, subset: WheelFit) -> float:
     """The squared axis error (rad^2) that the points ``fit`` has and ``subset`` (the fit of a
     subset of them) has not are estimated to add: the squared angle between the two axes
     minus what the points' noise explains (for nested fits the difference has about the
     covariance ``subset.cov_axis_noise - fit.cov_axis_noise``), at least 0 (a Hausman-style
     estimate of their bias)."""
-    d = subset.axis_station - fit.axis_station * np.sign(subset.axis_station @ fit.axis_station)
+    d = _axis_difference(fit, subset)
     excess = float(np.trace(subset.cov_axis_noise) - np.trace(fit.cov_axis_noise))
     return max(float(d @ d) - max(excess, 0.0), 0.0)
 
@@ -329,7 +334,7 @@ def inconsistent(fit: WheelFit, other: WheelFit) -> bool:
     """Whether two fits' axes differ by more than even their stated uncertainties (noise and
     biases, ``cov_axis``) allow at 99 %: then at least one of them is wrong in a way its
     covariance does not describe, and neither difference-based estimate can be trusted."""
-    d = other.axis_station - fit.axis_station * np.sign(other.axis_station @ fit.axis_station)
+    d = _axis_difference(fit, other)
     spread = float(np.trace(fit.cov_axis) + np.trace(other.cov_axis))  # two components share it
     return bool(np.isfinite(spread)) and float(d @ d) > 0.5 * INCONSISTENT_CHI2 * spread
 

@@ -110,8 +110,7 @@ def inward_arcs(r: np.ndarray, phi: np.ndarray, noise_px: float, n_sectors: int 
     the rim, >= 5 points) is flagged when its median residual lies below the median of all arc
     medians by more than max(``noise_px``, INWARD_ARC_SIGMAS robust sigmas (1.4826 MAD) of the
     arc medians). With fewer than 6 such arcs nothing is flagged."""
-    off, lab, arcs = _arc_offsets(r, phi, noise_px, n_sectors)
-    return (arcs & (off < 0))[lab]
+    return _arc_offsets(r, phi, noise_px, n_sectors) < 0
 
 
 def stray_arcs(r: np.ndarray, phi: np.ndarray, noise_px: float, n_sectors: int = HIDDEN_SECTORS) -> np.ndarray:
@@ -120,28 +119,26 @@ def stray_arcs(r: np.ndarray, phi: np.ndarray, noise_px: float, n_sectors: int =
     a tall sidewall (seed 955116, RL) the oblique camera saw the edge 0.4-1.5 px outside the
     flange on a third of the rim, just under the gross-outlier limit, and they tilted the
     circle by 0.25 deg."""
-    off, lab, arcs = _arc_offsets(r, phi, noise_px, n_sectors)
-    return (arcs & (off != 0))[lab]
+    return _arc_offsets(r, phi, noise_px, n_sectors) != 0
 
 
-def _arc_offsets(r: np.ndarray, phi: np.ndarray, noise_px: float, n_sectors: int):
-    """Per sector: -1 / +1 where the arc's median residual lies below / above the median of
-    all arc medians by more than max(noise_px, INWARD_ARC_SIGMAS robust sigmas of them), else
-    0; with the points' sector labels and which sectors are arcs (>= 5 points). All 0 with
-    fewer than 6 arcs."""
+def _arc_offsets(r: np.ndarray, phi: np.ndarray, noise_px: float, n_sectors: int) -> np.ndarray:
+    """Per point (N,): -1 / +1 where its arc's (>= 5 points) median residual lies below / above
+    the median of all arc medians by more than max(noise_px, INWARD_ARC_SIGMAS robust sigmas of
+    them), else 0. All 0 with fewer than 6 arcs."""
     lab = sector_labels(phi, n_sectors)
     med, count = sector_medians(r, lab, n_sectors)
     arcs = count >= 5
     off = np.zeros(n_sectors, int)
     if arcs.sum() < 6:
-        return off, lab, arcs
+        return off[lab]
     m = med[arcs]
     centre = float(np.median(m))
     limit = max(noise_px, INWARD_ARC_SIGMAS * 1.4826 * float(np.median(np.abs(m - centre))))
     with np.errstate(invalid="ignore"):
         off[arcs & (med < centre - limit)] = -1
         off[arcs & (med > centre + limit)] = 1
-    return off, lab, arcs
+    return off[lab]
 
 
 def not_grazing(circle: WheelFit, points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: CameraModel,

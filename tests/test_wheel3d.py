@@ -213,22 +213,31 @@ def test_inward_arcs_flags_whole_arcs_inside_and_nothing_outside():
     assert not stray[(phi > 1.5) & (phi < 2.5)].any()
 
 
-def test_an_arc_seen_outside_the_rim_is_left_out(monkeypatch):
-    """A lit tyre bead wall taken for metal: the reference camera sees the edge 1.0 px
-    outside on a 60-degree arc, under the gross-outlier limit. The rounds of stray arcs leave
-    it out; without them the axis is far more off."""
+def _one_arc_moved(monkeypatch, phi0_of, depth_px):
+    """FR rim, noise 0.1 px; in the reference view a 60-degree arc at image angle
+    ``phi0_of(cam_l, cam_r, X, pr_true)`` moved ``depth_px`` inward (negative: outward).
+    Returns (axis error with the rounds of stray arcs, without them, those two fits, len(pl))."""
     rng = np.random.default_rng(11)
     v = random_vehicle(np.random.default_rng(11))
     c, w, X = _rim(v, "FR")
     cl, cr = _pair(c[0], c[1])
     pl = cl.project(X) + rng.normal(0, 0.1, (len(X), 2))
     pr_true = cr.project(X)
-    pr = _arc_bias(cr, pr_true, pr_true.mean(axis=0), 1.0, np.radians(30), -1.0) + rng.normal(0, 0.1, (len(X), 2))
+    phi0 = phi0_of(cl, cr, X, pr_true)
+    pr = _arc_bias(cr, pr_true, pr_true.mean(axis=0), phi0, np.radians(30), depth_px) + rng.normal(0, 0.1, (len(X), 2))
     paper = reconstruct_paper(pl, pr, cl, cr)
     trimmed = refine_circle(pl, pr, cl, cr, paper, grazing_test=False)
     monkeypatch.setattr(wheel3d, "INWARD_ARC_PASSES", 0)
     untrimmed = refine_circle(pl, pr, cl, cr, paper, grazing_test=False)
-    err_t, err_u = _angle_deg(trimmed.axis_station, w), _angle_deg(untrimmed.axis_station, w)
+    return (_angle_deg(trimmed.axis_station, w), _angle_deg(untrimmed.axis_station, w), trimmed, untrimmed,
+            len(pl))
+
+
+def test_an_arc_seen_outside_the_rim_is_left_out(monkeypatch):
+    """A lit tyre bead wall taken for metal: the reference camera sees the edge 1.0 px
+    outside on a 60-degree arc, under the gross-outlier limit. The rounds of stray arcs leave
+    it out; without them the axis is far more off."""
+    err_t, err_u, trimmed, untrimmed, _ = _one_arc_moved(monkeypatch, lambda cl, cr, X, pr: 1.0, -1.0)
     assert err_t < 0.5 * err_u, (err_t, err_u)
     assert trimmed.n_points[1] < untrimmed.n_points[1]
 
@@ -237,22 +246,13 @@ def test_an_inward_arc_on_the_side_no_sidewall_hides_is_left_out(monkeypatch):
     """The reference camera sees the edge 1.0 px inside on the arc it sees best (its ray
     leaves the rim outward there, so the sidewall test trusts it: a lip shaded dark, say).
     The rounds of inward arcs leave it out; without them the axis is twice as far off."""
-    rng = np.random.default_rng(11)
-    v = random_vehicle(np.random.default_rng(11))
-    c, w, X = _rim(v, "FR")
-    cl, cr = _pair(c[0], c[1])
-    pl = cl.project(X) + rng.normal(0, 0.1, (len(X), 2))
-    pr_true = cr.project(X)
-    exact = reconstruct_paper(cl.project(X), pr_true, cl, cr)
-    phi0 = _hidden_side_angle(cr, X, pr_true, exact) + np.pi
-    pr = _arc_bias(cr, pr_true, pr_true.mean(axis=0), phi0, np.radians(30), 1.0) + rng.normal(0, 0.1, (len(X), 2))
-    paper = reconstruct_paper(pl, pr, cl, cr)
-    trimmed = refine_circle(pl, pr, cl, cr, paper, grazing_test=False)
-    monkeypatch.setattr(wheel3d, "INWARD_ARC_PASSES", 0)
-    untrimmed = refine_circle(pl, pr, cl, cr, paper, grazing_test=False)
-    err_t, err_u = _angle_deg(trimmed.axis_station, w), _angle_deg(untrimmed.axis_station, w)
+    def best_seen(cl, cr, X, pr_true):
+        exact = reconstruct_paper(cl.project(X), pr_true, cl, cr)
+        return _hidden_side_angle(cr, X, pr_true, exact) + np.pi
+
+    err_t, err_u, trimmed, untrimmed, n_left = _one_arc_moved(monkeypatch, best_seen, 1.0)
     assert err_t < 0.6 * err_u, (err_t, err_u)
-    assert trimmed.n_points[1] < untrimmed.n_points[1] and trimmed.n_points[0] == len(pl)
+    assert trimmed.n_points[1] < untrimmed.n_points[1] and trimmed.n_points[0] == n_left
 
 
 def test_stated_uncertainty_grows_with_a_slowly_varying_edge_bias():

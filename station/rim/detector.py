@@ -385,9 +385,9 @@ def detect_rim(image: np.ndarray, *, camera=None, prior: Ellipse | None = None, 
         clock.lap("choose")
         fit, samples, mask, blur = _refine(grey, best.ellipse.scaled(sc.s), pmap)
         clock.lap("refine")
-        if pmap.identity and sc.s // WORKING_SCALE_STEP >= 2:
+        if camera is None and sc.s // WORKING_SCALE_STEP >= 2:
             info["blur_px"] = blur
-            return _finer_of(grey, best.ellipse, sc.s, (fit, samples, mask), info, clock, camera, camera_id)
+            return _finer_of(grey, best.ellipse, sc.s, (fit, samples, mask), info, clock, camera_id)
     info["blur_px"] = blur
     return _result(fit, samples, mask, info, clock, camera, pmap, camera_id)
 
@@ -395,7 +395,7 @@ def detect_rim(image: np.ndarray, *, camera=None, prior: Ellipse | None = None, 
 WORKING_SCALE_STEP = 3  # a search scale this many times larger gives a sub-pixel try at 1/(s // 3)
 
 
-def _finer_of(grey: np.ndarray, coarse_ellipse: Ellipse, s: int, full, info: dict, clock: _Clock, camera,
+def _finer_of(grey: np.ndarray, coarse_ellipse: Ellipse, s: int, full, info: dict, clock: _Clock,
               camera_id: str) -> RimDetection:
     """The sub-pixel rim of a large image without a camera model (a photograph): refined at
     full resolution (``full``: the _refine result) and on the image downscaled by
@@ -409,13 +409,13 @@ def _finer_of(grey: np.ndarray, coarse_ellipse: Ellipse, s: int, full, info: dic
     pmap = PixelMap(None)
     candidates = []
     try:
-        candidates.append(_result(*full[:3], dict(info), clock, camera, pmap, camera_id))
+        candidates.append(_result(*full, dict(info), clock, None, pmap, camera_id))
     except RimNotFound as e:
         error = e
     small = downscale(grey, r)
     fit, samples, mask, blur = _refine(small, coarse_ellipse.scaled(s / r), pmap)
     try:
-        candidates.append(_rescaled(_result(fit, samples, mask, {**info, "blur_px": blur}, clock, camera, pmap,
+        candidates.append(_rescaled(_result(fit, samples, mask, {**info, "blur_px": blur}, clock, None, pmap,
                                             camera_id), r))
     except RimNotFound as e:
         error = e
