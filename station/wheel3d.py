@@ -41,7 +41,7 @@ MIN_VIEW_POINTS = 20      # rim points a view must keep on the fitted circle
 INWARD_ARC_PASSES = 3     # rounds of leaving out arcs whose edge strays from the fitted circle (stray_arcs)
 GROSS_PX = 1.5           # a point this far (px) off the fitted circle, and GROSS_SIGMAS robust
 GROSS_SIGMAS = 5.0       # sigmas, is on another contour: left out and the circle fitted again
-BIAS_MODES = 1         # edge-bias Fourier modes (0: uniform, 1: + cos/sin) in the covariance
+BIAS_MODES = 2         # edge-bias Fourier modes (0: uniform, 1: + cos/sin, 2: + elongation) in the covariance
 
 
 @dataclass
@@ -202,10 +202,18 @@ def bias_covariance(sol, views, n0, e1, e2, n_modes: int, n_sectors: int = 18) -
 
     The edge a camera sees may sit off the flange edge by a bias that changes slowly around
     the rim (a shaded lip, the tyre bulge, the blur model): it does not average out over the
-    points. Model it per view as Fourier modes 0..``n_modes`` of the rim angle, each with the
-    standard deviation this cycle's residuals show (RMS of the median residual of each of
-    ``n_sectors`` sectors: the part of the bias the fit could not absorb), and propagate each
-    mode through the least-squares solution (dp = (J^T J)^-1 J^T dr).
+    points. Model it per view as Fourier modes 0..``n_modes`` (at most 2) of the rim angle and
+    propagate each mode through the least-squares solution (dp = (J^T J)^-1 J^T dr).
+
+    Modes 0 and 1 have the standard deviation this cycle's residuals show: the RMS of the
+    median residual of each of ``n_sectors`` sectors, less its noise (``sector_bias_rms``).
+    Mode 2 is the ellipse's elongation: the monocular shape cue camber leans on, since the
+    horizontal baseline leaves the top and bottom of the rim without disparity. Its size is
+    taken from the residuals' power at modes 3 and 4 (``high_mode_amplitude``). An ellipse
+    absorbs modes 0-2 of its own edge, so they hardly show in the residuals; modes 3-4 it
+    cannot absorb, and a smooth bias has similar power there. Without mode 2, camber was
+    stated twice too certain on the typical wheel; with the sector RMS as its size, twice too
+    uncertain (docs/measurement.md).
 
     The uniform offset (mode 0) is taken as the same in both views: it comes from where the
     edge model puts a blurred, shaded flange edge, which is the same rim and the same model in
@@ -213,8 +221,8 @@ def bias_covariance(sol, views, n0, e1, e2, n_modes: int, n_sectors: int = 18) -
     doubled the stated toe uncertainty: over 160 benchmark vehicles the median of |toe error| /
     stated toe, over 0.674 (its value for honest Gaussian errors), was 0.3-0.8 per benchmark
     set, and is 0.8-1.3 with the common offset (docs/measurement.md).
-    The slowly varying modes (cos, sin) come from the viewing geometry (a hidden strip, a
-    grazing lip) and stay each view's own."""
+    The slowly varying modes come from the viewing geometry (a hidden strip, a grazing lip)
+    and stay each view's own."""
     c = sol.x[2:5]
     n = normal_from(sol.x[:2], n0, e1, e2)
     J = sol.jac
@@ -225,18 +233,47 @@ def bias_covariance(sol, views, n0, e1, e2, n_modes: int, n_sectors: int = 18) -
     for (cam, xy, _), a, b in zip(views, bounds[:-1], bounds[1:]):
         r = sol.fun[a:b]
         phi = rim_angles(cam, xy, c, n)
-        lab = sector_labels(phi, n_sectors)
-        med, count = sector_medians(r, lab, n_sectors)
+        med, count = sector_medians(r, sector_labels(phi, n_sectors), n_sectors)
         full = np.nonzero(count >= 3)[0]
-        meds = med[full]
         noise = 1.4826 * np.median(np.abs(r - np.median(r)))  # the part of each median that is noise:
         se2 = (1.2533 * noise) ** 2 / count[full]                 # its squared standard error
-        sigma_b = float(np.sqrt(max(np.mean(meds ** 2 - se2), 0.0))) if len(full) else 0.0
-        modes = [np.ones_like(phi)] + [f(k * phi) for k in range(1, n_modes + 1) for f in (np.cos, np.sin)]
-        dp = pinv[:, a:b] @ (np.stack(modes, axis=1) * sigma_b)            # (P, modes)
+        sigma_b = sector_bias_rms(med[full], se2)
+        amps = [sigma_b] + [sigma_b] * 2 * min(n_modes, 1)
+        if n_modes >= 2:
+            amps += [min(high_mode_amplitude(med[full], full, se2, n_sectors), sigma_b)] * 2
+        funcs = [np.ones_like(phi)] + [f(k * phi) for k in range(1, min(n_modes, 2) + 1) for f in (np.cos, np.sin)]
+        dp = pinv[:, a:b] @ (np.stack(funcs, axis=1) * np.array(amps))   # (P, modes)
         common += dp[:, :1]                # the uniform offset: the same in both views
         cov += dp[:, 1:] @ dp[:, 1:].T     # the rest: each view's own
     return cov + common @ common.T
+
+
+def sector_bias_rms(meds: np.ndarray, se2: np.ndarray) -> float:
+    """RMS bias of sector medians (S,) whose squared standard errors from noise are se2 (S,)."""
+    return float(np.sqrt(max(np.mean(meds ** 2 - se2), 0.0))) if len(meds) else 0.0
+
+
+MIN_SPECTRUM_SECTORS = 12  # sectors (of 18) a view must cover to measure its modes 3-4
+HIGH_MODE_CHI2 = 9.49      # chi-square, 4 dof, 95 %: modes 3-4 hold power beyond their noise
+
+
+def high_mode_amplitude(meds: np.ndarray, sectors: np.ndarray, se2: np.ndarray, n_sectors: int) -> float:
+    """Amplitude (px) of one Fourier function at modes 3-4 of the sector medians meds (S,) of
+    the sectors ``sectors`` (S,) ints (least squares of modes 0-4, their noise se2 (S,)
+    subtracted). 0 when fewer than MIN_SPECTRUM_SECTORS sectors are seen: on a short arc the
+    modes cannot be told apart, and modes 0-1 already stand for the arc's smooth bias (with
+    the sector RMS as mode 2's size there, a wheel seen on 10 of 18 sectors stated 0.34 deg
+    of camber for an error of 0.04)."""
+    if len(meds) < MIN_SPECTRUM_SECTORS:
+        return 0.0
+    angle = (sectors + 0.5) * (2 * np.pi / n_sectors) - np.pi
+    A = np.stack([np.ones_like(angle)] + [f(k * angle) for k in range(1, 5) for f in (np.cos, np.sin)], axis=1)
+    P = np.linalg.pinv(A)                                               # (9, S)
+    coef = P @ meds
+    noise2 = (P[5:] ** 2) @ se2                                          # each coefficient's noise
+    if np.sum(coef[5:] ** 2 / np.maximum(noise2, 1e-30)) < HIGH_MODE_CHI2:
+        return 0.0  # no power above the noise: a noise estimate would still come out positive
+    return float(np.sqrt(max(np.mean(coef[5:] ** 2 - noise2), 0.0)))
 
 
 def _sector_jackknife(residuals, x, views, n0, e1, e2, n_sectors: int, loss_scale_px: float) -> np.ndarray:

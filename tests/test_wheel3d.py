@@ -515,3 +515,43 @@ def test_fits_that_disagree_beyond_all_they_state_are_inconsistent():
 
     assert not inconsistent(a, tilted(0.1))   # 0.1 deg apart: within 0.05 + 0.05 deg stated
     assert inconsistent(a, tilted(0.5))       # 0.5 deg: beyond what either states
+
+
+def test_high_mode_amplitude_measures_modes_3_4_above_the_noise():
+    from station.wheel3d import high_mode_amplitude
+    sectors = np.arange(18)
+    angle = (sectors + 0.5) * (2 * np.pi / 18) - np.pi
+    se2 = np.full(18, 0.002 ** 2)
+    rng = np.random.default_rng(0)
+    smooth = 0.02 + 0.03 * np.cos(angle) + 0.05 * np.cos(3 * angle) + 0.03 * np.sin(4 * angle)
+    amp = high_mode_amplitude(smooth + rng.normal(0, 0.002, 18), sectors, se2, 18)
+    assert amp == pytest.approx(np.sqrt((0.05 ** 2 + 0.03 ** 2) / 4), rel=0.1)  # one function's share
+    assert high_mode_amplitude(rng.normal(0, 0.002, 18), sectors, se2, 18) == 0.0  # noise only
+    assert high_mode_amplitude(smooth[:10], sectors[:10], se2[:10], 18) == 0.0       # a short arc
+
+
+def test_an_elongating_edge_bias_is_in_the_stated_camber():
+    """Both views' edges off the flange by smooth biases of modes 2-4 (0.04-0.06 px): the fit
+    absorbs mode 2, which tilts the wheel about the horizontal (camber). Modes 0-1 alone
+    state the camber about twice too certain; with mode 2 sized from modes 3-4 it is honest."""
+    ratios = {1: [], 2: []}
+    for seed in range(6):
+        v = random_vehicle(np.random.default_rng(seed))
+        c, w, X = _rim(v, "FR")
+        cl, cr = _pair(c[0], c[1])
+        rng = np.random.default_rng(seed + 10)
+        phi = np.linspace(0, 2 * np.pi, len(X), endpoint=False)
+
+        def biased(p, ph):
+            d = p - p.mean(axis=0)
+            b = 0.06 * np.cos(2 * phi + ph) + 0.05 * np.cos(3 * phi + 2 * ph) + 0.04 * np.sin(4 * phi - ph)
+            return p + b[:, None] * d / np.linalg.norm(d, axis=1, keepdims=True) + rng.normal(0, 0.08, p.shape)
+
+        pl, pr = biased(cl.project(X), 0.4), biased(cr.project(X), 1.9)
+        paper = reconstruct_paper(pl, pr, cl, cr)
+        up = np.array([0.0, 0.0, 1.0])
+        for modes in ratios:
+            fit = refine_circle(pl, pr, cl, cr, paper, bias_modes=modes, grazing_test=False)
+            ratios[modes].append(abs(fit.axis_station @ up - w @ up) / np.sqrt(up @ fit.cov_axis @ up))
+    assert np.mean(ratios[1]) > 1.8
+    assert 0.7 < np.mean(ratios[2]) < 1.5
