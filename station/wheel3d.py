@@ -23,6 +23,7 @@ from scipy.optimize import least_squares
 from calibration.camera_model import CameraModel
 from calibration.triangulation import homogeneous, triangulate_paper
 from station.blas_threads import single_thread_blas
+from station.bounded_cache import BoundedCache
 from station.epipolar import (epipolar_tangency_px, fit_conic, pair_relation, pair_tangency, pencil_basis,
                               tangent_point_gaps_deg)
 from station.errors import MeasurementError
@@ -257,6 +258,16 @@ MIN_SPECTRUM_SECTORS = 12  # sectors (of 18) a view must cover to measure its mo
 HIGH_MODE_CHI2 = 9.49      # chi-square, 4 dof, 95 %: modes 3-4 hold power beyond their noise
 
 
+_FOURIER_PINV = BoundedCache(64)  # per set of seen sectors: most views see all, cycle after cycle
+
+
+def _fourier_pinv(sectors: np.ndarray, n_sectors: int) -> np.ndarray:
+    """(9, S) least-squares operator from the medians of ``sectors`` (S,) to Fourier modes 0-4."""
+    angle = (sectors + 0.5) * (2 * np.pi / n_sectors) - np.pi
+    A = np.stack([np.ones_like(angle)] + [f(k * angle) for k in range(1, 5) for f in (np.cos, np.sin)], axis=1)
+    return np.linalg.pinv(A)
+
+
 def high_mode_amplitude(meds: np.ndarray, sectors: np.ndarray, se2: np.ndarray, n_sectors: int) -> float:
     """Amplitude (px) of one Fourier function at modes 3-4 of the sector medians meds (S,) of
     the sectors ``sectors`` (S,) ints (least squares of modes 0-4, their noise se2 (S,)
@@ -266,9 +277,7 @@ def high_mode_amplitude(meds: np.ndarray, sectors: np.ndarray, se2: np.ndarray, 
     of camber for an error of 0.04)."""
     if len(meds) < MIN_SPECTRUM_SECTORS:
         return 0.0
-    angle = (sectors + 0.5) * (2 * np.pi / n_sectors) - np.pi
-    A = np.stack([np.ones_like(angle)] + [f(k * angle) for k in range(1, 5) for f in (np.cos, np.sin)], axis=1)
-    P = np.linalg.pinv(A)                                               # (9, S)
+    P = _FOURIER_PINV.get((n_sectors, sectors.tobytes()), lambda: _fourier_pinv(sectors, n_sectors))  # (9, S)
     coef = P @ meds
     noise2 = (P[5:] ** 2) @ se2                                          # each coefficient's noise
     if np.sum(coef[5:] ** 2 / np.maximum(noise2, 1e-30)) < HIGH_MODE_CHI2:
