@@ -594,7 +594,25 @@ def _fit_circle(xy_l: np.ndarray, xy_r: np.ndarray, cam_l: CameraModel, cam_r: C
             # is estimated from how far they move the axis beyond what their noise explains,
             # unless the two fits disagree beyond all they state (one of them is broken, say
             # the weaker geometry without them found another minimum): the smaller stated then
-            bias2 = 0.0 if inconsistent(fit, alt) else extra_points_bias2(fit, alt)
+            disagree = inconsistent(fit, alt)
+            bias2 = 0.0 if disagree else extra_points_bias2(fit, alt)
+            other = fit
             if np.trace(alt.cov_axis) < np.trace(fit.cov_axis) + bias2:
-                fit = replace(alt, grazing_left_out=True)
+                fit, other = replace(alt, grazing_left_out=True), fit
+            if disagree:
+                fit = with_disagreement(fit, other)
     return fit
+
+
+def with_disagreement(fit: WheelFit, other: WheelFit) -> WheelFit:
+    """``fit`` whose axis covariance also holds its difference d from ``other``, a fit of the
+    same wheel on other points that disagrees beyond what both state (``inconsistent``): one
+    of the two is wrong. The kept one is wrong by d with the chance that the other is right,
+    taken as the other's share of their certainty, tr(C_fit) / (tr(C_fit) + tr(C_other)):
+    cov_axis + p d d^T. Two fits equally sure and 0.95 deg apart (a reference view seeing half
+    its rim) no longer state +/-0.1 each; a broken fit stated +/-3 deg hardly counts."""
+    d = _axis_difference(fit, other)
+    d = d - (d @ fit.axis_station) * fit.axis_station  # across the axis
+    a, b = float(np.trace(fit.cov_axis)), float(np.trace(other.cov_axis))
+    p_other = a / (a + b) if np.isfinite(a + b) and a + b > 0 else 0.0
+    return replace(fit, cov_axis=fit.cov_axis + p_other * np.outer(d, d))

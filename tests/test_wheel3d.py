@@ -1,5 +1,7 @@
 """3-D wheel from a stereo pair: the paper's method and the 3-D circle fit on exact rims."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -555,3 +557,18 @@ def test_an_elongating_edge_bias_is_in_the_stated_camber():
             ratios[modes].append(abs(fit.axis_station @ up - w @ up) / np.sqrt(up @ fit.cov_axis @ up))
     assert np.mean(ratios[1]) > 1.8
     assert 0.7 < np.mean(ratios[2]) < 1.5
+
+
+def test_a_fit_kept_against_a_disagreeing_one_states_their_difference():
+    from station.wheel3d import WheelFit, with_disagreement
+    sd = np.radians(0.1)
+    cov = np.diag([0.0, 1.0, 1.0]) * sd ** 2                 # +/-0.1 deg across the axis (x)
+    a = WheelFit("circle", np.zeros(3), np.array([1.0, 0, 0]), 0.2, cov_axis=cov)
+    t = np.radians(0.9)
+    b = WheelFit("circle", np.zeros(3), -np.array([np.cos(t), np.sin(t), 0.0]), 0.2, cov_axis=cov)
+    kept = with_disagreement(a, b)
+    std_y = np.degrees(np.sqrt(kept.cov_axis[1, 1]))
+    assert std_y == pytest.approx(np.sqrt(0.1 ** 2 + 0.5 * 0.9 ** 2), rel=0.01)  # equally sure: half the chance
+    assert kept.cov_axis[2, 2] == pytest.approx(cov[2, 2])                     # nothing where they agree
+    broken = replace(b, cov_axis=cov * 900)                                     # the other stated +/-3 deg
+    assert np.degrees(np.sqrt(with_disagreement(a, broken).cov_axis[1, 1])) < 0.11
