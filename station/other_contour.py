@@ -223,7 +223,7 @@ def refit_other_contour(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l:
     Tried only when ``circle`` (the fit of all points, (N,2) and (M,2) pixels) states an axis
     uncertainty above ``above_deg`` (the station's uncertainty limit: such a cycle would be
     reported as uncertain), and kept only when it states a smaller one."""
-    if not np.degrees(np.sqrt(np.trace(circle.cov_axis))) > above_deg:
+    if not np.degrees(np.sqrt(max(np.trace(circle.cov_axis), 0.0))) > above_deg:  # (NaN: not above)
         return None
     views = []
     for cam, pts in ((cam_l, points_l_px), (cam_r, points_r_px)):
