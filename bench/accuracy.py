@@ -43,9 +43,10 @@ SCENARIOS = {
 
 
 def _outside_envelope(kind: str):
-    """Scene overrides (``SimWorld.vehicle_scene``) per seed for a scenario outside the random
-    vehicles' envelope; their own random stream, so the vehicle is otherwise that of the seed."""
-    def over(seed: int) -> dict:
+    """Scene overrides (``SimWorld.vehicle_scene``) per seed and the station's nominal vehicle
+    for a scenario outside the random vehicles' envelope; their own random stream, so the
+    vehicle is otherwise that of the seed."""
+    def over(seed: int, nominal) -> dict:
         r = np.random.default_rng([seed, 77])
         wheels = ("FL", "FR", "RL", "RR")
         if kind == "big-angles":
@@ -54,8 +55,9 @@ def _outside_envelope(kind: str):
         if kind == "odd-rims":
             rim_r = float(r.choice([14, 20, 21, 22])) * 0.0254 / 2 + 0.0125
             return {"rim_radius_m": rim_r, "tyre_radius_m": rim_r + float(r.uniform(0.07, 0.15))}
-        return {"wheelbase_m": 2.70 + float(r.uniform(-0.2, 0.2)), "track_front_m": 1.56 + float(r.uniform(-0.08, 0.08)),
-                "track_rear_m": 1.56 + float(r.uniform(-0.08, 0.08)),
+        return {"wheelbase_m": nominal.wheelbase_m + float(r.uniform(-0.2, 0.2)),
+                "track_front_m": nominal.track_m + float(r.uniform(-0.08, 0.08)),
+                "track_rear_m": nominal.track_m + float(r.uniform(-0.08, 0.08)),
                 "position_m": (float(r.uniform(-0.1, 0.1)), float(r.uniform(-0.1, 0.1))), "yaw_deg": float(r.uniform(-2, 2))}
     return over
 
@@ -123,7 +125,7 @@ def run(config, cameras_by_source: dict, n: int, scenario: str, seed0: int, meth
         if albedo is not None:  # its own stream: the vehicle itself stays that of the seed
             over["rim_albedo"] = float(np.random.default_rng([seed, 1]).uniform(*albedo))
         if scenario in OUTSIDE:
-            over.update(OUTSIDE[scenario](seed))
+            over.update(OUTSIDE[scenario](seed, config.nominal_vehicle))
         scene = world.vehicle_scene(seed, **over)
         world.set_scene(scene)
         images = _images(world, scene, scenario, seed, cache)

@@ -11,7 +11,8 @@ from __future__ import annotations
 import numpy as np
 
 from calibration.camera_model import CameraModel
-from station.wheel3d import WheelFit, normal_from, circle_conic, sampson_px
+from station.wheel3d import WheelFit, circle_conic, sampson_px
+from station.wheel_fit_uncertainty import normal_from
 
 CAMERA_PARAMS = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "rx", "ry", "rz", "tx", "ty", "tz")
 

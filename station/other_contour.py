@@ -30,8 +30,8 @@ from calibration.triangulation import homogeneous
 from station.errors import MeasurementError
 from station.robust_lsq import soft_l1_least_squares
 from station.epipolar import epipolar_tangency_px
-from station.wheel3d import (BIAS_MODES, WheelFit, axis_basis, axis_covariance, bias_covariance, circle_conics,
-                             noise_covariance, normal_from, sampson_jacobian, tangent_gaps)
+from station.wheel3d import BIAS_MODES, WheelFit, circle_conics, sampson_jacobian, tangent_gaps
+from station.wheel_fit_uncertainty import axis_basis, axis_covariance, bias_covariance, noise_covariance, normal_from
 from station.wheel_arcs import rim_angles
 
 WINDOWS = 4               # half-rim windows, centred 90 degrees apart

@@ -23,13 +23,14 @@ from scipy.optimize import least_squares
 from calibration.camera_model import CameraModel
 from calibration.triangulation import homogeneous, triangulate_paper
 from station.blas_threads import single_thread_blas
-from station.bounded_cache import BoundedCache
 from station.epipolar import (epipolar_tangency_px, fit_conic, pair_relation, pair_tangency, pencil_basis,
                               tangent_point_gaps_deg)
 from station.errors import MeasurementError
 from station.robust_lsq import soft_l1_least_squares
 from station.wheel_arcs import (MIN_KEPT_FRACTION, edge_visibility, hidden_arcs, not_grazing_xy, rim_angles,
-                                sector_labels, sector_medians, stray_arcs)
+                                sector_labels, stray_arcs)
+from station.wheel_fit_uncertainty import (axis_basis, axis_covariance, bias_covariance, extra_points_bias2,
+                                          inconsistent, noise_covariance, normal_from, with_disagreement)
 
 single_thread_blas()  # small least-squares problems: OpenBLAS threads cost 40x here (station/blas_threads.py)
 
@@ -198,94 +199,6 @@ def sampson_px(C: np.ndarray, xy: np.ndarray, focal_px: float) -> np.ndarray:
     return focal_px * f / grad
 
 
-def bias_covariance(sol, views, n0, e1, e2, n_modes: int, n_sectors: int = 18) -> np.ndarray:
-    """(P,P) covariance of the circle parameters (P = 6, or more for a model whose first six
-    parameters are the circle's) from slowly varying edge biases in each view.
-
-    The edge a camera sees may sit off the flange edge by a bias that changes slowly around
-    the rim (a shaded lip, the tyre bulge, the blur model): it does not average out over the
-    points. Model it per view as Fourier modes 0..``n_modes`` (at most 2) of the rim angle and
-    propagate each mode through the least-squares solution (dp = (J^T J)^-1 J^T dr).
-
-    Modes 0 and 1 have the standard deviation this cycle's residuals show: the RMS of the
-    median residual of each of ``n_sectors`` sectors, less its noise (``sector_bias_rms``).
-    Mode 2 is the ellipse's elongation: the monocular shape cue camber leans on, since the
-    horizontal baseline leaves the top and bottom of the rim without disparity. Its size is
-    taken from the residuals' power at modes 3 and 4 (``high_mode_amplitude``). An ellipse
-    absorbs modes 0-2 of its own edge, so they hardly show in the residuals; modes 3-4 it
-    cannot absorb, and a smooth bias has similar power there. Without mode 2, camber was
-    stated twice too certain on the typical wheel; with the sector RMS as its size, twice too
-    uncertain (docs/measurement.md).
-
-    The uniform offset (mode 0) is taken as the same in both views: it comes from where the
-    edge model puts a blurred, shaded flange edge, which is the same rim and the same model in
-    both cameras. Taken as independent per view it acted as a disparity between the views and
-    doubled the stated toe uncertainty: over 160 benchmark vehicles the median of |toe error| /
-    stated toe, over 0.674 (its value for honest Gaussian errors), was 0.3-0.8 per benchmark
-    set, and is 0.8-1.3 with the common offset (docs/measurement.md).
-    The slowly varying modes come from the viewing geometry (a hidden strip, a grazing lip)
-    and stay each view's own."""
-    c = sol.x[2:5]
-    n = normal_from(sol.x[:2], n0, e1, e2)
-    J = sol.jac
-    pinv = np.linalg.pinv(J.T @ J) @ J.T                                  # (P, N)
-    bounds = np.cumsum([0] + [len(v[1]) for v in views])
-    cov = np.zeros((J.shape[1], J.shape[1]))
-    common = np.zeros((J.shape[1], 1))
-    for (cam, xy, _), a, b in zip(views, bounds[:-1], bounds[1:]):
-        r = sol.fun[a:b]
-        phi = rim_angles(cam, xy, c, n)
-        med, count = sector_medians(r, sector_labels(phi, n_sectors), n_sectors)
-        full = np.nonzero(count >= 3)[0]
-        noise = 1.4826 * np.median(np.abs(r - np.median(r)))  # the part of each median that is noise:
-        se2 = (1.2533 * noise) ** 2 / count[full]                 # its squared standard error
-        sigma_b = sector_bias_rms(med[full], se2)
-        amps = [sigma_b] + [sigma_b] * 2 * min(n_modes, 1)
-        if n_modes >= 2:
-            amps += [min(high_mode_amplitude(med[full], full, se2, n_sectors), sigma_b)] * 2
-        funcs = [np.ones_like(phi)] + [f(k * phi) for k in range(1, min(n_modes, 2) + 1) for f in (np.cos, np.sin)]
-        dp = pinv[:, a:b] @ (np.stack(funcs, axis=1) * np.array(amps))   # (P, modes)
-        common += dp[:, :1]                # the uniform offset: the same in both views
-        cov += dp[:, 1:] @ dp[:, 1:].T     # the rest: each view's own
-    return cov + common @ common.T
-
-
-def sector_bias_rms(meds: np.ndarray, se2: np.ndarray) -> float:
-    """RMS bias of sector medians (S,) whose squared standard errors from noise are se2 (S,)."""
-    return float(np.sqrt(max(np.mean(meds ** 2 - se2), 0.0))) if len(meds) else 0.0
-
-
-MIN_SPECTRUM_SECTORS = 12  # sectors (of 18) a view must cover to measure its modes 3-4
-HIGH_MODE_CHI2 = 9.49      # chi-square, 4 dof, 95 %: modes 3-4 hold power beyond their noise
-
-
-_FOURIER_PINV = BoundedCache(64)  # per set of seen sectors: most views see all, cycle after cycle
-
-
-def _fourier_pinv(sectors: np.ndarray, n_sectors: int) -> np.ndarray:
-    """(9, S) least-squares operator from the medians of ``sectors`` (S,) to Fourier modes 0-4."""
-    angle = (sectors + 0.5) * (2 * np.pi / n_sectors) - np.pi
-    A = np.stack([np.ones_like(angle)] + [f(k * angle) for k in range(1, 5) for f in (np.cos, np.sin)], axis=1)
-    return np.linalg.pinv(A)
-
-
-def high_mode_amplitude(meds: np.ndarray, sectors: np.ndarray, se2: np.ndarray, n_sectors: int) -> float:
-    """Amplitude (px) of one Fourier function at modes 3-4 of the sector medians meds (S,) of
-    the sectors ``sectors`` (S,) ints (least squares of modes 0-4, their noise se2 (S,)
-    subtracted). 0 when fewer than MIN_SPECTRUM_SECTORS sectors are seen: on a short arc the
-    modes cannot be told apart, and modes 0-1 already stand for the arc's smooth bias (with
-    the sector RMS as mode 2's size there, a wheel seen on 10 of 18 sectors stated 0.34 deg
-    of camber for an error of 0.04)."""
-    if len(meds) < MIN_SPECTRUM_SECTORS:
-        return 0.0
-    P = _FOURIER_PINV.get((n_sectors, sectors.tobytes()), lambda: _fourier_pinv(sectors, n_sectors))  # (9, S)
-    coef = P @ meds
-    noise2 = (P[5:] ** 2) @ se2                                          # each coefficient's noise
-    if np.sum(coef[5:] ** 2 / np.maximum(noise2, 1e-30)) < HIGH_MODE_CHI2:
-        return 0.0  # no power above the noise: a noise estimate would still come out positive
-    return float(np.sqrt(max(np.mean(coef[5:] ** 2 - noise2), 0.0)))
-
-
 def _sector_jackknife(residuals, x, views, n0, e1, e2, n_sectors: int, loss_scale_px: float) -> np.ndarray:
     """Block-jackknife covariance (6,6) of the circle parameters, leaving out one rim sector at a time."""
     c = x[2:5]
@@ -302,97 +215,6 @@ def _sector_jackknife(residuals, x, views, n0, e1, e2, n_sectors: int, loss_scal
     return (n_sectors - 1) / n_sectors * dev.T @ dev
 
 
-def along_rim(residuals: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    """Residuals (N,) reordered by the polar angle of their points (N,2) around the centroid."""
-    d = xy - xy.mean(axis=0)
-    return residuals[np.argsort(np.arctan2(d[:, 1], d[:, 0]))]
-
-
-def correlation_factor(r: np.ndarray, max_lag_fraction: float = 0.25) -> float:
-    """Variance inflation 1 + 2 sum(rho_k) of a mean of correlated samples (N,) ordered in space.
-
-    rho_k is the lag-k autocorrelation, summed over the initial positive sequence (Geyer);
-    1 for independent residuals, about the correlation length (in points) for smooth errors.
-    """
-    r = r - r.mean()
-    n = len(r)
-    c0 = float(r @ r) / n
-    if n < 8 or c0 <= 0:
-        return 1.0
-    f = np.fft.rfft(r, 2 * n)
-    acf = np.fft.irfft(f * np.conj(f))[: int(n * max_lag_fraction)] / (n * c0)
-    s = 0.0
-    for rho in acf[1:]:
-        if rho <= 0:
-            break
-        s += rho
-    return 1.0 + 2.0 * s
-
-
-def axis_basis(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(n0, e1, e2): the unit ``axis`` (3,) and two unit vectors across it, in which the circle
-    fits move the normal (n = n0 + a e1 + b e2, normalised)."""
-    n0 = axis / np.linalg.norm(axis)
-    e1 = np.cross(n0, [0.0, 0.0, 1.0])
-    e1 /= np.linalg.norm(e1)
-    return n0, e1, np.cross(n0, e1)
-
-
-def noise_covariance(sol, views) -> tuple[np.ndarray | None, np.ndarray]:
-    """(P,P) covariance of a fit's parameters from its residuals' robust sigma and the Jacobian
-    (None if singular), inflated by the residuals' correlation along the rim, and the (N,)
-    inlier mask it was estimated on. sol: fun (N,), jac (N,P); views: [(camera, points, f)]
-    in the order of the residuals."""
-    r, J = sol.fun, sol.jac
-    mad = 1.4826 * np.median(np.abs(r - np.median(r)))
-    inlier = np.abs(r) < max(3 * mad, 1e-6)
-    sigma2 = float(np.sum(r[inlier] ** 2) / max(inlier.sum() - J.shape[1], 1))
-    try:
-        cov_p = np.linalg.inv(J.T @ J) * sigma2
-    except np.linalg.LinAlgError:
-        return None, inlier
-    # Edge errors are not independent from point to point (shading, blur and occlusion move
-    # whole stretches of the rim): inflate by the residuals' correlation along the rim.
-    per_view = np.split(r, np.cumsum([len(v[1]) for v in views])[:-1])
-    factors = [correlation_factor(along_rim(res, xy)) for res, (_, xy, _) in zip(per_view, views)]
-    return cov_p * float(np.average(factors, weights=[len(v[1]) for v in views])), inlier
-
-
-def _axis_difference(fit: WheelFit, other: WheelFit) -> np.ndarray:
-    """(3,) other's axis minus fit's, the sign of one flipped if they point opposite ways."""
-    return other.axis_station - fit.axis_station * np.sign(other.axis_station @ fit.axis_station)
-
-
-def extra_points_bias2(fit: WheelFit, subset: WheelFit) -> float:
-    """The squared axis error (rad^2) that the points ``fit`` has and ``subset`` (the fit of a
-    subset of them) has not are estimated to add: the squared angle between the two axes
-    minus what the points' noise explains (for nested fits the difference has about the
-    covariance ``subset.cov_axis_noise - fit.cov_axis_noise``), at least 0 (a Hausman-style
-    estimate of their bias)."""
-    d = _axis_difference(fit, subset)
-    excess = float(np.trace(subset.cov_axis_noise) - np.trace(fit.cov_axis_noise))
-    return max(float(d @ d) - max(excess, 0.0), 0.0)
-
-
-INCONSISTENT_CHI2 = 9.21  # chi-square, 2 degrees of freedom, 99 %
-
-
-def inconsistent(fit: WheelFit, other: WheelFit) -> bool:
-    """Whether two fits' axes differ by more than even their stated uncertainties (noise and
-    biases, ``cov_axis``) allow at 99 %: then at least one of them is wrong in a way its
-    covariance does not describe, and neither difference-based estimate can be trusted."""
-    d = _axis_difference(fit, other)
-    spread = float(np.trace(fit.cov_axis) + np.trace(other.cov_axis))  # two components share it
-    return bool(np.isfinite(spread)) and float(d @ d) > 0.5 * INCONSISTENT_CHI2 * spread
-
-
-def axis_covariance(n: np.ndarray, e1: np.ndarray, e2: np.ndarray, cov_ab: np.ndarray) -> np.ndarray:
-    """(3,3) covariance of the unit normal n from that (2,2) of its parameters (a, b):
-    d n / d (a, b) = (I - n n^T) [e1 e2] / |n0 + a e1 + b e2|, ~ the tangent basis at the solution."""
-    Jn = (np.eye(3) - np.outer(n, n)) @ np.stack([e1, e2], axis=1)
-    return Jn @ cov_ab @ Jn.T
-
-
 def tangent_gaps(xy_l: np.ndarray, xy_r: np.ndarray, cam_l: CameraModel, cam_r: CameraModel) -> tuple[float, float]:
     """Per view, the larger of its ``tangent_point_gaps_deg`` (NaN where they cannot be found)."""
     try:
@@ -400,11 +222,6 @@ def tangent_gaps(xy_l: np.ndarray, xy_r: np.ndarray, cam_l: CameraModel, cam_r: 
         return float(np.max(g[:2])), float(np.max(g[2:]))
     except (np.linalg.LinAlgError, ValueError):
         return float("nan"), float("nan")
-
-
-def normal_from(params, n0, e1, e2):
-    n = n0 + params[0] * e1 + params[1] * e2
-    return n / np.linalg.norm(n)
 
 
 def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: CameraModel,
@@ -604,17 +421,3 @@ def _fit_circle(xy_l: np.ndarray, xy_r: np.ndarray, cam_l: CameraModel, cam_r: C
                 fit = with_disagreement(fit, other)
     return fit
 
-
-def with_disagreement(fit: WheelFit, other: WheelFit) -> WheelFit:
-    """``fit`` whose axis covariance also holds its difference d from ``other``, a fit of the
-    same wheel on other points that disagrees beyond what both state (``inconsistent``): one
-    of the two is wrong. The kept one is wrong by d with the chance that the other is right,
-    taken as the other's share of their certainty, tr(C_fit) / (tr(C_fit) + tr(C_other)):
-    cov_axis + p d d^T. Two fits equally sure and 0.95 deg apart (a reference view seeing half
-    its rim) no longer state +/-0.1 each; a broken fit stated +/-3 deg hardly counts."""
-    d = _axis_difference(fit, other)
-    d = d - (d @ fit.axis_station) * fit.axis_station  # across the axis
-    a, b = float(np.trace(fit.cov_axis)), float(np.trace(other.cov_axis))
-    p_other = a / (a + b) if np.isfinite(a + b) and a >= 0 and b >= 0 and a + b > 0 else 0.0  # (a broken fit's
-    # covariance may be no covariance at all)
-    return replace(fit, cov_axis=fit.cov_axis + p_other * np.outer(d, d))

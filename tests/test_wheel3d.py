@@ -466,7 +466,8 @@ def test_unbiased_grazing_points_are_kept():
 
 
 def test_extra_points_bias_is_the_axis_change_beyond_the_noise():
-    from station.wheel3d import WheelFit, extra_points_bias2
+    from station.wheel3d import WheelFit
+    from station.wheel_fit_uncertainty import extra_points_bias2
     a = np.radians(0.05)
     cov = lambda s: np.diag([0.0, s, s]) ** 2  # noqa: E731 - (3,3), axis std s rad across it
     full = WheelFit("circle", np.zeros(3), np.array([1.0, 0, 0]), 0.2, cov_axis_noise=cov(np.radians(0.01)))
@@ -485,7 +486,7 @@ def test_a_uniform_edge_offset_is_the_same_in_both_views():
     directions (a disparity), the same offset in both cancels; the slowly varying modes stay
     each view's own."""
     from types import SimpleNamespace
-    from station.wheel3d import axis_basis, bias_covariance
+    from station.wheel_fit_uncertainty import axis_basis, bias_covariance
     v = random_vehicle(np.random.default_rng(1))
     c, w, X = _rim(v, "FR", n=720)
     cl, cr = _pair(c[0], c[1])
@@ -507,7 +508,8 @@ def test_a_uniform_edge_offset_is_the_same_in_both_views():
 
 
 def test_fits_that_disagree_beyond_all_they_state_are_inconsistent():
-    from station.wheel3d import WheelFit, inconsistent
+    from station.wheel3d import WheelFit
+    from station.wheel_fit_uncertainty import inconsistent
     cov = np.diag([0.0, 1.0, 1.0]) * np.radians(0.05) ** 2  # 0.05 deg each way across the axis
     a = WheelFit("circle", np.zeros(3), np.array([1.0, 0, 0]), 0.2, cov_axis=cov)
 
@@ -520,7 +522,7 @@ def test_fits_that_disagree_beyond_all_they_state_are_inconsistent():
 
 
 def test_high_mode_amplitude_measures_modes_3_4_above_the_noise():
-    from station.wheel3d import high_mode_amplitude
+    from station.wheel_fit_uncertainty import high_mode_amplitude
     sectors = np.arange(18)
     angle = (sectors + 0.5) * (2 * np.pi / 18) - np.pi
     se2 = np.full(18, 0.002 ** 2)
@@ -560,7 +562,8 @@ def test_an_elongating_edge_bias_is_in_the_stated_camber():
 
 
 def test_a_fit_kept_against_a_disagreeing_one_states_their_difference():
-    from station.wheel3d import WheelFit, with_disagreement
+    from station.wheel3d import WheelFit
+    from station.wheel_fit_uncertainty import with_disagreement
     sd = np.radians(0.1)
     cov = np.diag([0.0, 1.0, 1.0]) * sd ** 2                 # +/-0.1 deg across the axis (x)
     a = WheelFit("circle", np.zeros(3), np.array([1.0, 0, 0]), 0.2, cov_axis=cov)
