@@ -41,6 +41,7 @@ MIN_SECOND = 0.10         # the second contour holds at least this fraction of t
 MIN_GAIN = 0.15           # and the hypothesis explains this much more of them than the circle did
 MAX_OFFSET = 0.12         # the second contour lies within this fraction of the radius
 REFITS = 2                # rounds of refitting a hypothesis to every point it explains
+MAX_RADIUS_CHANGE = 0.5   # a hypothesis this much larger or smaller than the circle is no concentric contour
 SEPARATION = 3.0          # and at least this many tolerances from the first (not its noise tail)
 
 
@@ -107,6 +108,9 @@ def other_contour_points(views, circle, fit_plain):
                 break
             c, n = hyp.center_station, hyp.axis_station
             scale = [metres_per_px(cam, c) for cam, _ in views]
+            if min(scale) <= 0 or not abs(hyp.radius_m / circle.radius_m - 1) <= MAX_RADIUS_CHANGE:
+                hyp = None  # a wild fit (behind a camera, or another circle altogether) explains nothing
+                break
             offs = [radial_offsets_m(cam, xy, c, n, hyp.radius_m) for cam, xy in views]
             inside = np.concatenate([o[s] / m for o, s, m in zip(offs, sel, scale)])         # px
             sigma = 1.4826 * np.median(np.abs(inside - np.median(inside)))

@@ -99,3 +99,23 @@ def test_live_keeps_the_arcs_on_the_other_contour_out_by_the_last_circle():
     keep_p, keep_r = on_circle(views, alt)
     again = refine_circle(pp[keep_p], pr[keep_r], cp, cr, alt, init_is_fitted=True)
     assert _angle_deg(again.axis_station, w) < 0.02
+
+
+def test_a_wild_hypothesis_behind_a_camera_explains_nothing_and_does_not_crash():
+    """A window's circle fitted far off (seen on a dark rim: radius 1e8 m, centre behind the
+    cameras) once made the offset histogram's bin width negative and bincount raise."""
+    from dataclasses import replace
+
+    from station.other_contour import other_contour_points
+
+    v, c, w, radius, (cp, cr), (pp, pr) = _views(5)
+    circle = refine_circle(pp, pr, cp, cr, reconstruct_paper(pp, pr, cp, cr))
+    views = [(cam, cam.pixels_to_normalized(p)) for cam, p in ((cp, pp), (cr, pr))]
+    C0 = cp.center_station
+    behind = C0 - 1e8 * (c - C0) / np.linalg.norm(c - C0)  # 1e8 m behind the precision camera
+    r_wild = float(np.median(radial_offsets_m(cp, views[0][1], behind, circle.axis_station, 0.0)))
+
+    def wild(mask_l, mask_r, start):  # a circle through the points' rays, far behind
+        return replace(circle, center_station=behind, radius_m=r_wild)
+
+    assert other_contour_points(views, circle, wild) is None
