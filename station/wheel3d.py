@@ -30,7 +30,8 @@ from station.robust_lsq import soft_l1_least_squares
 from station.wheel_arcs import (MIN_KEPT_FRACTION, edge_visibility, hidden_arcs, not_grazing_xy, rim_angles,
                                 sector_labels, stray_arcs)
 from station.wheel_fit_uncertainty import (axis_basis, axis_covariance, bias_covariance, extra_points_bias2,
-                                          inconsistent, noise_covariance, normal_from, with_disagreement)
+                                          inconsistent, noise_covariance, normal_from, toward, toward_subset_weight,
+                                          with_disagreement)
 
 single_thread_blas()  # small least-squares problems: OpenBLAS threads cost 40x here (station/blas_threads.py)
 
@@ -39,6 +40,7 @@ INWARD_WEIGHT = 0.3    # weight of residuals inside the rim's projection in the 
 OCCLUSION_TEST = True    # test the arcs the tyre's sidewall could hide before trusting them (hidden_arcs)
 MIN_SAFE_FRACTION = 0.2  # of a view's points that no sidewall can hide, to make the test at all
                          # (0.3 until stop 16: a reference view with 25 % safe went untested, 1.2 deg off)
+SOFT_GRAZING = True       # the grazing choice as a weighted step toward the fit without them
 GRAZING_TEST = True       # also fit without the points seen across the lip at a grazing angle
 MIN_VIEW_POINTS = 20      # rim points a view must keep on the fitted circle
 INWARD_ARC_PASSES = 3     # rounds of leaving out arcs whose edge strays from the fitted circle (stray_arcs)
@@ -408,16 +410,20 @@ def _fit_circle(xy_l: np.ndarray, xy_r: np.ndarray, cam_l: CameraModel, cam_r: C
             # ``fit``, the sidewall test would be judged against a circle they had shaped)
             alt = _fit_circle(xy_l[keep_l], xy_r[keep_r], cam_l, cam_r, init, loss_scale_px, jackknife_sectors,
                               inward_weight, bias_modes, occlusion_test, init_is_fitted, grazing_test=False)
-            # keep the fit with the smaller expected squared error: the grazing points' bias
-            # is estimated from how far they move the axis beyond what their noise explains,
-            # unless the two fits disagree beyond all they state (one of them is broken, say
-            # the weaker geometry without them found another minimum): the smaller stated then
-            disagree = inconsistent(fit, alt)
-            bias2 = 0.0 if disagree else extra_points_bias2(fit, alt)
-            other = fit
-            if np.trace(alt.cov_axis) < np.trace(fit.cov_axis) + bias2:
-                fit, other = replace(alt, grazing_left_out=True), fit
-            if disagree:
-                fit = with_disagreement(fit, other)
+            # the least expected squared error between the two: the grazing points' bias is
+            # estimated from how far they move the axis beyond what their noise explains, and
+            # the result moves that share of the way toward the fit without them (SOFT_GRAZING;
+            # else the smaller expected error is chosen, a jump of the whole difference where
+            # the choice flips); unless the two fits disagree beyond all they state (one of
+            # them is broken, say the weaker geometry without them found another minimum):
+            # the smaller stated then, stating their difference
+            alt = replace(alt, grazing_left_out=True)
+            if not inconsistent(fit, alt):
+                fit = toward(fit, alt, toward_subset_weight(fit, alt) if SOFT_GRAZING else
+                             float(np.trace(alt.cov_axis) < np.trace(fit.cov_axis) + extra_points_bias2(fit, alt)))
+            elif np.trace(alt.cov_axis) < np.trace(fit.cov_axis):
+                fit = with_disagreement(alt, fit)
+            else:
+                fit = with_disagreement(fit, alt)
     return fit
 

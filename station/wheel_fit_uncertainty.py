@@ -9,7 +9,8 @@ one wheel compare.
   angle, :func:`sector_bias_rms`, :func:`high_mode_amplitude`);
 * two fits of the same wheel on different points: :func:`extra_points_bias2` (the bias the
   extra points add), :func:`inconsistent` (beyond what both state), :func:`with_disagreement`
-  (the kept one states their difference).
+  (the kept one states their difference), :func:`toward_subset_weight` and :func:`toward` (the
+  least-error step from a fit toward the fit of a subset of its points).
 """
 
 from __future__ import annotations
@@ -224,3 +225,53 @@ def with_disagreement(fit: WheelFit, other: WheelFit) -> WheelFit:
     p_other = a / (a + b) if np.isfinite(a + b) and a >= 0 and b >= 0 and a + b > 0 else 0.0  # (a broken fit's
     # covariance may be no covariance at all)
     return replace(fit, cov_axis=fit.cov_axis + p_other * np.outer(d, d))
+
+
+def toward_subset_weight(fit: WheelFit, subset: WheelFit) -> float:
+    """How far (0..1) to move from ``fit`` toward ``subset``, the fit of a subset of its
+    points, to minimise the expected squared axis error.
+
+    Write fit = truth + b + e and subset = truth + e + u: the extra points add a bias b and
+    take away the noise u, of variance V = tr(C_subset) - tr(C_fit) (the stated covariances,
+    noise and biases). fit + l (subset - fit) has the expected squared error
+    (1 - l)^2 |b|^2 + tr(C_fit) + l^2 V, least at l = |b|^2 / (|b|^2 + V), with |b|^2 from
+    ``extra_points_bias2``. l = 1 when the subset is the better determined anyway (V <= 0),
+    0 when the extra points show no bias, 1/2 where a choice of the smaller expected error
+    would flip: near there, a hard choice moves the result by the whole difference between
+    the fits on an immaterial change of the points."""
+    bias2 = extra_points_bias2(fit, subset)
+    var = float(np.trace(subset.cov_axis) - np.trace(fit.cov_axis))
+    if not (np.isfinite(bias2) and np.isfinite(var)):
+        return 0.0
+    if var <= 0:
+        return 1.0
+    return bias2 / (bias2 + var)
+
+
+def toward(fit: WheelFit, other: WheelFit, weight: float) -> WheelFit:
+    """The fit ``weight`` (0..1) of the way from ``fit`` to ``other`` (centre, axis, radius),
+    with the covariances (1 - weight^2) C_fit + weight^2 C_other (the nested-fit model of
+    ``toward_subset_weight``) plus the squared bias left, (1 - weight)^2 times the estimated
+    extra-points bias along the axes' difference. The rest (point counts, residuals, flags)
+    is from the nearer of the two."""
+    if weight <= 0.0:
+        return fit
+    if weight >= 1.0:
+        return other
+    d = other.axis_station * np.sign(other.axis_station @ fit.axis_station) - fit.axis_station
+    n = fit.axis_station + weight * d
+    n /= np.linalg.norm(n)
+    bias2 = extra_points_bias2(fit, other)
+    across = d - (d @ n) * n
+    norm = float(np.linalg.norm(across))
+    bias_axis = (1 - weight) ** 2 * bias2 * np.outer(across, across) / norm**2 if norm > 0 else 0.0
+    a, b = 1 - weight**2, weight**2
+    noise = None
+    if fit.cov_axis_noise is not None and other.cov_axis_noise is not None:
+        noise = a * fit.cov_axis_noise + b * other.cov_axis_noise
+    base = fit if weight < 0.5 else other
+    return replace(base, center_station=fit.center_station + weight * (other.center_station - fit.center_station),
+                   axis_station=n, radius_m=fit.radius_m + weight * (other.radius_m - fit.radius_m),
+                   cov_axis=a * fit.cov_axis + b * other.cov_axis + bias_axis,
+                   cov_center=a * fit.cov_center + b * other.cov_center, cov_axis_noise=noise)
+

@@ -577,6 +577,43 @@ def test_a_fit_kept_against_a_disagreeing_one_states_their_difference():
     assert np.degrees(np.sqrt(with_disagreement(a, broken).cov_axis[1, 1])) < 0.11
 
 
+def test_the_grazing_choice_moves_smoothly_toward_the_subset_fit():
+    """The fit of all points against the fit of a subset (the grazing points left out): the
+    weight toward the subset is |b|^2 / (|b|^2 + V), b the extra points' estimated bias, V
+    the variance the subset adds. A hard choice of the smaller expected error jumps by the
+    whole difference where |b|^2 crosses V; the weighted fit passes through the midpoint."""
+    from station.wheel3d import WheelFit
+    from station.wheel_fit_uncertainty import toward, toward_subset_weight
+
+    def cov(sd_deg):
+        return np.diag([0.0, 1.0, 1.0]) * np.radians(sd_deg) ** 2  # across the axis (x)
+
+    full = WheelFit("circle", np.zeros(3), np.array([1.0, 0, 0]), 0.2, cov_axis=cov(0.03),
+                    cov_center=np.eye(3) * 1e-8, cov_axis_noise=cov(0.03))
+
+    def subset(deg):  # the subset's axis ``deg`` away about z; it adds a variance V = 0.04^2 * 2
+        t = np.radians(deg)
+        return WheelFit("circle", np.array([0.0, 1e-3, 0]), -np.array([np.cos(t), np.sin(t), 0.0]), 0.2,
+                        cov_axis=cov(0.05), cov_center=np.eye(3) * 4e-8, cov_axis_noise=cov(0.05))
+
+    V = 2 * (np.radians(0.05) ** 2 - np.radians(0.03) ** 2)
+    assert toward_subset_weight(full, subset(0.0)) == 0.0                      # no bias shown
+    assert toward_subset_weight(full, replace(subset(0.0), cov_axis=cov(0.02))) == 1.0  # the subset surer
+    # a difference whose excess over the noise equals V: exactly half way
+    deg = np.degrees(np.sqrt(2 * V))
+    w = toward_subset_weight(full, subset(deg))
+    assert w == pytest.approx(0.5, abs=1e-6)
+    mid = toward(full, subset(deg), w)
+    assert np.degrees(np.arctan2(mid.axis_station[1], mid.axis_station[0])) == pytest.approx(deg / 2, rel=1e-3)
+    assert mid.center_station[1] == pytest.approx(0.5e-3)
+    # continuous across the old decision boundary: a small change of the bias moves it a little
+    a, b = (toward(full, subset(x), toward_subset_weight(full, subset(x))) for x in (0.98 * deg, 1.02 * deg))
+    assert np.degrees(np.arccos(a.axis_station @ b.axis_station)) < 0.1 * deg
+    # and it states what is left: more than the full fit's noise, less than the subset's
+    assert cov(0.03)[1, 1] < mid.cov_axis[1, 1] < cov(0.05)[1, 1] + np.radians(deg) ** 2
+    assert toward(full, subset(deg), 0.0) is full and toward(full, subset(deg), 1.0).method == "circle"
+
+
 @pytest.mark.parametrize("seed", [1, 2, 3])
 def test_a_view_with_a_quarter_of_its_points_safe_is_still_tested_for_hidden_arcs(seed):
     """The oblique view keeps only 25 % of its points where no sidewall can hide the edge;
