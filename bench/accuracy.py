@@ -10,6 +10,7 @@ matches the observed spread.
 
     .venv/bin/python bench/accuracy.py --n 50            # all scenarios
     .venv/bin/python bench/accuracy.py --n 10 --scenario sigma2
+    .venv/bin/python bench/accuracy.py --n 20 --scenario sigma2 --repeat 2   # and repeatability
 
 Scenarios: sigma2 (the issue's), sigma5 (more sensor noise), dark-cam (cam2 20 % darker than
 its pair), dark-rim (rim albedo 0.2-0.4: anthracite rims against black tyres). Outside the
@@ -94,15 +95,18 @@ def _stated(result: dict) -> dict[str, float]:
     return out
 
 
-def _images(world, scene, scenario: str, seed: int, cache: Path | None) -> dict:
+def _images(world, scene, scenario: str, seed: int, cache: Path | None, capture: int = 0) -> dict:
     """The eight rendered images of one vehicle; with ``cache``, rendered once and kept there
     (``<scenario>-<seed>.npz``) so that a change of the measurement can be re-measured on the
-    very same images in minutes instead of re-rendering them."""
-    path = cache / f"{scenario}-{seed}.npz" if cache is not None else None
+    very same images in minutes instead of re-rendering them. ``capture`` k > 0: the same
+    scene captured again, with the k-th fresh draw of sensor noise (``-r<k>`` in the cache)."""
+    name = f"{scenario}-{seed}" + (f"-r{capture}" if capture else "")
+    path = cache / f"{name}.npz" if cache is not None else None
     if path is not None and path.exists():
         with np.load(path) as z:
             return {c: z[c] for c in world.cameras}
-    images = world.render_all(np.random.default_rng(10_000 + seed))
+    rng = np.random.default_rng(10_000 + seed) if capture == 0 else np.random.default_rng([10_000 + seed, capture])
+    images = world.render_all(rng)
     if path is not None:
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_name(path.stem + ".part.npz")
@@ -112,13 +116,17 @@ def _images(world, scene, scenario: str, seed: int, cache: Path | None) -> dict:
 
 
 def run(config, cameras_by_source: dict, n: int, scenario: str, seed0: int, methods,
-        covariance_by_source: dict | None = None, cache: Path | None = None) -> dict:
+        covariance_by_source: dict | None = None, cache: Path | None = None, repeat: int = 0) -> dict:
+    """Per (calibration, method): errors, stated std, failures, times, warnings; with
+    ``repeat`` k, the first calibration and method also measure every vehicle k more times on
+    fresh captures of the same scene ("captures": per vehicle, the errors of each capture)."""
     from simulators.world import SimWorld
 
     sigma, dark, albedo = SCENARIOS[scenario]
     world = SimWorld.from_config(config, noise_sigma=sigma, gain_override={dark: 0.8} if dark else None)
-    rows = {(src, m): {"err": [], "std": [], "failed": 0, "time": [], "warnings": Counter()}
+    rows = {(src, m): {"err": [], "std": [], "failed": 0, "time": [], "warnings": Counter(), "captures": []}
             for src in cameras_by_source for m in methods}
+    first = (next(iter(cameras_by_source)), methods[0])
     for i in range(n):
         seed = seed0 + i
         over = {}
@@ -150,8 +158,71 @@ def run(config, cameras_by_source: dict, n: int, scenario: str, seed0: int, meth
                           + " ".join(f"{w}:{q[w]['epipolar_rms_px']:.2f}" for w in WHEELS), file=sys.stderr)
                 rows[(src, m)]["err"].append(errs)
                 rows[(src, m)]["std"].append(_stated(res))
+                if repeat and (src, m) == first:
+                    rows[first]["captures"].append([errs] + _recaptured(world, scene, scenario, seed, cache, repeat,
+                                                                        cams, config, m, covariance_by_source, src))
         print(f"  {scenario}: vehicle {i + 1}/{n} done", file=sys.stderr, flush=True)
     return rows
+
+
+def _recaptured(world, scene, scenario, seed, cache, repeat, cams, config, method, covariances, src) -> list[dict]:
+    """The errors of ``repeat`` more captures of the same scene (fresh sensor noise), the
+    failed ones left out."""
+    out = []
+    for k in range(1, repeat + 1):
+        res = measure_frames(_images(world, scene, scenario, seed, cache, capture=k), cams, config, method=method,
+                             calibration_cov=(covariances or {}).get(src))
+        if res["valid"]:
+            add_truth(res, world.truth(scene))
+            out.append(_errors(res))
+        else:
+            print(f"  seed {seed} capture {k}: FAILED {res['failure']['message']}", file=sys.stderr)
+    return out
+
+
+def print_repeatability(rows: dict) -> None:
+    """Same vehicle, same pose, captured again with fresh sensor noise: the spread of the
+    readings a technician sees when measuring twice (the edge biases repeat, so this is
+    smaller than the error)."""
+    for (src, m), r in rows.items():
+        caps = [c for c in r["captures"] if len(c) >= 2]
+        if not caps:
+            continue
+        k = max(len(c) for c in caps)
+        print(f"\nrepeatability, {src}/{m}: {len(caps)} vehicles, {k} captures each (fresh sensor noise)\n")
+        print("| angle | RMS of per-wheel std (deg) | max spread (deg) | share spread > 0.02 deg | RMS error (deg) |")
+        print("|---|---|---|---|---|")
+        for group, names in GROUPS.items():
+            sd, spread = [], []
+            for c in caps:
+                vals = np.array([[e[key] for key in names] for e in c])       # (captures, angles)
+                sd.extend(np.std(vals, axis=0, ddof=1))
+                spread.extend(np.ptp(vals, axis=0))
+            e = np.array([[row[key] for key in names] for row in r["err"]]).ravel()
+            spread = np.array(spread)
+            print(f"| {group} | {np.sqrt(np.mean(np.square(sd))):.4f} | {spread.max():.4f} | "
+                  f"{np.mean(spread > 0.02):.0%} | {np.sqrt(np.mean(e ** 2)):.4f} |")
+
+
+def print_reliability(rows: dict) -> None:
+    """Stated uncertainty against the observed error, wheels grouped by what they state: an
+    honest statement has ratio ~1 in every group, not only on average."""
+    edges = (0.0, 0.015, 0.03, 0.06, 0.12, np.inf)
+    for (src, m), r in rows.items():
+        if m != "circle" or not r["err"]:
+            continue
+        print(f"\nstated against observed, {src}/{m}, wheels grouped by their stated std (deg)\n")
+        print("| angle | stated | wheels | RMS stated | RMS error | stated / RMS |")
+        print("|---|---|---|---|---|---|")
+        for group in ("toe", "camber"):
+            e = np.abs(np.array([[row[k] for k in GROUPS[group]] for row in r["err"]]).ravel())
+            s = np.array([[row[k] for k in GROUPS[group]] for row in r["std"]]).ravel()
+            for lo, hi in zip(edges[:-1], edges[1:]):
+                sel = (s >= lo) & (s < hi)
+                if sel.any():
+                    rs, re = np.sqrt(np.mean(s[sel] ** 2)), np.sqrt(np.mean(e[sel] ** 2))
+                    print(f"| {group} | {lo:.3f}-{hi:.3f} | {sel.sum()} | {rs:.4f} | {re:.4f} | "
+                          f"{rs / re if re > 0 else float('nan'):.2f} |")
 
 
 def print_table(scenario: str, rows: dict, n: int) -> None:
@@ -179,6 +250,8 @@ def print_table(scenario: str, rows: dict, n: int) -> None:
         w = r["warnings"]
         print(f"\nwarnings, {src}/{m}, of {4 * len(r['err'])} wheels: uncertain {w['uncertain']}, "
               f"drift {w['drift']} (false: no camera moved), unchecked {w['unchecked']}, runner-up {w['runner_up']}")
+    print_reliability(rows)
+    print_repeatability(rows)
     times = [t for r in rows.values() for t in r["time"]]
     print(f"\nmeasurement time per cycle (capture excluded): median {np.median(times) * 1000:.0f} ms")
 
@@ -191,6 +264,8 @@ def main() -> int:
     ap.add_argument("--scenario", choices=list(SCENARIOS) + ["all"], default="all")
     ap.add_argument("--calibration", choices=["file", "truth", "both"], default="both")
     ap.add_argument("--methods", default="circle,paper")
+    ap.add_argument("--repeat", type=int, default=0,
+                    help="measure every vehicle this many more times on fresh captures (new sensor noise): repeatability")
     ap.add_argument("--cache", type=Path, default=None,
                     help="keep the rendered images here and reuse them on later runs (same seeds, same images)")
     args = ap.parse_args()
@@ -218,7 +293,7 @@ def main() -> int:
     print(f"# Accuracy benchmark: {args.n} vehicles per scenario, seeds from {args.seed}")
     for sc in scenarios:
         srcs = sources if sc == "sigma2" else {k: v for k, v in sources.items() if k == "file"} or sources
-        rows = run(config, srcs, args.n, sc, args.seed, methods, covariances, args.cache)
+        rows = run(config, srcs, args.n, sc, args.seed, methods, covariances, args.cache, args.repeat)
         print_table(sc, rows, args.n)
     return 0
 

@@ -288,7 +288,12 @@ def _fill_angles(result: dict, fits: dict[str, WheelFit], observations: dict, co
     axes = {w: f.axis_station for w, f in fits.items()}
     angles = alignment.compute_angles(centers, axes)
     cov_c = {w: _finite_cov(f.cov_center, 1e-8) for w, f in fits.items()}
-    cov_a = {w: _finite_cov(f.cov_axis, 1e-8) for w, f in fits.items()}
+    # the floor: an error no single cycle's residuals show (a decision between arcs that a
+    # new capture may take the other way, an edge bias the circle absorbs completely), in
+    # quadrature on both directions across each axis (docs/measurement.md)
+    floor2 = np.radians(config.measurement.uncertainty_floor_deg) ** 2
+    cov_a = {w: _finite_cov(f.cov_axis, 1e-8) + floor2 * (np.eye(3) - np.outer(f.axis_station, f.axis_station))
+             for w, f in fits.items()}
     cov = alignment.angle_covariance(centers, axes, cov_c, cov_a)
     std = dict(zip(alignment.ANGLE_NAMES, np.sqrt(np.clip(np.diag(cov), 0, None))))
     limit = config.measurement.epipolar_limit_px

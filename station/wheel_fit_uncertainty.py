@@ -27,6 +27,9 @@ if TYPE_CHECKING:
     from station.wheel3d import WheelFit
 
 
+LOW_MODES_FROM_HIGH = True  # modes 0-1 sized like mode 2, from modes 3-4 (views seeing 12+ sectors)
+
+
 def bias_covariance(sol, views, n0, e1, e2, n_modes: int, n_sectors: int = 18) -> np.ndarray:
     """(P,P) covariance of the circle parameters (P = 6, or more for a model whose first six
     parameters are the circle's) from slowly varying edge biases in each view.
@@ -36,15 +39,19 @@ def bias_covariance(sol, views, n0, e1, e2, n_modes: int, n_sectors: int = 18) -
     points. Model it per view as Fourier modes 0..``n_modes`` (at most 2) of the rim angle and
     propagate each mode through the least-squares solution (dp = (J^T J)^-1 J^T dr).
 
-    Modes 0 and 1 have the standard deviation this cycle's residuals show: the RMS of the
-    median residual of each of ``n_sectors`` sectors, less its noise (``sector_bias_rms``).
+    An ellipse absorbs modes 0-2 of its own edge, so they hardly show in the residuals;
+    modes 3-4 it cannot absorb, and a smooth bias has similar power there. So every mode
+    0-2 has the amplitude the residuals show at modes 3 and 4 (``high_mode_amplitude``, at
+    most the sector RMS below), on views that see at least MIN_SPECTRUM_SECTORS sectors.
     Mode 2 is the ellipse's elongation: the monocular shape cue camber leans on, since the
-    horizontal baseline leaves the top and bottom of the rim without disparity. Its size is
-    taken from the residuals' power at modes 3 and 4 (``high_mode_amplitude``). An ellipse
-    absorbs modes 0-2 of its own edge, so they hardly show in the residuals; modes 3-4 it
-    cannot absorb, and a smooth bias has similar power there. Without mode 2, camber was
-    stated twice too certain on the typical wheel; with the sector RMS as its size, twice too
-    uncertain (docs/measurement.md).
+    horizontal baseline leaves the top and bottom of the rim without disparity. Without it,
+    camber was stated twice too certain on the typical wheel; sized by the sector RMS, twice
+    too uncertain (stop 16). Modes 0-1 sized by the sector RMS (until stop 16) stated the
+    wheels that state the most about twice what they are off (bench/accuracy.py's table of
+    stated against observed, docs/accuracy.md). On a view seeing less of its rim, where the
+    modes cannot be told apart, modes 0-1 have the standard deviation of its sector
+    medians: the RMS of the median residual of each of ``n_sectors`` sectors, less its noise
+    (``sector_bias_rms``), and mode 2 none.
 
     The uniform offset (mode 0) is taken as the same in both views: it comes from where the
     edge model puts a blurred, shaded flange edge, which is the same rim and the same model in
@@ -70,9 +77,11 @@ def bias_covariance(sol, views, n0, e1, e2, n_modes: int, n_sectors: int = 18) -
         se2 = (1.2533 * noise) ** 2 / count[full]                 # its squared standard error
         sigma_b = sector_bias_rms(med[full], se2)
         modes = min(n_modes, 2)
-        amps = [sigma_b] * (1 + 2 * min(modes, 1))                    # modes 0, 1
+        high = min(high_mode_amplitude(med[full], full, se2, n_sectors), sigma_b)
+        low = high if LOW_MODES_FROM_HIGH and len(full) >= MIN_SPECTRUM_SECTORS else sigma_b
+        amps = [low] * (1 + 2 * min(modes, 1))                    # modes 0, 1
         if modes == 2:
-            amps += [min(high_mode_amplitude(med[full], full, se2, n_sectors), sigma_b)] * 2
+            amps += [high] * 2
         funcs = [np.ones_like(phi)] + [f(k * phi) for k in range(1, modes + 1) for f in (np.cos, np.sin)]
         dp = pinv[:, a:b] @ (np.stack(funcs, axis=1) * np.array(amps))   # (P, modes)
         common += dp[:, :1]                # the uniform offset: the same in both views

@@ -250,3 +250,21 @@ def test_the_calibrations_covariance_adds_to_the_stated_uncertainty(sim):
     # the car frame is built from all four centres, so the other wheels' angles move a little
     rl0, rl1 = plain["wheels"]["RL"]["toe_std_deg"], with_cal["wheels"]["RL"]["toe_std_deg"]
     assert rl1 / rl0 < fr1["toe_std_deg"] / fr0["toe_std_deg"]
+
+
+@pytest.mark.slow
+def test_the_uncertainty_floor_adds_in_quadrature_and_moves_no_value(sim, monkeypatch):
+    cfg, world, _, images = sim
+    floor = cfg.measurement.uncertainty_floor_deg
+    assert floor > 0
+    with_floor = measure_frames(images, world.cameras, cfg)
+    monkeypatch.setattr(cfg.measurement, "uncertainty_floor_deg", 0.0)
+    without = measure_frames(images, world.cameras, cfg)
+    for w in ("FL", "FR", "RL", "RR"):
+        a, b = with_floor["wheels"][w], without["wheels"][w]
+        assert a["toe_deg"] == b["toe_deg"] and a["camber_deg"] == b["camber_deg"]
+        for k in ("toe_std_deg", "camber_std_deg"):
+            assert a[k] == pytest.approx(np.hypot(b[k], floor), rel=0.05)  # the axis' two directions
+    # two wheels' floors in a total toe
+    assert with_floor["axles"]["front"]["total_toe_std_deg"] ** 2 == pytest.approx(
+        without["axles"]["front"]["total_toe_std_deg"] ** 2 + 2 * floor ** 2, rel=0.1)
