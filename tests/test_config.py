@@ -62,3 +62,21 @@ def test_cli_reports_config_errors_without_traceback(tmp_path):
                          capture_output=True, text=True)
     # `errors` does not load the config; commands that do are tested by their own suites.
     assert out.returncode == 0 and "Traceback" not in out.stderr
+
+
+def test_the_5mp_station_is_the_default_station_with_twice_the_resolution_and_focal_length():
+    """config/station-5mp.yaml must not drift from config/station.yaml: same mounts, lenses,
+    limits and vehicle; only the sensor (2560x2048), the focal lengths and the data dir differ."""
+    base = yaml.safe_load(DEFAULT_CONFIG.read_text())
+    big = yaml.safe_load((DEFAULT_CONFIG.parent / "station-5mp.yaml").read_text())
+    assert big["camera_defaults"]["resolution"] == [2 * v for v in base["camera_defaults"]["resolution"]]
+    for cid, cam in base["cameras"].items():
+        assert big["cameras"][cid]["nominal"]["focal_px"] == 2 * cam["nominal"]["focal_px"]
+        big["cameras"][cid]["nominal"]["focal_px"] = cam["nominal"]["focal_px"]
+    big["camera_defaults"]["resolution"] = base["camera_defaults"]["resolution"]
+    assert big["data_dir"] != base["data_dir"]  # its own calibration and history
+    for key in ("name", "data_dir"):
+        big.pop(key), base.pop(key)
+    assert big == base
+    cfg = load_config(DEFAULT_CONFIG.parent / "station-5mp.yaml")
+    assert (cfg.cameras["cam1"].width, cfg.cameras["cam1"].height) == (2560, 2048)
