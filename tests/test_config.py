@@ -66,7 +66,8 @@ def test_cli_reports_config_errors_without_traceback(tmp_path):
 
 def test_the_5mp_station_is_the_default_station_with_twice_the_resolution_and_focal_length():
     """config/station-5mp.yaml must not drift from config/station.yaml: same mounts, lenses,
-    limits and vehicle; only the sensor (2560x2048), the focal lengths and the data dir differ."""
+    limits and vehicle; only the sensor (2560x2048), the focal lengths, the data dir and the
+    uncertainty floor (smaller, as its pixels) differ."""
     base = yaml.safe_load(DEFAULT_CONFIG.read_text())
     big = yaml.safe_load((DEFAULT_CONFIG.parent / "station-5mp.yaml").read_text())
     assert big["camera_defaults"]["resolution"] == [2 * v for v in base["camera_defaults"]["resolution"]]
@@ -75,6 +76,7 @@ def test_the_5mp_station_is_the_default_station_with_twice_the_resolution_and_fo
         big["cameras"][cid]["nominal"]["focal_px"] = cam["nominal"]["focal_px"]
     big["camera_defaults"]["resolution"] = base["camera_defaults"]["resolution"]
     assert big["data_dir"] != base["data_dir"]  # its own calibration and history
+    assert big["measurement"].pop("uncertainty_floor_deg") < base["measurement"].pop("uncertainty_floor_deg")
     for key in ("name", "data_dir"):
         big.pop(key), base.pop(key)
     assert big == base
