@@ -182,8 +182,9 @@ def noise_covariance(sol, views) -> tuple[np.ndarray | None, np.ndarray]:
 
 
 def _axis_difference(fit: WheelFit, other: WheelFit) -> np.ndarray:
-    """(3,) other's axis minus fit's, the sign of one flipped if they point opposite ways."""
-    return other.axis_station - fit.axis_station * np.sign(other.axis_station @ fit.axis_station)
+    """(3,) other's axis minus fit's, other's sign flipped if they point opposite ways (so that
+    fit + d points the way fit does)."""
+    return other.axis_station * np.sign(other.axis_station @ fit.axis_station) - fit.axis_station
 
 
 def extra_points_bias2(fit: WheelFit, subset: WheelFit) -> float:
@@ -267,7 +268,7 @@ def toward(fit: WheelFit, other: WheelFit, weight: float) -> WheelFit:
         return fit
     if weight >= 1.0:
         return other
-    d = other.axis_station * np.sign(other.axis_station @ fit.axis_station) - fit.axis_station
+    d = _axis_difference(fit, other)
     n = fit.axis_station + weight * d
     n /= np.linalg.norm(n)
     bias2 = extra_points_bias2(fit, other)
