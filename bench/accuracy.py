@@ -16,7 +16,8 @@ Scenarios: sigma2 (the issue's), sigma5 (more sensor noise), dark-cam (cam2 20 %
 its pair), dark-rim (rim albedo 0.2-0.4: anthracite rims against black tyres). Outside the
 random vehicles' envelope, sigma 2 (not in "all"; their own seeds, e.g. --seed 8000):
 big-angles (toe and camber within +/-5 deg), odd-rims (14, 20, 21 and 22-inch rims, 70-150 mm
-of sidewall), odd-body (wheelbase +/-0.2 m, tracks +/-0.08 m, offset +/-0.1 m, yaw +/-2 deg).
+of sidewall), odd-body (wheelbase +/-0.2 m, tracks +/-0.08 m, offset +/-0.1 m, yaw +/-2 deg),
+soft-focus (every lens a little out of focus: PSF sigma 1.3-2.0 px instead of 0.6-0.9).
 """
 
 from __future__ import annotations
@@ -64,7 +65,21 @@ def _outside_envelope(kind: str):
 
 
 OUTSIDE = {kind: _outside_envelope(kind) for kind in ("big-angles", "odd-rims", "odd-body")}
+OUTSIDE["soft-focus"] = lambda seed, nominal: {}  # the vehicle of the seed, the lenses softer (_lens_blur)
 SCENARIOS.update({kind: (2.0, None, None) for kind in OUTSIDE})
+SOFT_FOCUS_PX = (1.3, 2.0)  # PSF sigma of every camera in "soft-focus" (the station's: 0.6-0.9)
+
+
+def _lens_blur(world, scenario: str, seed: int) -> None:
+    """Every camera's PSF for this vehicle: the station's own, or in "soft-focus" a lens a
+    little out of focus, drawn per camera from the vehicle's own stream."""
+    if not hasattr(world, "_own_blur"):
+        world._own_blur = dict(world.blur_sigma)
+    world.blur_sigma.update(world._own_blur)
+    if scenario == "soft-focus":
+        r = np.random.default_rng([seed, 99])
+        for cam in world.blur_sigma:
+            world.blur_sigma[cam] = float(r.uniform(*SOFT_FOCUS_PX))
 GROUPS = {
     "toe": [f"{w}.toe" for w in WHEELS],
     "camber": [f"{w}.camber" for w in WHEELS],
@@ -134,6 +149,7 @@ def run(config, cameras_by_source: dict, n: int, scenario: str, seed0: int, meth
             over["rim_albedo"] = float(np.random.default_rng([seed, 1]).uniform(*albedo))
         if scenario in OUTSIDE:
             over.update(OUTSIDE[scenario](seed, config.nominal_vehicle))
+        _lens_blur(world, scenario, seed)
         scene = world.vehicle_scene(seed, **over)
         world.set_scene(scene)
         images = _images(world, scene, scenario, seed, cache)

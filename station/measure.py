@@ -249,6 +249,7 @@ def measure_frames(images: dict[str, np.ndarray], cameras: dict[str, CameraModel
     by_cam = {c: d for o in outcomes for c, d in o.detections.items()}
     detections = {c: by_cam[c] for c in images if c in by_cam}
     result = _empty_result(config)
+    result["warnings"] += _soft_focus_warnings(detections, config)
     result["warnings"] += [o.note for o in outcomes if o.note]
     result["warning_flags"] += [{"kind": "runner_up", "wheel": o.wheel} for o in outcomes if o.note]
     failures = [(cid, d) for cid, d in detections.items() if isinstance(d, StationError)]
@@ -368,6 +369,22 @@ def _fill_angles(result: dict, fits: dict[str, WheelFit], observations: dict, co
 def _finite_cov(c: np.ndarray, fallback_var: float) -> np.ndarray:
     c = np.asarray(c, float)
     return c if np.all(np.isfinite(c)) else np.eye(3) * fallback_var
+
+
+def _soft_focus_warnings(detections: dict, config: StationConfig) -> list[str]:
+    """A warning per camera whose rim edge is blurred beyond ``measurement.edge_blur_limit_px``
+    (the detector's estimate, ``details["blur_px"]``): a lens out of focus or a moving wheel.
+    The detector copes (its windows grow with the blur), but such a station measured on the
+    simulator is several times less accurate (docs/accuracy.md, soft-focus)."""
+    limit = config.measurement.edge_blur_limit_px
+    out = []
+    for cid, d in detections.items():
+        blur = None if isinstance(d, StationError) else d.details.get("blur_px")
+        if blur is not None and blur > limit:
+            out.append(f"{config.cameras[cid].wheel} {cid}: the rim edge is blurred over {blur:.1f} px (limit {limit} px; "
+                       f"a focused camera gives about 1): refocus {cid}'s lens and check that the car stood still; "
+                       f"its toe and camber are less accurate until then")
+    return out
 
 
 def _detection_summary(detections: dict) -> dict:

@@ -268,3 +268,18 @@ def test_the_uncertainty_floor_adds_in_quadrature_and_moves_no_value(sim, monkey
     # two wheels' floors in a total toe
     assert with_floor["axles"]["front"]["total_toe_std_deg"] ** 2 == pytest.approx(
         without["axles"]["front"]["total_toe_std_deg"] ** 2 + 2 * floor ** 2, rel=0.1)
+
+
+def test_a_camera_out_of_focus_warns_and_is_named(sim):
+    import cv2
+
+    cfg, world, scene, images = sim
+    sharp = measure_frames(images, world.cameras, cfg)
+    assert not any("blurred" in w for w in sharp["warnings"]), sharp["warnings"]
+    soft = dict(images, cam5=cv2.GaussianBlur(images["cam5"], (0, 0), 1.8))
+    result = measure_frames(soft, world.cameras, cfg)
+    assert result["valid"], result["failure"]
+    blurred = [w for w in result["warnings"] if "blurred" in w]
+    assert len(blurred) == 1 and blurred[0].startswith("RL cam5: ") and "refocus cam5" in blurred[0], blurred
+    add_truth(result, world.truth(scene))
+    assert abs(result["wheels"]["RL"]["toe_error_deg"]) < 0.4  # still measured

@@ -31,6 +31,21 @@ def test_random_wheels_subpixel_accuracy(seed):
     assert set(det.timing_s) >= {"grey", "edges", "hough", "refine"}
 
 
+@pytest.mark.parametrize("blur", [1.7, 2.2])
+def test_a_soft_focus_is_measured_as_sharply(blur):
+    """An edge blurred over 1.7-2.2 px (a lens a little out of focus): the edge blur is
+    estimated as such and the windows grow with it. With the fixed +/-3 px cut and windows
+    the blur came out as 1.3-1.6 px and the axes 0.2-0.7 px off."""
+    from dataclasses import replace
+    for seed in (1, 3):
+        spec = replace(random_spec(np.random.default_rng(seed)), blur_sigma_px=blur)
+        img, truth = render_wheel(spec, seed=seed)
+        det = detect_rim(img)
+        dc, dax, rms = _errors(det, truth)
+        assert dc < 0.03 and dax < 0.08, (seed, dc, dax)
+        assert det.details["blur_px"] == pytest.approx(np.hypot(blur, 0.29), rel=0.1)
+
+
 def test_oblique_reference_view_and_face_on_view():
     for ratio in (0.87, 1.0):
         img, truth = render_wheel(WheelSpec(axis_ratio=ratio, angle_rad=1.2), seed=3)
@@ -202,10 +217,11 @@ def test_an_ellipse_inside_the_rim_is_not_another_wheel(monkeypatch):
 
 def test_a_large_photograph_with_edges_spread_over_pixels_is_refined_where_the_edge_model_fits(monkeypatch):
     """A rim rendered at 1280x1024 and upscaled 3.125x (a 12-Mpx photograph whose edges spread
-    over ~3 px, JPEG-compressed, in colour): refined at full resolution alone the edge model's
-    windows and blur range do not fit and the rim comes out a pixel too large; the sub-pixel
-    stage at a third of the resolution, which fits its points better in full-resolution
-    pixels, finds it to a few hundredths."""
+    over ~3 px, JPEG-compressed, in colour): the sub-pixel stage at a third of the resolution,
+    which fits its points better in full-resolution pixels, finds it to a few hundredths.
+    Refined at full resolution alone the rim came out a pixel too large until the windows grew
+    with the blur (stop 18); it is now within 0.3 px too, but the smaller scale still fits
+    better."""
     import station.rim.detector as detector
 
     img, truth = render_wheel(WheelSpec(clutter=4), seed=8)
@@ -220,7 +236,8 @@ def test_a_large_photograph_with_edges_spread_over_pixels_is_refined_where_the_e
     assert np.abs(det.ellipse.axes_px - truth_big.axes_px).max() < 0.3
     monkeypatch.setattr(detector, "WORKING_SCALE_STEP", 1000)  # full resolution only
     full = detect_rim(photo)
-    assert np.abs(full.ellipse.axes_px - truth_big.axes_px).max() > 3 * np.abs(det.ellipse.axes_px - truth_big.axes_px).max()
+    assert np.abs(full.ellipse.axes_px - truth_big.axes_px).max() < 0.3
+    assert full.point_sigma_px > det.point_sigma_px
 
 
 def test_a_sharp_image_keeps_its_full_resolution_fit_within_noise():

@@ -30,7 +30,7 @@ from station.rim import hough
 from station.rim.ellipse import Ellipse
 from station.rim.ellipse_fit import fit_direct, fit_geometric, ransac_ellipse
 from station.rim.preprocess import PixelMap, detection_scale, downscale, equalize, to_grey
-from station.rim.subpixel import edge_points
+from station.rim.subpixel import edge_points, window_scale
 
 MIN_COVERAGE = 0.5         # below: "no closed rim contour" (choosing the candidate)
 MIN_REFINED_COVERAGE = 0.35  # the chosen rim's sub-pixel edge may be partly hidden (wheel arch,
@@ -290,6 +290,10 @@ def _consensus_threshold(d: np.ndarray) -> float:
     return float(np.clip(3.0 * sigma, 0.25, 1.5))
 
 
+def _scaled(window: tuple[float, float], f: float) -> tuple[float, float]:
+    return (window[0] * f, window[1] * f)
+
+
 def _refine(grey: np.ndarray, e_full: Ellipse, pmap: PixelMap, passes=PASSES, blur_px: float | None = None,
             tracking: bool = False):
     """Sub-pixel points and geometric fit, once per (half-width, method) pass; ``blur_px``
@@ -301,9 +305,14 @@ def _refine(grey: np.ndarray, e_full: Ellipse, pmap: PixelMap, passes=PASSES, bl
     sigma = None  # the edge blur, estimated in each pass (unless blur_px)
     for k, (window, method) in enumerate(passes):
         final = k == len(passes) - 1
-        samples, sigma = edge_points(grey, e, pmap, window_px=window, method=method,
-                                     spacing_px=(2.5 if tracking else 1.5) if final else 3.0,
-                                     sigma=blur_px)
+        spacing = (2.5 if tracking else 1.5) if final else 3.0
+        known = window_scale(blur_px if blur_px is not None else sigma)  # the blur found so far
+        samples, blur = edge_points(grey, e, pmap, window_px=_scaled(window, known), method=method,
+                                    spacing_px=spacing, sigma=blur_px, blur_hint=sigma)
+        if method == "kink" and window_scale(blur) > known:  # a soft edge: sampled again, as wide as it needs
+            samples, _ = edge_points(grey, e, pmap, window_px=_scaled(window, window_scale(blur)), method=method,
+                                     spacing_px=spacing, sigma=blur)
+        sigma = blur if blur is not None else sigma
         ok = samples.ok
         if ok.sum() < MIN_POINTS:
             return None, samples, ok, sigma
@@ -403,7 +412,8 @@ def _finer_of(grey: np.ndarray, coarse_ellipse: Ellipse, s: int, full, info: dic
     pixels (and covers as much of the rim). The edge model's windows and blur range are in
     pixels, made for edges blurred over about a pixel; a 12-Mpx photograph's edge may spread
     over several, where the full-resolution fit follows the model's mismatch (a simulated rim
-    upscaled 3x: 1.4 px off at full resolution, 0.02 px at 1/3). A sharp large image keeps
+    upscaled 3x: 1.4 px off at full resolution before the windows grew with the blur, 0.14
+    px since, 0.07 px at 1/3). A sharp large image keeps
     its full-resolution fit."""
     r = s // WORKING_SCALE_STEP
     pmap = PixelMap(None)

@@ -217,6 +217,7 @@ def _parabola(y0, y1, y2):
     return np.clip(np.nan_to_num(off), -1, 1)
 
 
+WIDE_BLUR_PX = 1.1  # edge blur (px) above which the windows grow with it (window_scale)
 BLUR_GRID_PX = np.geomspace(0.4, 2.8, 13)  # blur candidates, 17.6 % apart (cached projectors)
 BLUR_PROFILES = 200                          # profiles spread round the rim that estimate it
 
@@ -262,6 +263,40 @@ def _blur_rms(prof: np.ndarray, s: np.ndarray, polarity: float, grid_step: float
     return np.sqrt(np.maximum(best, 0) / S)
 
 
+def _estimate_blur_any(prof: np.ndarray, s: np.ndarray, s0: np.ndarray, hint: float | None) -> float:
+    """The edge blur (px) of profiles (N,S) with first step estimates s0 (N,), sharp or soft.
+
+    Cut to +/-3 px, a soft step's tails fall outside and the model's straight sides mimic a
+    sharper step (a blur of 1.5-2 px came out as 0.75-1.1). So whether the image is soft is
+    asked of a wider cut (+/-5 px) or of ``hint`` (an earlier pass's blur); a soft image's blur
+    is then the fixed point of cuts at +/-3.5 sigma (two rounds), a sharp one's the +/-3 px
+    estimate as before."""
+    sigma = estimate_blur(*_centred(prof, s, s0))
+    if hint is not None:
+        soft = hint > WIDE_BLUR_PX
+    else:  # a yes or no: a third of the profiles tell it
+        soft = sigma > WIDE_BLUR_PX or estimate_blur(*_centred(prof[::3], s, s0[::3], half_px=5.0)) > WIDE_BLUR_PX
+    if soft:
+        sigma = max(sigma, WIDE_BLUR_PX)
+        for _ in range(2):
+            sigma = estimate_blur(*_centred(prof, s, s0, half_px=3.5 * sigma))
+    return sigma
+
+
+def window_scale(sigma: float | None) -> float:
+    """Factor for profile windows made for the station's edges (blur <= WIDE_BLUR_PX): 1
+    there, else sqrt(sigma / WIDE_BLUR_PX) rounded up to a quarter (so that the cached
+    projectors of a camera serve it cycle after cycle). The step-and-kink model needs the
+    step's tails inside the window to tell them from the straight sides around it: with a soft
+    focus (sigma 1.7-2.2 px) the fixed windows put synthetic rims 0.06-0.3 px off. But the
+    rim's neighbouring contours (the lip's inner edge, the tyre) come no farther away as the
+    blur grows; windows in proportion to the blur (1.5-2x) took them in and worsened the
+    simulated station's camber, the square root did not (docs/rim-detection.md)."""
+    if sigma is None or not np.isfinite(sigma) or sigma <= WIDE_BLUR_PX:
+        return 1.0
+    return float(np.ceil(4 * np.sqrt(sigma / WIDE_BLUR_PX)) / 4)
+
+
 def _centred(prof: np.ndarray, s: np.ndarray, s0: np.ndarray, half_px: float = 3.0):
     """Each profile (N,S) cut to +/-``half_px`` around its first step estimate s0 (N,), so
     that no neighbouring edge of a wide window enters the blur estimate: ((N,K), (K,))."""
@@ -299,12 +334,14 @@ def _tyre_side_flat(prof: np.ndarray, s: np.ndarray, s0: np.ndarray, h: np.ndarr
 
 def edge_points(grey: np.ndarray, ellipse: Ellipse, pmap: PixelMap | None = None, n: int | None = None,
                 window_px: tuple[float, float] = (-4.0, 4.0), step_px: float = 0.5, spacing_px: float = 1.5,
-                method: str = "kink", sigma: float | None = None) -> tuple[EdgeSamples, float | None]:
+                method: str = "kink", sigma: float | None = None,
+                blur_hint: float | None = None) -> tuple[EdgeSamples, float | None]:
     """Sub-pixel rim points along ``ellipse`` (in ideal pinhole pixels when ``pmap`` has a
     camera, else image pixels), searched in ``window_px`` (inside, outside) along the normals.
 
     method: "kink" - the blurred step-and-kink model (final pass; ``sigma`` the image blur,
-    estimated from the profiles when None); "erf" - a blurred step on a sloping background;
+    estimated from the profiles when None, ``blur_hint`` an earlier pass's estimate, which says
+    whether the image is soft); "erf" - a blurred step on a sloping background;
     "peak" - the parabolic peak of the profile derivative (a cheap first pass).
     Returns (samples, sigma used or None)."""
     pmap = pmap or PixelMap(None)
@@ -337,7 +374,7 @@ def edge_points(grey: np.ndarray, ellipse: Ellipse, pmap: PixelMap | None = None
             if sigma is None:  # from the profiles' plain step positions
                 p = initial_steps(prof, s)
                 sel = _blur_profiles(p, _step_found(p, s, -1.0))
-                sigma = estimate_blur(*_centred(prof[sel], s, p[sel, 3]))
+                sigma = _estimate_blur_any(prof[sel], s, p[sel, 3], blur_hint)
             s0, hh, r, conv = fit_kinks(prof, s, sigma, grid_step=0.125, refine=False)  # parabola on a fine grid: < 0.003 px
             conv &= _tyre_side_flat(prof, s, s0, hh, sigma)
             p = np.zeros((len(idx), 5))
