@@ -14,10 +14,9 @@ matches the observed spread.
 
 Scenarios: sigma2 (the issue's), sigma5 (more sensor noise), dark-cam (cam2 20 % darker than
 its pair), dark-rim (rim albedo 0.2-0.4: anthracite rims against black tyres). Outside the
-random vehicles' envelope, sigma 2 (not in "all"; their own seeds, e.g. --seed 8000):
-big-angles (toe and camber within +/-5 deg), odd-rims (14, 20, 21 and 22-inch rims, 70-150 mm
-of sidewall), odd-body (wheelbase +/-0.2 m, tracks +/-0.08 m, offset +/-0.1 m, yaw +/-2 deg),
-soft-focus (every lens a little out of focus: PSF sigma 1.3-2.0 px instead of 0.6-0.9).
+random vehicles' envelope, sigma 2 (not in "all"): the scenarios of bench/outside_envelope.py
+(big angles, odd rims and bodies, a soft focus, narrow lips, a big sidewall bulge, bright tyres,
+harsh light, strong vignetting, gamma-encoding cameras).
 """
 
 from __future__ import annotations
@@ -32,6 +31,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from bench import outside_envelope  # noqa: E402
 from station.config import WHEELS, load_config  # noqa: E402
 from station.measure import add_truth, measure_frames  # noqa: E402
 
@@ -44,42 +44,9 @@ SCENARIOS = {
 }
 
 
-def _outside_envelope(kind: str):
-    """Scene overrides (``SimWorld.vehicle_scene``) per seed and the station's nominal vehicle
-    for a scenario outside the random vehicles' envelope; their own random stream, so the
-    vehicle is otherwise that of the seed."""
-    def over(seed: int, nominal) -> dict:
-        r = np.random.default_rng([seed, 77])
-        wheels = ("FL", "FR", "RL", "RR")
-        if kind == "big-angles":
-            return {"toe_deg": {w: float(r.uniform(-5, 5)) for w in wheels},
-                    "camber_deg": {w: float(r.uniform(-5, 5)) for w in wheels}}
-        if kind == "odd-rims":
-            rim_r = float(r.choice([14, 20, 21, 22])) * 0.0254 / 2 + 0.0125
-            return {"rim_radius_m": rim_r, "tyre_radius_m": rim_r + float(r.uniform(0.07, 0.15))}
-        return {"wheelbase_m": nominal.wheelbase_m + float(r.uniform(-0.2, 0.2)),
-                "track_front_m": nominal.track_m + float(r.uniform(-0.08, 0.08)),
-                "track_rear_m": nominal.track_m + float(r.uniform(-0.08, 0.08)),
-                "position_m": (float(r.uniform(-0.1, 0.1)), float(r.uniform(-0.1, 0.1))), "yaw_deg": float(r.uniform(-2, 2))}
-    return over
+SCENARIOS.update({kind: (2.0, None, None) for kind in outside_envelope.KINDS})
 
 
-OUTSIDE = {kind: _outside_envelope(kind) for kind in ("big-angles", "odd-rims", "odd-body")}
-OUTSIDE["soft-focus"] = lambda seed, nominal: {}  # the vehicle of the seed, the lenses softer (_lens_blur)
-SCENARIOS.update({kind: (2.0, None, None) for kind in OUTSIDE})
-SOFT_FOCUS_PX = (1.3, 2.0)  # PSF sigma of every camera in "soft-focus" (the station's: 0.6-0.9)
-
-
-def _lens_blur(world, scenario: str, seed: int) -> None:
-    """Every camera's PSF for this vehicle: the station's own, or in "soft-focus" a lens a
-    little out of focus, drawn per camera from the vehicle's own stream."""
-    if not hasattr(world, "_own_blur"):
-        world._own_blur = dict(world.blur_sigma)
-    world.blur_sigma.update(world._own_blur)
-    if scenario == "soft-focus":
-        r = np.random.default_rng([seed, 99])
-        for cam in world.blur_sigma:
-            world.blur_sigma[cam] = float(r.uniform(*SOFT_FOCUS_PX))
 GROUPS = {
     "toe": [f"{w}.toe" for w in WHEELS],
     "camber": [f"{w}.camber" for w in WHEELS],
@@ -121,7 +88,7 @@ def _images(world, scene, scenario: str, seed: int, cache: Path | None, capture:
         with np.load(path) as z:
             return {c: z[c] for c in world.cameras}
     rng = np.random.default_rng(10_000 + seed) if capture == 0 else np.random.default_rng([10_000 + seed, capture])
-    images = world.render_all(rng)
+    images = outside_envelope.encode(scenario if scenario in outside_envelope.KINDS else None, world.render_all(rng))
     if path is not None:
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_name(path.stem + ".part.npz")
@@ -147,10 +114,8 @@ def run(config, cameras_by_source: dict, n: int, scenario: str, seed0: int, meth
         over = {}
         if albedo is not None:  # its own stream: the vehicle itself stays that of the seed
             over["rim_albedo"] = float(np.random.default_rng([seed, 1]).uniform(*albedo))
-        if scenario in OUTSIDE:
-            over.update(OUTSIDE[scenario](seed, config.nominal_vehicle))
-        _lens_blur(world, scenario, seed)
-        scene = world.vehicle_scene(seed, **over)
+        kind = scenario if scenario in outside_envelope.KINDS else None
+        scene = outside_envelope.scene_for(world, kind, seed, config.nominal_vehicle, **over)
         world.set_scene(scene)
         images = _images(world, scene, scenario, seed, cache)
         truth = world.truth(scene)
@@ -305,7 +270,7 @@ def main() -> int:
             print(f"note: {path} holds no pair covariances (written before they were stored): the calibration's "
                   "share of the stated uncertainty is left out; recalibrate to include it", file=sys.stderr)
     methods = args.methods.split(",")
-    scenarios = [s for s in SCENARIOS if s not in OUTSIDE] if args.scenario == "all" else [args.scenario]
+    scenarios = [s for s in SCENARIOS if s not in outside_envelope.KINDS] if args.scenario == "all" else [args.scenario]
     print(f"# Accuracy benchmark: {args.n} vehicles per scenario, seeds from {args.seed}")
     for sc in scenarios:
         srcs = sources if sc == "sigma2" else {k: v for k, v in sources.items() if k == "file"} or sources
