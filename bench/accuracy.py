@@ -82,7 +82,7 @@ def _images(world, scene, scenario: str, seed: int, cache: Path | None, capture:
     (``<scenario>-<seed>.npz``) so that a change of the measurement can be re-measured on the
     very same images in minutes instead of re-rendering them. ``capture`` k > 0: the same
     scene captured again, with the k-th fresh draw of sensor noise (``-r<k>`` in the cache)."""
-    name = f"{scenario}-{seed}" + (f"-r{capture}" if capture else "")
+    name = f"{outside_envelope.images_of(scenario)}-{seed}" + (f"-r{capture}" if capture else "")
     path = cache / f"{name}.npz" if cache is not None else None
     if path is not None and path.exists():
         with np.load(path) as z:
@@ -109,6 +109,7 @@ def run(config, cameras_by_source: dict, n: int, scenario: str, seed0: int, meth
     rows = {(src, m): {"err": [], "std": [], "failed": 0, "time": [], "warnings": Counter(), "captures": []}
             for src in cameras_by_source for m in methods}
     first = (next(iter(cameras_by_source)), methods[0])
+    config = outside_envelope.configured(scenario if scenario in outside_envelope.KINDS else None, config)
     for i in range(n):
         seed = seed0 + i
         over = {}

@@ -14,7 +14,9 @@ gives the same car in every scenario:
 - harsh-light: ambient 0.05-0.12 (0.2-0.45) and a key light 1.0-1.4 (0.45-0.95): one strong
   workshop lamp, deep shadows;
 - vignette: lens vignetting 0.6-0.8 (0.1-0.4);
-- gamma: every camera encodes its grey levels with gamma 1/2.2 (an sRGB webcam), not linearly.
+- gamma: every camera encodes its grey levels with gamma 1/2.2 (an sRGB webcam), not linearly,
+  and the station is not told; gamma-known: the same images, the station configured with
+  ``response_gamma`` (station/camera_response.py).
 """
 
 from __future__ import annotations
@@ -48,7 +50,7 @@ WHEEL_RANGES = {"narrow-lip": ("flange_width_m", (0.004, 0.008)),
                 "bright-tyre": ("tyre_albedo", (0.2, 0.3))}
 LIGHT_RANGES = {"harsh-light": {"ambient": (0.05, 0.12), "key_strength": (1.0, 1.4)},
                 "vignette": {"vignetting": (0.6, 0.8)}}
-KINDS = ("big-angles", "odd-rims", "odd-body", "soft-focus", *WHEEL_RANGES, *LIGHT_RANGES, "gamma")
+KINDS = ("big-angles", "odd-rims", "odd-body", "soft-focus", *WHEEL_RANGES, *LIGHT_RANGES, "gamma", "gamma-known")
 
 
 def scene_for(world, kind: str | None, seed: int, nominal, **overrides):
@@ -74,9 +76,24 @@ def scene_for(world, kind: str | None, seed: int, nominal, **overrides):
     return scene
 
 
+def images_of(scenario: str) -> str:
+    """The scenario whose images this one measures (and caches under its name)."""
+    return "gamma" if scenario == "gamma-known" else scenario
+
+
+def configured(kind: str | None, config):
+    """The station's configuration for the scenario: gamma-known tells it its cameras' gamma."""
+    if kind != "gamma-known":
+        return config
+    import copy
+    out = copy.copy(config)
+    out.cameras = {c: replace(cam, response_gamma=GAMMA) for c, cam in config.cameras.items()}
+    return out
+
+
 def encode(kind: str | None, images: dict) -> dict:
     """The images as the scenario's cameras deliver them (gamma: sRGB-like encoding)."""
-    if kind != "gamma":
+    if kind not in ("gamma", "gamma-known"):
         return images
     lut = np.clip(np.round(255 * (np.arange(256) / 255) ** GAMMA), 0, 255).astype(np.uint8)
     return {c: lut[im] for c, im in images.items()}

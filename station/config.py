@@ -173,6 +173,7 @@ CAMERA = {
     "exposure_us": Field(_number(1, 1e7), default=None),
     "gain_db": Field(_number(0, 48), default=None),
     "trigger": Field(_string(("free-run", "software", "hardware")), default=None),
+    "response_gamma": Field(_number(0.2, 5), default=None),
     "nominal": Field(_section(NOMINAL)),
 }
 CAMERA_DEFAULTS = {
@@ -181,6 +182,7 @@ CAMERA_DEFAULTS = {
     "exposure_us": Field(_number(1, 1e7), default=8000),
     "gain_db": Field(_number(0, 48), default=0.0),
     "trigger": Field(CAMERA["trigger"].check, default="software"),
+    "response_gamma": Field(CAMERA["response_gamma"].check, default=1.0),
 }
 FIXTURE = {
     "position_m": Field(_vector(3)),
@@ -262,6 +264,7 @@ class CameraConfig:
     gain_db: float
     trigger: str
     nominal: Section
+    response_gamma: float = 1.0  # the camera's grey = light^gamma; undone before detection
 
 
 @dataclass(frozen=True)
@@ -291,7 +294,8 @@ class StationConfig:
                 id=cam_id, wheel=c.wheel, role=c.role, uri=c.uri, width=res[0], height=res[1],
                 pixel_format=c.pixel_format or d.pixel_format,
                 exposure_us=c.exposure_us or d.exposure_us, gain_db=c.gain_db if c.gain_db is not None else d.gain_db,
-                trigger=c.trigger or d.trigger, nominal=c.nominal)
+                trigger=c.trigger or d.trigger, nominal=c.nominal,
+                response_gamma=float(c.response_gamma if c.response_gamma is not None else d.response_gamma))
         self.pairs: dict[str, PairConfig] = {}
         for wheel in WHEELS:
             members = {c.role: c.id for c in self.cameras.values() if c.wheel == wheel}

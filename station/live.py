@@ -28,6 +28,7 @@ from station.config import WHEELS, StationConfig
 from station.errors import MeasurementError, StationError
 from station.cycle import open_capture
 from station.wheel_workers import WheelWorkers, default_workers
+from station.camera_response import linear_images
 from station.measure import WheelObservation, check_same_rim, measure_frames
 from station.other_contour import on_circle
 from station.wheel3d import WheelFit, reconstruct_paper, refine_circle
@@ -128,7 +129,8 @@ class LiveSession:
         cams = {c: self.cameras[c] for c in self.live_cams}
         frames = capture.capture_cycle(cams, self.timeout_s, self.trigger_board)
         t1 = time.perf_counter()
-        tasks = [(w, self.pairs[w], {c: frames[c].image for c in self.pairs[w]},
+        images = linear_images({c: frames[c].image for c in cams}, self.config)  # station/camera_response.py
+        tasks = [(w, self.pairs[w], {c: images[c] for c in self.pairs[w]},
                   {c: self.models[c] for c in self.pairs[w]}, {c: self.previous.get(c) for c in self.pairs[w]},
                   self.config, self.circles.get(w)) for w in self.live_wheels]
         if self.workers is not None:

@@ -16,6 +16,7 @@ import numpy as np
 
 from calibration.camera_model import CameraModel
 from station import alignment
+from station.camera_response import linear_images
 from station.config import WHEELS, StationConfig
 from station.calibration_share import calibration_covariance, pair_perturbation_covariance
 from station.errors import MeasurementError, StationError
@@ -228,6 +229,7 @@ def measure_frames(images: dict[str, np.ndarray], cameras: dict[str, CameraModel
     if method not in METHODS:
         raise MeasurementError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
     t0 = time.perf_counter()
+    images = linear_images(images, config)  # grey proportional to light, as the edge model takes it
 
     def tasks(frames):
         out = []

@@ -26,6 +26,7 @@ def test_default_config_loads_eight_cameras_in_four_pairs():
         "FL": ("cam3", "cam4"), "FR": ("cam1", "cam2"), "RL": ("cam5", "cam6"), "RR": ("cam7", "cam8")}
     cam = cfg.cameras["cam1"]
     assert (cam.width, cam.height, cam.pixel_format) == (1280, 1024, "Mono8")
+    assert cam.response_gamma == 1.0  # linear cameras unless told otherwise
     assert cfg.plc.host == "127.0.0.1"
 
 
@@ -39,6 +40,7 @@ def test_default_config_loads_eight_cameras_in_four_pairs():
     (lambda d: d["plc"].update(port=70000), r"plc\.port: expected a value in"),
     (lambda d: d.pop("version"), r"version: missing required key"),
     (lambda d: d["simulation"].update(noise_sigma="high"), r"simulation\.noise_sigma: expected a number"),
+    (lambda d: d["cameras"]["cam3"].update(response_gamma=0), r"cameras\.cam3\.response_gamma: expected a value in"),
 ])
 def test_mistakes_are_named(tmp_path, mutate, expected):
     path = _write(tmp_path, mutate)

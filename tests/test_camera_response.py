@@ -1,0 +1,48 @@
+"""Undoing a camera's gamma before rim detection (station/camera_response.py)."""
+
+import copy
+from dataclasses import replace
+
+import numpy as np
+
+from station.camera_response import linear, linear_images
+from station.measure import measure_frames
+from tests.station_fixtures import small_station_config
+
+
+def test_linear_inverts_the_encoding_into_16_bits():
+    light = np.linspace(0, 1, 256)
+    encoded = np.round(255 * light ** 0.45).astype(np.uint8)
+    back = linear(encoded, 0.45)
+    assert back.dtype == np.uint16
+    assert np.all(np.diff(back.astype(int)) >= 0)                       # monotone
+    assert np.abs(back / 65535.0 - light).max() < 0.02                  # the light again (8-bit steps)
+    assert np.abs(linear(np.uint16([32768]), 0.5) / 65535.0 - 0.25).max() < 1e-4
+    grey = np.arange(256, dtype=np.uint8)
+    assert linear(grey, 1.0) is grey                                    # a linear camera: untouched
+
+
+def test_a_gamma_encoding_camera_measures_like_a_linear_one_once_configured(tmp_path):
+    """The same scene delivered by sRGB-like cameras (grey = light^(1/2.2)): with
+    ``response_gamma`` configured, the wheels come out as from the linear images (within the
+    8-bit encoding's rounding), without it far from them; the images are not changed."""
+    from simulators.world import SimWorld
+
+    cfg = small_station_config(tmp_path)
+    world = SimWorld.from_config(cfg)
+    world.set_scene(world.vehicle_scene(5))
+    images = world.render_all(np.random.default_rng(5))
+    gamma = 1 / 2.2
+    lut = np.round(255 * (np.arange(256) / 255) ** gamma).astype(np.uint8)
+    encoded = {c: lut[im] for c, im in images.items()}
+    told = copy.copy(cfg)
+    told.cameras = {c: replace(cam, response_gamma=gamma) for c, cam in cfg.cameras.items()}
+    assert linear_images(encoded, told)["cam1"].dtype == np.uint16
+    results = [measure_frames(ims, world.cameras, c) for ims, c in ((images, cfg), (encoded, told), (encoded, cfg))]
+    assert all(r["valid"] for r in results), [r["failure"] for r in results]
+    angles = [np.array([r["wheels"][w][k] for w in ("FL", "FR", "RL", "RR") for k in ("toe_deg", "camber_deg")])
+              for r in results]
+    decoded = np.sqrt(np.mean((angles[1] - angles[0]) ** 2))
+    undecoded = np.sqrt(np.mean((angles[2] - angles[0]) ** 2))
+    assert decoded < 0.05 and undecoded > 3 * decoded, (decoded, undecoded)
+    assert encoded["cam1"].dtype == np.uint8 and np.array_equal(encoded["cam1"], lut[images["cam1"]])
