@@ -80,3 +80,21 @@ def test_bad_input_gives_a_message_and_nonzero_exit(wheel, capsys, case, expect)
     assert code != 0
     assert expect in err
     assert "Traceback" not in err and "internal error" not in err
+
+
+def test_an_srgb_photograph_is_measured_once_its_gamma_is_undone(tmp_path, capsys):
+    """A phone or webcam JPEG encodes grey as light^0.45: the blurred edge's middle grey moves
+    toward the dark tyre and the rim comes out too large; --response-gamma 0.45 undoes it."""
+    img, truth = render_wheel(WheelSpec(axis_ratio=0.9, rim_a_px=220, center_px=(400.2, 300.6), blur_sigma_px=1.2),
+                              shape=(640, 800), seed=22)
+    lut = np.round(255 * (np.arange(256) / 255) ** 0.45).astype(np.uint8)
+    cv2.imwrite(str(tmp_path / "srgb.png"), lut[img])
+    errors = {}
+    for g in ("1", "0.45"):
+        assert main(["detect", str(tmp_path / "srgb.png"), "--response-gamma", g, "--json", str(tmp_path / f"{g}.json")]) == 0
+        doc = json.loads((tmp_path / f"{g}.json").read_text())
+        errors[g] = np.abs(np.array(doc["ellipse"]["axes_px"]) - truth.axes_px).max()
+    assert errors["0.45"] < 0.05 and errors["1"] > 3 * errors["0.45"], errors
+    assert "edge blur" in capsys.readouterr().out
+    assert main(["detect", str(tmp_path / "srgb.png"), "--response-gamma", "0"]) != 0
+    assert "expected a value in [0.2, 5]" in capsys.readouterr().err
