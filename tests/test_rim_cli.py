@@ -95,6 +95,10 @@ def test_an_srgb_photograph_is_measured_once_its_gamma_is_undone(tmp_path, capsy
         doc = json.loads((tmp_path / f"{g}.json").read_text())
         errors[g] = np.abs(np.array(doc["ellipse"]["axes_px"]) - truth.axes_px).max()
     assert errors["0.45"] < 0.05 and errors["1"] > 3 * errors["0.45"], errors
+    cv2.imwrite(str(tmp_path / "srgb.jpg"), lut[img], [cv2.IMWRITE_JPEG_QUALITY, 95])
+    assert main(["detect", str(tmp_path / "srgb.jpg"), "--json", str(tmp_path / "jpg.json")]) == 0  # JPEG: sRGB by default
+    doc = json.loads((tmp_path / "jpg.json").read_text())
+    assert np.abs(np.array(doc["ellipse"]["axes_px"]) - truth.axes_px).max() < 0.06
     assert "edge blur" in capsys.readouterr().out
     assert main(["detect", str(tmp_path / "srgb.png"), "--response-gamma", "0"]) != 0
     assert "expected a value in [0.2, 5]" in capsys.readouterr().err

@@ -13,6 +13,7 @@ HELP = "find the rim ellipse in one photograph of a wheel (PNG or JPEG, colour o
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 JPEG_MAGIC = b"\xff\xd8"
+SRGB_GAMMA = 0.45  # sRGB's curve, as one exponent
 
 
 def add_arguments(parser):
@@ -21,10 +22,10 @@ def add_arguments(parser):
     parser.add_argument("--draw", metavar="OUT.png", help="draw the rim ellipse and its edge points on the image")
     parser.add_argument("--equalization", choices=("clahe", "global", "none"), default="clahe",
                         help="equalisation before Canny: clahe (default), global (the paper's), none")
-    parser.add_argument("--response-gamma", type=float, default=1.0, metavar="G",
+    parser.add_argument("--response-gamma", type=float, default=None, metavar="G",
                         help="the exponent the camera applied to light (grey = light^G), undone before the "
-                             "sub-pixel edges: 1 (default) for a linear machine-vision camera, about 0.45 for a "
-                             "phone's or webcam's sRGB JPEG")
+                             "sub-pixel edges: 1 for a linear machine-vision camera, about 0.45 for sRGB; "
+                             "default: 0.45 for a JPEG (a phone's or webcam's photograph), 1 for any other file")
 
 
 def read_image(path: str | Path) -> np.ndarray:
@@ -90,12 +91,14 @@ def run(args) -> int:
 
     from station.camera_response import linear
 
-    if not 0.2 <= args.response_gamma <= 5:
-        raise ImageError(f"--response-gamma {args.response_gamma}: expected a value in [0.2, 5]",
+    gamma = args.response_gamma
+    if gamma is not None and not 0.2 <= gamma <= 5:
+        raise ImageError(f"--response-gamma {gamma}: expected a value in [0.2, 5]",
                          hint="1 for a linear camera, about 0.45 for an sRGB photograph")
     image = read_image(args.image)
-    det = detect_rim(linear(image, args.response_gamma), camera_id=Path(args.image).name,
-                     equalization=args.equalization)
+    if gamma is None:  # a JPEG is a photograph's format, sRGB-encoded; a PNG may be a camera's raw grey
+        gamma = SRGB_GAMMA if Path(args.image).read_bytes()[:2] == JPEG_MAGIC else 1.0
+    det = detect_rim(linear(image, gamma), camera_id=Path(args.image).name, equalization=args.equalization)
     e = det.ellipse
     std = np.sqrt(np.maximum(np.diag(det.ellipse_cov), 0))
     print(f"rim ellipse in {args.image} ({image.shape[1]}x{image.shape[0]} px)")
@@ -105,6 +108,7 @@ def run(args) -> int:
     print(f"  score         {det.score:9.3f}      edge points {len(det.points_px)}, "
           f"rms {det.point_sigma_px:.3f} px, coverage {det.coverage:.0%}")
     print(f"  edge blur     {det.details.get('blur_px', float('nan')):9.2f} px (Gaussian sigma of the rim edge)")
+    print(f"  grey response {gamma:9.2f}      (grey = light^{gamma:.2f}, undone; --response-gamma to change)")
     print(f"  time          {sum(det.timing_s.values()) * 1e3:9.1f} ms")
     if args.json:
         doc = {"image": str(args.image), "width": int(image.shape[1]), "height": int(image.shape[0]), **det.to_dict()}
