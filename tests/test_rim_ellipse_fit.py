@@ -126,6 +126,35 @@ def test_kink_fit_is_unbiased_where_the_lip_is_shaded_as_a_ramp():
     assert (p[ok2, 3] - s0[ok2]).mean() < -0.1
 
 
+def test_a_lip_rounded_across_the_window_takes_the_curved_model_and_an_ordinary_one_does_not():
+    """A narrow lip shaded as rounded: the profile rises to the lip's top 1.5 px inside the
+    edge and falls to it. The straight metal side puts the edge 0.35 px inside; the curved
+    model, taken where its residual falls significantly on most of the arc, finds it. A lip
+    shaded as a straight ramp keeps the straight model, profile for profile."""
+    from scipy.stats import norm
+
+    from station.rim.subpixel import _curved_where_needed, fit_kinks
+    rng = np.random.default_rng(7)
+    s = np.arange(-3, 4.51, 0.5)
+    sigma, n = 0.85, 720
+    s0 = rng.uniform(-0.8, 0.8, n)
+    x = s[None, :] - s0[:, None]
+    Phi, phi = norm.cdf(x / sigma), norm.pdf(x / sigma)
+    lin = x - x * Phi - sigma * phi                              # x on the metal side, blurred
+    quad = (x * x + sigma ** 2) * (1 - Phi) - x * sigma * phi    # x^2 on the metal side, blurred
+    rounded = 150 - 120 * Phi - 25.0 * (quad + 3.0 * lin) + rng.normal(0, 2.0, (n, len(s)))  # top at -1.5 px
+    straight = fit_kinks(rounded, s, sigma, grid_step=0.125, refine=False)
+    auto = _curved_where_needed(rounded, s, sigma, *straight)
+    assert (straight[0] - s0)[straight[3]].mean() < -0.25
+    err = (auto[0] - s0)[auto[3]]
+    assert auto[3].mean() > 0.98 and abs(err.mean()) < 0.05 and err.std() < 0.15
+    ramp, s0r = _kink_profiles(rng, n, s, sigma, metal_slope=-25.0, tyre_slope=0.0)
+    ramp = ramp + rng.normal(0, 2.0, ramp.shape)
+    plain = fit_kinks(ramp, s, sigma, grid_step=0.125, refine=False)
+    kept = _curved_where_needed(ramp, s, sigma, *plain)
+    assert np.mean(kept[0] == plain[0]) > 0.98
+
+
 def test_profiles_whose_tyre_side_climbs_back_are_rejected():
     from station.rim.subpixel import _tyre_side_flat, fit_kinks
     rng = np.random.default_rng(6)
