@@ -129,13 +129,15 @@ def initial_steps(prof: np.ndarray, s: np.ndarray, polarity: float = -1.0) -> np
 
 
 def _kink_basis(x: np.ndarray, sigma: float, curvature: bool | None = None) -> np.ndarray:
-    """(..., S, 4) basis of the blurred step-and-kink at offsets x = s - s0 (..., S):
-    [1, Phi, x, x Phi + sigma phi] for (A, h, B, k) in I = A + h Phi + B x + k (x Phi + sigma phi)."""
+    """(..., S, nb) basis of the blurred step-and-kink at offsets x = s - s0 (..., S):
+    [1, Phi, x, x Phi + sigma phi] for (A, h, B, k) in I = A + h Phi + B x + k (x Phi + sigma phi),
+    and with ``curvature`` the metal side's blurred x^2 (nb = 5)."""
     z = x / sigma
     Phi = 0.5 * (1 + erf(z / SQRT2))
     phi = np.exp(-0.5 * z * z) / np.sqrt(2 * np.pi)
     cols = [np.ones_like(x), Phi, x, x * Phi + sigma * phi]
-    if METAL_CURVATURE if curvature is None else curvature:  # blurred x^2 on the metal side (x < 0): E[u^2 1(u<0)], u ~ N(x, sigma^2)
+    curved = METAL_CURVATURE if curvature is None else curvature  # None: the module's switch
+    if curved:  # blurred x^2 on the metal side (x < 0): E[u^2 1(u<0)], u ~ N(x, sigma^2)
         cols.append((x * x + sigma * sigma) * (1 - Phi) - x * sigma * phi)
         if TYRE_CURVATURE:  # and on the tyre side: E[u^2 1(u>0)]
             cols.append((x * x + sigma * sigma) * Phi + x * sigma * phi)
