@@ -88,7 +88,7 @@ def _images(world, scene, scenario: str, seed: int, cache: Path | None, capture:
         with np.load(path) as z:
             return {c: z[c] for c in world.cameras}
     rng = np.random.default_rng(10_000 + seed) if capture == 0 else np.random.default_rng([10_000 + seed, capture])
-    images = outside_envelope.encode(scenario if scenario in outside_envelope.KINDS else None, world.render_all(rng))
+    images = outside_envelope.encode(scenario, world.render_all(rng))
     if path is not None:
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_name(path.stem + ".part.npz")
@@ -109,14 +109,13 @@ def run(config, cameras_by_source: dict, n: int, scenario: str, seed0: int, meth
     rows = {(src, m): {"err": [], "std": [], "failed": 0, "time": [], "warnings": Counter(), "captures": []}
             for src in cameras_by_source for m in methods}
     first = (next(iter(cameras_by_source)), methods[0])
-    config = outside_envelope.configured(scenario if scenario in outside_envelope.KINDS else None, config)
+    config = outside_envelope.configured(scenario, config)
     for i in range(n):
         seed = seed0 + i
         over = {}
         if albedo is not None:  # its own stream: the vehicle itself stays that of the seed
             over["rim_albedo"] = float(np.random.default_rng([seed, 1]).uniform(*albedo))
-        kind = scenario if scenario in outside_envelope.KINDS else None
-        scene = outside_envelope.scene_for(world, kind, seed, config.nominal_vehicle, **over)
+        scene = outside_envelope.scene_for(world, scenario, seed, config.nominal_vehicle, **over)
         world.set_scene(scene)
         images = _images(world, scene, scenario, seed, cache)
         truth = world.truth(scene)

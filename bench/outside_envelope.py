@@ -54,8 +54,9 @@ KINDS = ("big-angles", "odd-rims", "odd-body", "soft-focus", *WHEEL_RANGES, *LIG
 
 
 def scene_for(world, kind: str | None, seed: int, nominal, **overrides):
-    """The scene of vehicle ``seed`` in scenario ``kind`` (None: one inside the envelope), and
-    the world's lenses set for it (every camera's own PSF unless soft-focus)."""
+    """The scene of vehicle ``seed`` in scenario ``kind`` (any other name, or None: the random
+    vehicle as it is), and the world's lenses set for it (every camera's own PSF unless
+    soft-focus). The other functions below take any scenario name the same way."""
     if not hasattr(world, "_own_blur"):
         world._own_blur = dict(world.blur_sigma)
     world.blur_sigma.update(world._own_blur)

@@ -97,7 +97,8 @@ def run(args) -> int:
                          hint="1 for a linear camera, about 0.45 for an sRGB photograph")
     image = read_image(args.image)
     if gamma is None:  # a JPEG is a photograph's format, sRGB-encoded; a PNG may be a camera's raw grey
-        gamma = SRGB_GAMMA if Path(args.image).read_bytes()[:2] == JPEG_MAGIC else 1.0
+        with open(args.image, "rb") as f:  # read_image has read it whole: the magic is all we need
+            gamma = SRGB_GAMMA if f.read(len(JPEG_MAGIC)) == JPEG_MAGIC else 1.0
     det = detect_rim(linear(image, gamma), camera_id=Path(args.image).name, equalization=args.equalization)
     e = det.ellipse
     std = np.sqrt(np.maximum(np.diag(det.ellipse_cov), 0))
