@@ -393,8 +393,11 @@ def detect_rim(image: np.ndarray, *, camera=None, prior: Ellipse | None = None, 
         info["path"] = "search"
         clock.lap("choose")
         fit, samples, mask, blur = _refine(grey, best.ellipse.scaled(sc.s), pmap)
+        untangled = _untangled(grey, pmap, info["candidates"], fit, samples, mask, blur)
+        if untangled is not None:
+            fit, samples, mask, blur, info["untangled"] = untangled
         clock.lap("refine")
-        if camera is None and sc.s // WORKING_SCALE_STEP >= 2:
+        if camera is None and sc.s // WORKING_SCALE_STEP >= 2 and untangled is None:
             info["blur_px"] = blur
             return _finer_of(grey, best.ellipse, sc.s, (fit, samples, mask), info, clock, camera_id)
     info["blur_px"] = blur
@@ -446,6 +449,86 @@ def _rescaled(det: RimDetection, r: int) -> RimDetection:
     return replace(det, ellipse=det.ellipse.scaled(r), points_px=(det.points_px + 0.5) * r - 0.5,
                    ellipse_cov=J @ det.ellipse_cov @ J, point_sigma_px=det.point_sigma_px * r,
                    details={**det.details, "blur_px": det.details.get("blur_px", 0.0) * r, "working_scale": r})
+
+
+NEAR_TIE = 0.8         # a runner-up scoring this share of the best's score is checked (_untangled)
+SAME_WHEEL = 0.15      # centre within this share of the semi-major, size within it: the same wheel
+UNTANGLE_ARCS = 36     # arcs of 10 degrees
+AGREE_PX = 1.0         # two fits this close on an arc (median): the same edge there
+APART_PX = 2.0         # the best's other arcs this far off the shared arcs' ellipse: another contour
+MIN_SHARED = 0.3       # of the arcs: a shared part this large defines the rim alone
+MIN_APART_ARCS = 3     # arcs this far off it (30 degrees): the best is a compromise
+
+
+def _untangled(grey: np.ndarray, pmap: PixelMap, candidates: list[dict], fit, samples, mask, blur):
+    """The rim when the chosen candidate's fit is a compromise between two contours, else None.
+
+    Where the flange edge has no contrast over part of the rim (a lip in deep shadow under one
+    harsh lamp, a dark rim, a narrow flange at low resolution), the edge found there is the
+    next contour of the same polarity: the lip's highlight 5-15 px inside, or the bead's edge
+    outside. One ellipse then follows the flange on one arc and that contour on the other
+    (residuals of a few tenths of a pixel: it passes every test of one curve). The wheel's
+    other concentric candidates show it: a runner-up of nearly the same score, refined, is the
+    same kind of compromise the other way, and the two agree only where both follow the
+    flange. So: a runner-up (``candidates``: the detector's ranked list, ideal full-resolution
+    pixels) of the same wheel scoring ``NEAR_TIE`` of the best is refined; where its fit passes
+    within ``AGREE_PX`` of the best's points arc by arc (``UNTANGLE_ARCS``) on at least
+    ``MIN_SHARED`` of the rim, an ellipse is fitted to the best's points there. If the best's
+    points lie ``APART_PX`` or more off it on ``MIN_APART_ARCS`` arcs or more (medians), those
+    are another contour: the rim is the best's points on the other arcs, those within
+    ``APART_PX`` of that ellipse, shared or not, and their fit. (A final pass from that ellipse found, where the
+    flange has no contrast, whatever faint edge lay 1-2 px off it: an offset the 3-D tests
+    cannot tell from edge bias, where a contour 5-15 px off is refused there.) A best fit that
+    is one curve passes unchanged.
+
+    fit, samples, mask, blur: the best candidate's _refine result. Returns (fit, samples, mask,
+    blur, info) of the new fit, or None."""
+    if fit is None or len(candidates) < 2:
+        return None
+    best = candidates[0]["ellipse"]
+    a0, c0 = best["axes_px"][0], np.asarray(best["center_px"])
+    ties = [(k, c["ellipse"]) for k, c in enumerate(candidates[1:], 1)
+            if c["score"] >= NEAR_TIE * candidates[0]["score"] and abs(c["ellipse"]["axes_px"][0] / a0 - 1) <= SAME_WHEEL
+            and np.linalg.norm(np.asarray(c["ellipse"]["center_px"]) - c0) <= SAME_WHEEL * a0]
+    if not ties:
+        return None
+    pts = pmap.undistort(samples.points_px[mask])     # (N,2) the best's inliers, ideal pixels
+    _, t = fit.ellipse.distance(pts)
+    arc = (np.mod(t, 2 * np.pi) * (UNTANGLE_ARCS / (2 * np.pi))).astype(int) % UNTANGLE_ARCS
+    seen = np.bincount(arc, minlength=UNTANGLE_ARCS) >= 5
+    for k, e in ties:
+        other_fit, *_ = _refine(grey, Ellipse(e["center_px"], e["axes_px"], np.radians(e["angle_deg"])), pmap)
+        if other_fit is None:
+            continue
+        shared = _arc_medians(np.abs(other_fit.ellipse.distance(pts)[0]), arc, seen) < AGREE_PX
+        if shared.sum() < MIN_SHARED * UNTANGLE_ARCS:
+            continue
+        try:
+            shared_fit = fit_geometric(pts[shared[arc]], init=fit.ellipse, iterations=12)
+        except (ValueError, np.linalg.LinAlgError):
+            continue
+        off = _arc_medians(np.abs(shared_fit.ellipse.distance(pts)[0]), arc, seen)
+        apart = seen & (off > APART_PX)
+        if apart.sum() < MIN_APART_ARCS:
+            return None  # the best follows one curve all round: it stays
+        on_rim = (off < APART_PX)[arc]  # the arcs on the shared arcs' ellipse, shared or not
+        try:
+            rim_fit = fit_geometric(pts[on_rim], init=shared_fit.ellipse, iterations=12)
+        except (ValueError, np.linalg.LinAlgError):
+            continue
+        kept = np.zeros_like(mask)
+        kept[np.nonzero(mask)[0][on_rim][rim_fit.inliers]] = True
+        if _coverage(samples, kept) < MIN_REFINED_COVERAGE:
+            continue
+        return rim_fit, samples, kept, blur, {"runner_up": k, "shared_arcs": int(shared.sum()),
+                                              "other_contour_arcs": int(apart.sum()), "arcs": UNTANGLE_ARCS}
+    return None
+
+
+def _arc_medians(x: np.ndarray, arc: np.ndarray, seen: np.ndarray) -> np.ndarray:
+    """(len(seen),) median of x (N,) over the points of each arc (arc (N,) ints), inf where
+    the arc is not ``seen``."""
+    return np.array([np.median(x[arc == j]) if seen[j] else np.inf for j in range(len(seen))])
 
 
 def refine_candidate(image: np.ndarray, ellipse: Ellipse, *, camera=None, camera_id: str = "") -> RimDetection:
