@@ -42,6 +42,8 @@ MAX_VOTERS = 4000           # strongest edge pixels that vote for centres (time 
 CELL_PX = 2.0               # centre accumulator cell
 NORMAL_COS = 0.9            # gradient within 25 degrees of the ellipse normal
 MIN_AXIS_RATIO = 0.55
+MAX_SIZE_PEAKS = 5          # concentric sizes per centre: flange, lip highlight, spoke ring, hub, tyre
+                            # (4 lost the flange of a small rim at 960x768 to its weaker contours)
 
 
 @dataclass
@@ -183,7 +185,7 @@ def polarity_inliers(ellipse: Ellipse, edges: EdgeSet, tol_px: float, inward: bo
 
 
 def size_peaks(edges: EdgeSet, centre: np.ndarray, M: np.ndarray, r_min: float, r_max: float,
-               max_peaks: int = 4) -> list[float]:
+               max_peaks: int = MAX_SIZE_PEAKS) -> list[float]:
     """Semi-major axes of concentric similar ellipses with polarity-consistent support."""
     x = edges.points - centre
     Mx = x @ M
