@@ -539,3 +539,21 @@ def test_a_view_with_a_quarter_of_its_points_safe_is_still_tested_for_hidden_arc
     pr = pr[np.sort(np.concatenate([idx_doubt, thin]))]
     fit = refine_circle(pl, pr, cl, cr, reconstruct_paper(pl, pr, cl, cr))
     assert _angle_deg(fit.axis_station, w) < 0.05
+
+
+@pytest.mark.parametrize("seed,wheel", [(0, "FR"), (1, "RL")])
+def test_the_circle_of_two_image_ellipses_holds_where_the_cameras_see_part_of_the_rim(seed, wheel):
+    from station.rim.ellipse_fit import fit_direct
+    from station.rim.preprocess import PixelMap
+    from station.wheel3d import circle_from_ellipses
+
+    v = random_vehicle(np.random.default_rng(seed))
+    c, w, X = _rim(v, wheel)
+    cl, cr = _pair(c[0], c[1])
+    ellipses = [fit_direct(PixelMap(cam).undistort(cam.project(X))) for cam in (cl, cr)]  # ideal pixels
+    centre, radius = circle_from_ellipses(cl, cr, *ellipses)
+    assert np.linalg.norm(centre - c) < 0.05           # an ellipse's centre is not the circle's image
+    assert radius == pytest.approx(v.wheel.rim_radius_m, rel=0.05)
+    seen = slice(0, len(X) // 2)                      # both cameras see half the rim
+    paper = reconstruct_paper(cl.project(X[seen]), cr.project(X[seen]), cl, cr)
+    assert np.linalg.norm(paper.center_station - c) > 0.1   # the centroid of the seen half
