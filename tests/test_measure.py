@@ -313,3 +313,12 @@ def test_a_circle_fit_that_ran_off_its_points_starts_again_from_the_image_ellips
     assert len(starts) == 2 and starts[1].radius_m == pytest.approx(good.radius_m, rel=0.05)
     assert np.linalg.norm(starts[1].center_station - good.center_station) < 0.05
     assert np.linalg.norm(obs.circle.center_station - good.center_station) < 1e-6
+
+
+def test_a_rim_too_small_in_its_image_warns_and_names_the_camera(sim, monkeypatch):
+    cfg, world, scene, images = sim
+    result = measure_frames(images, world.cameras, cfg)  # 640x512: rims of 150-180 px
+    small = [w for w in result["warnings"] if "the rim spans only" in w]
+    assert small and all(w.split(" ")[1].startswith("cam") and "longer lens" in w for w in small), result["warnings"]
+    monkeypatch.setattr(cfg.measurement, "min_rim_axis_px", 0.0)
+    assert not any("the rim spans only" in w for w in measure_frames(images, world.cameras, cfg)["warnings"])
