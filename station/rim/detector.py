@@ -476,10 +476,10 @@ def _untangled(grey: np.ndarray, pmap: PixelMap, candidates: list[dict], fit, sa
     ``MIN_SHARED`` of the rim, an ellipse is fitted to the best's points there. If the best's
     points lie ``APART_PX`` or more off it on ``MIN_APART_ARCS`` arcs or more (medians), those
     are another contour: the rim is the best's points on the other arcs, those within
-    ``APART_PX`` of that ellipse, shared or not, and their fit. (A final pass from that ellipse found, where the
-    flange has no contrast, whatever faint edge lay 1-2 px off it: an offset the 3-D tests
-    cannot tell from edge bias, where a contour 5-15 px off is refused there.) A best fit that
-    is one curve passes unchanged.
+    ``APART_PX`` of that ellipse, shared or not, and their fit. (A final pass from that
+    ellipse found, where the flange has no contrast, whatever faint edge lay 1-2 px off it: an
+    offset the 3-D tests cannot tell from edge bias, where a contour 5-15 px off is refused
+    there.) A best fit that is one curve passes unchanged.
 
     fit, samples, mask, blur: the best candidate's _refine result. Returns (fit, samples, mask,
     blur, info) of the new fit, or None."""
@@ -520,6 +520,7 @@ def _untangled(grey: np.ndarray, pmap: PixelMap, candidates: list[dict], fit, sa
         kept[np.nonzero(mask)[0][on_rim][rim_fit.inliers]] = True
         if _coverage(samples, kept) < MIN_REFINED_COVERAGE:
             continue
+        samples.ok = kept.copy()
         return rim_fit, samples, kept, blur, {"runner_up": k, "shared_arcs": int(shared.sum()),
                                               "other_contour_arcs": int(apart.sum()), "arcs": UNTANGLE_ARCS}
     return None
