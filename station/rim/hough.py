@@ -42,6 +42,8 @@ MAX_VOTERS = 4000           # strongest edge pixels that vote for centres (time 
 CELL_PX = 2.0               # centre accumulator cell
 NORMAL_COS = 0.9            # gradient within 25 degrees of the ellipse normal
 MIN_AXIS_RATIO = 0.55
+BAND_SHARE = 0.5           # of the gap to the next concentric size: a candidate's band at most
+MIN_BAND_PX = 1.5
 MAX_SIZE_PEAKS = 5          # concentric sizes per centre: flange, lip highlight, spoke ring, hub, tyre
                             # (4 lost the flange of a small rim at 960x768 to its weaker contours)
 
@@ -237,20 +239,27 @@ def find_candidates(edges: EdgeSet, r_min: float, r_max: float, max_centres: int
         w, V = np.linalg.eigh(M)
         q = np.sqrt(w[0] / w[1])
         theta = np.arctan2(V[1, 0], V[0, 0])
-        for a in size_peaks(edges, c, M, r_min, r_max):
+        sizes = size_peaks(edges, c, M, r_min, r_max)
+        for a in sizes:
             e0 = Ellipse(c, (a, a * q), theta)
-            cand = _refine(e0, edges, height)
-            if cand is not None:
-                out.append(cand)
+            wide = max(3.0, 0.05 * a)
+            # a band reaching the next concentric size takes in its contour too (a narrow lip's
+            # flange edge and inner edge lie 5 coarse px apart): then also one reaching halfway
+            gap = min([abs(a - o) for o in sizes if o != a], default=np.inf)
+            for band in (wide, max(MIN_BAND_PX, BAND_SHARE * gap)) if gap <= wide else (wide,):
+                cand = _refine(e0, edges, height, band_px=band)
+                if cand is not None:
+                    out.append(cand)
     out.sort(key=lambda cd: -cd.coverage)
     return _dedupe(out)[:max_candidates]
 
 
-def _refine(e0: Ellipse, edges: EdgeSet, height: float) -> Candidate | None:
-    """Fit a voted ellipse to its own polarity-consistent edge pixels: consensus (RANSAC) on a
-    wide band first, so that two concentric contours (flange edge, lip's inner edge) are not
-    merged into a compromise, then an algebraic fit of the consensus set."""
-    idx = polarity_inliers(e0, edges, max(3.0, 0.05 * e0.axes_px[0]))
+def _refine(e0: Ellipse, edges: EdgeSet, height: float, band_px: float | None = None) -> Candidate | None:
+    """Fit a voted ellipse to its own polarity-consistent edge pixels within ``band_px`` of it
+    (default 5 % of its size, at least 3 px): consensus (RANSAC) on that band first, so that two
+    concentric contours (flange edge, lip's inner edge) are not merged into a compromise, then
+    an algebraic fit of the consensus set."""
+    idx = polarity_inliers(e0, edges, max(3.0, 0.05 * e0.axes_px[0]) if band_px is None else band_px)
     if len(idx) < 12:
         return None
     inl = ransac_ellipse(edges.points[idx], threshold_px=1.0, iterations=96, seed=len(idx))
