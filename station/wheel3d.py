@@ -173,8 +173,9 @@ def circle_from_ellipses(cam_l: CameraModel, cam_r: CameraModel, ellipse_l, elli
     A = np.array([[d[0] @ d[0], -d[0] @ d[1]], [d[0] @ d[1], -d[1] @ d[1]]])
     s, u = np.linalg.solve(A, [(o[1] - o[0]) @ d[0], (o[1] - o[0]) @ d[1]])
     centre = 0.5 * (o[0] + s * d[0] + o[1] + u * d[1])
-    radius = np.mean([e.axes_px[0] * (cam.R_cam_station @ centre + cam.t_cam_station)[2] / (0.5 * (cam.K[0, 0] + cam.K[1, 1]))
-                      for cam, e in ((cam_l, ellipse_l), (cam_r, ellipse_r))])
+    depth = [(cam.R_cam_station @ centre + cam.t_cam_station)[2] for cam in (cam_l, cam_r)]
+    radius = np.mean([e.axes_px[0] * z / (0.5 * (cam.K[0, 0] + cam.K[1, 1]))
+                      for cam, e, z in ((cam_l, ellipse_l, depth[0]), (cam_r, ellipse_r, depth[1]))])
     return centre, float(radius)
 
 
