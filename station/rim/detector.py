@@ -31,6 +31,7 @@ from station.rim.ellipse import Ellipse
 from station.rim.ellipse_fit import fit_direct, fit_geometric, ransac_ellipse
 from station.rim.preprocess import PixelMap, detection_scale, downscale, equalize, to_grey
 from station.rim.subpixel import edge_points, window_scale
+from station.wheel_arcs import sector_medians
 
 MIN_COVERAGE = 0.5         # below: "no closed rim contour" (choosing the candidate)
 MIN_REFINED_COVERAGE = 0.35  # the chosen rim's sub-pixel edge may be partly hidden (wheel arch,
@@ -529,7 +530,8 @@ def _untangled(grey: np.ndarray, pmap: PixelMap, candidates: list[dict], fit, sa
 def _arc_medians(x: np.ndarray, arc: np.ndarray, seen: np.ndarray) -> np.ndarray:
     """(len(seen),) median of x (N,) over the points of each arc (arc (N,) ints), inf where
     the arc is not ``seen``."""
-    return np.array([np.median(x[arc == j]) if seen[j] else np.inf for j in range(len(seen))])
+    med, _ = sector_medians(x, arc, len(seen))
+    return np.where(seen, med, np.inf)
 
 
 def refine_candidate(image: np.ndarray, ellipse: Ellipse, *, camera=None, camera_id: str = "") -> RimDetection:
