@@ -30,7 +30,7 @@ from calibration.triangulation import homogeneous
 from station.errors import MeasurementError
 from station.robust_lsq import soft_l1_least_squares
 from station.epipolar import epipolar_tangency_px
-from station.wheel3d import BIAS_MODES, WheelFit, circle_conics, sampson_jacobian, tangent_gaps
+from station.wheel3d import BIAS_MODES, MIN_VIEW_POINTS, WheelFit, circle_conics, sampson_jacobian, tangent_gaps
 from station.wheel_fit_uncertainty import axis_basis, axis_covariance, bias_covariance, noise_covariance, normal_from
 from station.wheel_arcs import rim_angles
 
@@ -157,7 +157,10 @@ def fit_two_contours(views, labels, init, loss_scale_px: float = 0.3, bias_modes
     R1, R2, h2): the normal n0 + a e1 + b e2 (normalised), contour 1 the circle (c, n, R1),
     contour 2 (c + h2 n, n, R2). Residuals: Sampson distances (px), soft-L1 at
     ``loss_scale_px``. Returns a WheelFit of contour 1, its covariances as the circle fit
-    states them (Jacobian, residual correlation along the rim, slow edge biases)."""
+    states them (Jacobian, residual correlation along the rim, slow edge biases); None when a
+    view keeps fewer than MIN_VIEW_POINTS points of contour 1 (no 3-D circle rests on it)."""
+    if any(int((lab == 1).sum()) < MIN_VIEW_POINTS for lab in labels):
+        return None
     n0, e1, e2 = axis_basis(init.axis_station)
     used = [(cam, xy[lab > 0], lab[lab > 0], 0.5 * (cam.K[0, 0] + cam.K[1, 1])) for (cam, xy), lab in zip(views, labels)]
     hviews = [(cam, homogeneous(xy), lab, f) for cam, xy, lab, f in used]

@@ -137,10 +137,12 @@ def correlation_factor(r: np.ndarray, max_lag_fraction: float = 0.25) -> float:
     rho_k is the lag-k autocorrelation, summed over the initial positive sequence (Geyer);
     1 for independent residuals, about the correlation length (in points) for smooth errors.
     """
-    r = r - r.mean()
     n = len(r)
+    if n < 8:
+        return 1.0
+    r = r - r.mean()
     c0 = float(r @ r) / n
-    if n < 8 or c0 <= 0:
+    if c0 <= 0:
         return 1.0
     f = np.fft.rfft(r, 2 * n)
     acf = np.fft.irfft(f * np.conj(f))[: int(n * max_lag_fraction)] / (n * c0)

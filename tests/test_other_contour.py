@@ -119,3 +119,21 @@ def test_a_wild_hypothesis_behind_a_camera_explains_nothing_and_does_not_crash()
         return replace(circle, center_station=behind, radius_m=r_wild)
 
     assert other_contour_points(views, circle, wild) is None
+
+
+def test_a_view_left_without_points_on_the_rim_contour_is_no_fit_and_does_not_crash():
+    """On a harsh-light wheel a labelling left one view with no point of contour 1: the fit's
+    noise covariance then divided by zero (a traceback in `station measure`)."""
+    from station.other_contour import fit_two_contours
+    from station.wheel_fit_uncertainty import correlation_factor
+
+    v, c, w, radius, (cp, cr), (pp, pr) = _views(6, inner_arc=False)
+    circle = refine_circle(pp, pr, cp, cr, reconstruct_paper(pp, pr, cp, cr))
+    views = [(cam, cam.pixels_to_normalized(p)) for cam, p in ((cp, pp), (cr, pr))]
+    labels = [np.ones(len(views[0][1]), int), np.full(len(views[1][1]), 2)]
+    assert fit_two_contours(views, labels, circle) is None
+    labels[1][:5] = 1                                       # five points: still no circle on them
+    assert fit_two_contours(views, labels, circle) is None
+    assert correlation_factor(np.zeros(0)) == 1.0
+    labels[1][:] = 1                                        # and the full views are the wheel
+    assert _angle_deg(fit_two_contours(views, labels, circle).axis_station, w) < 0.02
