@@ -216,6 +216,7 @@ SCHEMA = {
         "uncertainty_floor_deg": Field(_number(0, 1), default=0.015),
         "edge_blur_limit_px": Field(_number(0.3, 10), default=1.3),
         "min_rim_axis_px": Field(_number(0, 10000), default=180.0),
+        "white_edge_limit": Field(_number(0, 1), default=0.25),
         "mismatch_limit_px": Field(_number(0.1, 1000), default=5.0),
         "max_wheel_offset_m": Field(_number(0.01, 5), default=0.5),
         "min_rim_radius_m": Field(_number(0.05, 1), default=0.15),

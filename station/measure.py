@@ -267,7 +267,8 @@ def measure_frames(images: dict[str, np.ndarray], cameras: dict[str, CameraModel
     by_cam = {c: d for o in outcomes for c, d in o.detections.items()}
     detections = {c: by_cam[c] for c in images if c in by_cam}
     result = _empty_result(config)
-    result["warnings"] += _soft_focus_warnings(detections, config) + _small_rim_warnings(detections, config)
+    result["warnings"] += (_soft_focus_warnings(detections, config) + _small_rim_warnings(detections, config)
+                           + _white_edge_warnings(detections, config))
     result["warnings"] += [o.note for o in outcomes if o.note]
     result["warning_flags"] += [{"kind": "runner_up", "wheel": o.wheel} for o in outcomes if o.note]
     failures = [(cid, d) for cid, d in detections.items() if isinstance(d, StationError)]
@@ -420,6 +421,23 @@ def _soft_focus_warnings(detections: dict, config: StationConfig) -> list[str]:
     return out
 
 
+def _white_edge_warnings(detections: dict, config: StationConfig) -> list[str]:
+    """A warning per camera whose rim edge reaches the sensor's white on more than
+    ``measurement.white_edge_limit`` of the rim (``details["white_share"]``, station/rim/
+    detector.py): a cut-off edge profile puts the edge toward the tyre, by half a pixel where
+    the metal would be twice the white (simulated station, exposure 1.5x too long: toe 0.038
+    deg RMS instead of 0.026; 2x: 0.072)."""
+    limit = config.measurement.white_edge_limit
+    out = []
+    for cid, d in detections.items():
+        share = None if isinstance(d, StationError) else d.details.get("white_share")
+        if share is not None and share > limit:
+            out.append(f"{config.cameras[cid].wheel} {cid}: the rim edge reaches the sensor's white on {share:.0%} "
+                       f"of the rim (limit {limit:.0%}): shorten {cid}'s exposure or lower its gain; "
+                       f"its toe and camber are less accurate until then")
+    return out
+
+
 def _detection_summary(detections: dict) -> dict:
     out = {}
     for cid, d in detections.items():
@@ -429,7 +447,8 @@ def _detection_summary(detections: dict) -> dict:
             e = d.ellipse
             out[cid] = {"ok": True, "center_px": np.asarray(e.center_px).tolist(),
                         "axes_px": np.asarray(e.axes_px).tolist(), "angle_deg": float(np.degrees(e.angle_rad)),
-                        "score": float(d.score), "points": int(len(d.points_px))}
+                        "score": float(d.score), "points": int(len(d.points_px)),
+                        "white_share": float(d.details.get("white_share", 0.0))}
     return out
 
 

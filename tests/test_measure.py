@@ -288,6 +288,18 @@ def test_a_camera_out_of_focus_warns_and_is_named(sim):
     assert abs(result["wheels"]["RL"]["toe_error_deg"]) < 0.4  # still measured
 
 
+def test_a_camera_whose_rim_reaches_the_white_warns_and_is_named(sim):
+    cfg, world, scene, images = sim
+    plain = measure_frames(images, world.cameras, cfg)
+    assert not any("sensor's white" in w for w in plain["warnings"]), plain["warnings"]
+    assert plain["detections"]["cam6"]["white_share"] < cfg.measurement.white_edge_limit
+    bright = dict(images, cam6=np.clip(images["cam6"].astype(np.float64) * 2.5, 0, 255).astype(np.uint8))
+    result = measure_frames(bright, world.cameras, cfg)
+    white = [w for w in result["warnings"] if "sensor's white" in w]
+    assert len(white) == 1 and white[0].startswith("RL cam6: ") and "shorten cam6's exposure" in white[0], white
+    assert result["detections"]["cam6"]["white_share"] > 0.5
+
+
 @pytest.mark.slow
 def test_a_circle_fit_that_ran_off_its_points_starts_again_from_the_image_ellipses(sim, monkeypatch):
     import dataclasses

@@ -244,3 +244,24 @@ def test_a_sharp_image_keeps_its_full_resolution_fit_within_noise():
     img, truth = render_wheel(WheelSpec(clutter=4), seed=8)
     det = detect_rim(img)
     assert det.details.get("working_scale") is None  # 1280 px: the search scale is 3, no second try
+
+
+def test_the_share_of_the_rim_at_the_sensors_white_is_measured():
+    from dataclasses import replace
+
+    from station.rim.detector import white_share
+
+    spec = random_spec(np.random.default_rng(12))
+    img, truth = render_wheel(replace(spec, glare=False), seed=12)
+    assert detect_rim(img).details["white_share"] == 0.0
+    # the metal over twice the white: every rim point has a white pixel beside it
+    img, truth = render_wheel(replace(spec, rim_level=2.2 * spec.rim_level, face_level=2.2 * spec.face_level,
+                                      glare=False), seed=12)
+    det = detect_rim(img)
+    assert det.details["white_share"] > 0.9 and det.to_dict()["white_share"] > 0.9
+    # one white pixel: the points within 2 px of it
+    grey = np.zeros((50, 50), np.float32)
+    grey[20, 30] = 255
+    pts = np.array([[30.0, 20.0], [32.4, 21.6], [33.0, 20.0], [10.0, 10.0]])
+    assert white_share(grey, pts) == pytest.approx(0.5)
+    assert white_share(grey, pts[:0]) == 0.0

@@ -110,6 +110,10 @@ def run(args) -> int:
           f"rms {det.point_sigma_px:.3f} px, coverage {det.coverage:.0%}")
     print(f"  edge blur     {det.details.get('blur_px', float('nan')):9.2f} px (Gaussian sigma of the rim edge)")
     print(f"  grey response {gamma:9.2f}      (grey = light^{gamma:.2f}, undone; --response-gamma to change)")
+    white = det.details.get("white_share", 0.0)
+    if white > 0:
+        print(f"  at the white  {white:9.0%}      of the rim edge reaches the sensor's white: the edge found lies "
+              f"toward the tyre there; shorten the exposure")
     print(f"  time          {sum(det.timing_s.values()) * 1e3:9.1f} ms")
     if args.json:
         doc = {"image": str(args.image), "width": int(image.shape[1]), "height": int(image.shape[0]), **det.to_dict()}
