@@ -25,3 +25,16 @@ def small_station_config(tmp_path: Path, scale: float = 0.5, **overrides):
     path = tmp_path / "station.yaml"
     path.write_text(yaml.safe_dump(data))
     return load_config(path)
+
+
+def rendered_small_station(tmp_path: Path, seed: int = 3):
+    """(config, SimWorld, scene, {camera: image}): vehicle ``seed`` on the small station, rendered."""
+    import numpy as np
+
+    from simulators.world import SimWorld
+
+    cfg = small_station_config(tmp_path)
+    world = SimWorld.from_config(cfg)
+    scene = world.vehicle_scene(seed)
+    world.set_scene(scene)
+    return cfg, world, scene, world.render_all(np.random.default_rng(seed))

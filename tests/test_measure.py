@@ -8,19 +8,12 @@ import numpy as np
 import pytest
 
 from station.measure import add_truth, measure_frames
-from tests.station_fixtures import small_station_config
+from tests.station_fixtures import rendered_small_station, small_station_config
 
 
 @pytest.fixture(scope="module")
 def sim(tmp_path_factory):
-    from simulators.world import SimWorld
-
-    cfg = small_station_config(tmp_path_factory.mktemp("station"))
-    world = SimWorld.from_config(cfg)
-    scene = world.vehicle_scene(3)
-    world.set_scene(scene)
-    images = world.render_all(np.random.default_rng(3))
-    return cfg, world, scene, images
+    return rendered_small_station(tmp_path_factory.mktemp("station"), seed=3)
 
 
 @pytest.mark.slow
@@ -89,7 +82,9 @@ def test_a_knocked_camera_is_reported_as_calibration_drift(sim):
 def test_a_rim_seen_on_part_of_its_perimeter_is_measured_and_its_unchecked_pair_named(sim, monkeypatch):
     """One 3-D circle fits both views, but the epipolar tangents of a rim seen on part of its
     perimeter are extrapolated (9 px): the wheel is measured, with a warning that this cycle
-    could not check the pair's calibration. Were the circle not to fit one view, it is refused."""
+    could not check the pair's calibration. Were the circle not to fit one view, it is refused.
+    Where both cameras see most of the rim, nothing is extrapolated: the same residual is a
+    camera moved since calibration (drift)."""
     from dataclasses import replace
 
     import station.measure as measure
@@ -97,18 +92,28 @@ def test_a_rim_seen_on_part_of_its_perimeter_is_measured_and_its_unchecked_pair_
 
     cfg, world, scene, images = sim
     fit = measure.refine_circle
+    detect = measure.detect_one
 
     def extrapolated(pl, pr, cl, cr, init, **kw):
         c = fit(pl, pr, cl, cr, init, **kw)
         return replace(c, epipolar_rms_px=9.0) if cl.name == "cam5" else c
 
+    def partly_seen(image, camera, cam_id):
+        d = detect(image, camera, cam_id)
+        return replace(d, coverage=0.6) if cam_id == "cam6" else d
+
     monkeypatch.setattr(measure, "refine_circle", extrapolated)
+    monkeypatch.setattr(measure, "detect_one", partly_seen)
     result = measure_frames(images, world.cameras, cfg)
     assert result["valid"], result["failure"]
     note = [w for w in result["warnings"] if w.startswith("pair RL")]
     assert len(note) == 1 and "too little to check the pair's calibration" in note[0], result["warnings"]
     assert {"kind": "unchecked", "wheel": "RL"} in result["warning_flags"]
     assert not any("may have moved" in w for w in result["warnings"])
+    monkeypatch.setattr(measure, "detect_one", detect)
+    seen = measure_frames(images, world.cameras, cfg)
+    assert {"kind": "drift", "wheel": "RL"} in seen["warning_flags"], seen["warnings"]
+    assert any(w.startswith("pair RL") and "whole cycle as suspect" in w for w in seen["warnings"])
     o = result["_observations"]["RL"]
     wrong = replace(o, circle=replace(o.circle, view_median_px=(o.circle.view_median_px[0], 3.0)))
     with pytest.raises(MeasurementError, match="did not find the same rim"):
