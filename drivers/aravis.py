@@ -100,6 +100,42 @@ def gvcp_ping(address: str, timeout_s: float = 0.3) -> bool:
     return len(reply) >= 8 and struct.unpack(">H", reply[2:4])[0] == 0x0081
 
 
+# GenICam features that bend a camera's grey levels, and their linear setting (SFNC names).
+LINEAR_RESPONSE = (("LUTEnable", False), ("GammaEnable", False), ("Gamma", 1.0))
+
+
+def make_linear(cam, camera_id: str, address: str) -> list[str]:
+    """Switch off what makes the camera's grey levels other than proportional to light, where
+    the camera has it (``LINEAR_RESPONSE``); returns the features changed. The rim edge model
+    assumes linear grey: an sRGB-like gamma (0.45) put wheels 0.17 deg off, unwarned
+    (bench/perturbed_images.py). A camera that offers such a feature but refuses the linear
+    value raises DriverError: make it linear by its own tool, or state its exponent
+    (``response_gamma``), and the station decodes its images. ``cam``: an ArvCamera."""
+    changed = []
+    for name, linear in LINEAR_RESPONSE:
+        if not cam.is_feature_available(name):
+            continue
+        if name == "Gamma" and cam.is_feature_available("GammaEnable") and not cam.get_boolean("GammaEnable"):
+            continue  # switched off: its value no longer applies (and may be locked)
+        get, put = (cam.get_boolean, cam.set_boolean) if isinstance(linear, bool) else (cam.get_float, cam.set_float)
+        try:
+            if np.isclose(get(name), linear):
+                continue
+            put(name, linear)
+            ok = bool(np.isclose(get(name), linear))
+        except Exception:  # GLib.Error: a read-only or locked feature
+            ok = False
+        if not ok:
+            raise DriverError(f"{camera_id}: the camera at {address} does not let {name} be set to {linear} "
+                              f"(its grey levels are then not proportional to light)",
+                              hint=f"make the camera linear with its own tool, or set cameras.{camera_id}."
+                                   f"response_gamma to the exponent it applies (docs/configuration.md)")
+        changed.append(name)
+    if changed:
+        log.info("%s: %s set for a linear grey response", camera_id, ", ".join(changed))
+    return changed
+
+
 def _dispose(handles: list) -> None:
     """Stop and drop [camera, stream] of a dead camera (runs in a background thread)."""
     cam = handles[0]
@@ -232,6 +268,8 @@ class AravisCamera(Camera):
                 if cam.is_gain_available():
                     self._set_bounded("gain", cam.get_gain_bounds(), s.gain_db, cam.set_gain, "dB")
                 self._set_trigger(s.trigger)
+                if s.response_gamma == 1.0:
+                    make_linear(cam, self.camera_id, self.address)
                 self._payload = cam.get_payload()
             except GLib.Error as e:
                 raise DriverError(f"{self.camera_id}: configuring {self.address} failed: {e.message}") from None

@@ -36,6 +36,7 @@ class CameraSettings:
     gain_db: float = 0.0
     trigger: str = "software"
     roi: tuple[int, int, int, int] | None = None  # x, y, w, h; None = full sensor
+    response_gamma: float = 1.0  # what the station expects: 1 = linear grey (the driver switches gamma and LUT off)
 
 
 @dataclass(frozen=True)

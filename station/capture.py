@@ -102,7 +102,7 @@ def settings_for(cam_cfg) -> CameraSettings:
     """CameraSettings from a station.config.CameraConfig."""
     return CameraSettings(width=cam_cfg.width, height=cam_cfg.height, pixel_format=cam_cfg.pixel_format,
                           exposure_us=float(cam_cfg.exposure_us), gain_db=float(cam_cfg.gain_db),
-                          trigger=cam_cfg.trigger)
+                          trigger=cam_cfg.trigger, response_gamma=float(cam_cfg.response_gamma))
 
 
 def check_unique_addresses(uris: dict[str, str]) -> None:
