@@ -271,8 +271,11 @@ def measure_frames(images: dict[str, np.ndarray], cameras: dict[str, CameraModel
     by_cam = {c: d for o in outcomes for c, d in o.detections.items()}
     detections = {c: by_cam[c] for c in images if c in by_cam}
     result = _empty_result(config)
-    result["warnings"] += (_soft_focus_warnings(detections, config) + _small_rim_warnings(detections, config)
-                           + _white_edge_warnings(detections, config))
+    for kind, warn in (("focus", _soft_focus_warnings), ("small_rim", _small_rim_warnings),
+                       ("exposure", _white_edge_warnings)):
+        for cid, text in warn(detections, config):
+            result["warnings"].append(text)
+            result["warning_flags"].append({"kind": kind, "wheel": config.cameras[cid].wheel, "camera": cid})
     result["warnings"] += [o.note for o in outcomes if o.note]
     result["warning_flags"] += [{"kind": "runner_up", "wheel": o.wheel} for o in outcomes if o.note]
     failures = [(cid, d) for cid, d in detections.items() if isinstance(d, StationError)]
@@ -396,7 +399,7 @@ def _finite_cov(c: np.ndarray, fallback_var: float) -> np.ndarray:
     return c if np.all(np.isfinite(c)) else np.eye(3) * fallback_var
 
 
-def _small_rim_warnings(detections: dict, config: StationConfig) -> list[str]:
+def _small_rim_warnings(detections: dict, config: StationConfig) -> list[tuple[str, str]]:
     """A warning per camera whose rim ellipse is smaller than ``measurement.min_rim_axis_px``
     (semi-major axis, px). The edge model's windows are in pixels, made for a flange a few
     pixels wide: on the simulator, rims of 125-175 px (640x512 cameras) gave toe errors of
@@ -405,13 +408,14 @@ def _small_rim_warnings(detections: dict, config: StationConfig) -> list[str]:
     out = []
     for cid, d in detections.items():
         if not isinstance(d, StationError) and d.ellipse.axes_px[0] < limit:
-            out.append(f"{config.cameras[cid].wheel} {cid}: the rim spans only {d.ellipse.axes_px[0]:.0f} px "
-                       f"(semi-major axis; limit {limit:.0f} px, 250 or more measure best): its toe and camber are "
-                       f"less accurate; use a longer lens or a higher resolution, or bring {cid} closer to the wheel")
+            out.append((cid, f"{config.cameras[cid].wheel} {cid}: the rim spans only {d.ellipse.axes_px[0]:.0f} px "
+                             f"(semi-major axis; limit {limit:.0f} px, 250 or more measure best): its toe and camber "
+                             f"are less accurate; use a longer lens or a higher resolution, or bring {cid} closer "
+                             f"to the wheel"))
     return out
 
 
-def _soft_focus_warnings(detections: dict, config: StationConfig) -> list[str]:
+def _soft_focus_warnings(detections: dict, config: StationConfig) -> list[tuple[str, str]]:
     """A warning per camera whose rim edge is blurred beyond ``measurement.edge_blur_limit_px``
     (the detector's estimate, ``details["blur_px"]``): a lens out of focus or a moving wheel.
     The detector copes (its windows grow with the blur), but such a station measured on the
@@ -421,13 +425,13 @@ def _soft_focus_warnings(detections: dict, config: StationConfig) -> list[str]:
     for cid, d in detections.items():
         blur = None if isinstance(d, StationError) else d.details.get("blur_px")
         if blur is not None and blur > limit:
-            out.append(f"{config.cameras[cid].wheel} {cid}: the rim edge is blurred over {blur:.1f} px (limit {limit} px; "
-                       f"a focused camera gives about 1): refocus {cid}'s lens and check that the car stood still; "
-                       f"its toe and camber are less accurate until then")
+            out.append((cid, f"{config.cameras[cid].wheel} {cid}: the rim edge is blurred over {blur:.1f} px "
+                             f"(limit {limit} px; a focused camera gives about 1): refocus {cid}'s lens and check "
+                             f"that the car stood still; its toe and camber are less accurate until then"))
     return out
 
 
-def _white_edge_warnings(detections: dict, config: StationConfig) -> list[str]:
+def _white_edge_warnings(detections: dict, config: StationConfig) -> list[tuple[str, str]]:
     """A warning per camera whose rim edge reaches the sensor's white on more than
     ``measurement.white_edge_limit`` of the rim (``details["white_share"]``, station/rim/
     detector.py): a cut-off edge profile puts the edge toward the tyre, by half a pixel where
@@ -438,9 +442,9 @@ def _white_edge_warnings(detections: dict, config: StationConfig) -> list[str]:
     for cid, d in detections.items():
         share = None if isinstance(d, StationError) else d.details.get("white_share")
         if share is not None and share > limit:
-            out.append(f"{config.cameras[cid].wheel} {cid}: the rim edge reaches the sensor's white on {share:.0%} "
-                       f"of the rim (limit {limit:.0%}): shorten {cid}'s exposure or lower its gain; "
-                       f"its toe and camber are less accurate until then")
+            out.append((cid, f"{config.cameras[cid].wheel} {cid}: the rim edge reaches the sensor's white on "
+                             f"{share:.0%} of the rim (limit {limit:.0%}): shorten {cid}'s exposure or lower its "
+                             f"gain; its toe and camber are less accurate until then"))
     return out
 
 

@@ -11,7 +11,8 @@ from station.plc import register_map as rm
 from station.plc.handshake import (PLC_EVENTS, REFUSALS, TRANSITIONS, Event, PlcBusy, PlcNotAcknowledged,
                                    PlcNothingToAcknowledge, PlcUnknownCommand, State, event_for_command,
                                    markdown_table, next_state)
-from station.plc.results import result_angles, result_registers, result_verdicts, result_warning_bits
+from station.plc.results import (result_angles, result_registers, result_station_warning_bits, result_verdicts,
+                                 result_warning_bits)
 from station.plc.runner import CycleRequest, job_number, synthetic_result
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -159,11 +160,21 @@ def test_warning_bits_name_the_kind_and_the_wheel():
     result["warning_flags"] = [{"kind": "uncertain", "wheel": "RL"}, {"kind": "unchecked", "wheel": "RR"},
                                {"kind": "drift", "wheel": "FL"}, {"kind": "no such kind", "wheel": "FL"}]
     bits = result_warning_bits(result)
-    assert bits == (1 << 2) | (1 << 11) | (1 << 4) | (1 << rm.ANY_WARNING_BIT)
+    assert bits == (1 << 2) | (1 << 11) | (1 << 4)
     regs = result_registers(result, "JOB-000004")
     assert regs[rm.FIELDS["warning_bits"].address] == [bits]
-    result["warning_flags"] = []                          # a warning text alone still sets bit 15
-    assert result_warning_bits(result) == 1 << rm.ANY_WARNING_BIT
+    assert regs[rm.FIELDS["station_warning_bits"].address] == [1 << rm.ANY_WARNING_BIT]
+    # RR's runner-up is bit 15, and nothing else is (map version 2 also meant "any warning" there)
+    result["warning_flags"] = [{"kind": "runner_up", "wheel": "RR"}]
+    assert result_warning_bits(result) == 1 << 15
+    result["warning_flags"] = []                          # a warning text alone: "any warning" only
+    assert result_warning_bits(result) == 0 and result_station_warning_bits(result) == 1 << rm.ANY_WARNING_BIT
+    result["warning_flags"] = [{"kind": "exposure", "wheel": "RL", "camera": "cam6"},
+                               {"kind": "small_rim", "wheel": "FR", "camera": "cam2"}]
+    assert result_warning_bits(result) == 0
+    assert result_station_warning_bits(result) == (1 << rm.ANY_WARNING_BIT) | (1 << 1) | (1 << 3)
+    result["warnings"], result["warning_flags"] = [], []
+    assert result_station_warning_bits(result) == 0
 
 
 def test_verdicts_without_spec_are_unjudged_and_wheel_pass_is_read():

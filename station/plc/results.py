@@ -65,14 +65,21 @@ def result_verdicts(result: dict) -> tuple[int, int]:
 
 
 def result_warning_bits(result: dict) -> int:
-    """warning_bits (register_map.WARNING_KINDS) from the result's ``warning_flags``; bit 15 is
-    also set by any warning text without a flag."""
+    """warning_bits (register_map.WARNING_KINDS, per wheel) from the result's ``warning_flags``."""
     first = dict((kind, bit) for bit, kind in rm.WARNING_KINDS)
     bits = 0
     for flag in result.get("warning_flags") or []:
         if isinstance(flag, dict) and flag.get("kind") in first and flag.get("wheel") in rm.WARNING_WHEELS:
             bits |= 1 << (first[flag["kind"]] + rm.WARNING_WHEELS.index(flag["wheel"]))
-    if bits or result.get("warnings"):
+    return bits
+
+
+def result_station_warning_bits(result: dict) -> int:
+    """station_warning_bits: ANY_WARNING_BIT for any warning (text or flag), and the bit of each
+    kind of camera warning (register_map.CAMERA_WARNING_KINDS) among the ``warning_flags``."""
+    kinds = {flag.get("kind") for flag in result.get("warning_flags") or [] if isinstance(flag, dict)}
+    bits = sum(1 << bit for bit, kind in rm.CAMERA_WARNING_KINDS if kind in kinds)
+    if bits or kinds or result.get("warnings"):
         bits |= 1 << rm.ANY_WARNING_BIT
     return bits
 
@@ -89,6 +96,7 @@ def result_registers(result: dict, job_id: str | None, angles_required: bool = T
     out[rm.FIELDS["pass_bits"].address] = [passed]
     out[rm.FIELDS["judged_bits"].address] = [judged]
     out[rm.FIELDS["warning_bits"].address] = [result_warning_bits(result)]
+    out[rm.FIELDS["station_warning_bits"].address] = [result_station_warning_bits(result)]
     f = rm.FIELDS["result_job_id"]
     out[f.address] = rm.ascii_to_regs(job_id, f.count)
     return out
@@ -104,5 +112,6 @@ def cleared_registers() -> dict[int, list[int]]:
     out[rm.FIELDS["pass_bits"].address] = [0]
     out[rm.FIELDS["judged_bits"].address] = [0]
     out[rm.FIELDS["warning_bits"].address] = [0]
+    out[rm.FIELDS["station_warning_bits"].address] = [0]
     out[rm.FIELDS["result_job_id"].address] = [0] * rm.FIELDS["result_job_id"].count
     return out
