@@ -119,8 +119,13 @@ def make_linear(cam, camera_id: str, address: str) -> list[str]:
             continue  # switched off: its value no longer applies (and may be locked)
         get, put = (cam.get_boolean, cam.set_boolean) if isinstance(linear, bool) else (cam.get_float, cam.set_float)
         try:
-            if np.isclose(get(name), linear):
-                continue
+            value = get(name)
+        except Exception as e:  # GLib.Error: a node of another type, or not readable: nothing known to undo
+            log.warning("%s: cannot read %s (%s); its grey response is assumed linear", camera_id, name, e)
+            continue
+        if np.isclose(value, linear):
+            continue
+        try:
             put(name, linear)
             ok = bool(np.isclose(get(name), linear))
         except Exception:  # GLib.Error: a read-only or locked feature

@@ -12,13 +12,15 @@ from station.errors import DriverError
 class _Cam:
     """The few ArvCamera calls make_linear uses, on a dict of features; ``locked`` refuse writes."""
 
-    def __init__(self, features: dict, locked=()):
-        self.features, self.locked = dict(features), set(locked)
+    def __init__(self, features: dict, locked=(), unreadable=()):
+        self.features, self.locked, self.unreadable = dict(features), set(locked), set(unreadable)
 
     def is_feature_available(self, name):
         return name in self.features
 
     def get_boolean(self, name):
+        if name in self.unreadable:
+            raise RuntimeError(f"{name} is an integer node")  # GLib.Error in Aravis
         return self.features[name]
 
     get_float = get_boolean
@@ -42,6 +44,8 @@ def test_gamma_and_lut_are_switched_off():
 def test_a_linear_camera_or_one_without_the_features_is_left_alone():
     assert make_linear(_Cam({"ExposureTime": 8000.0}), "cam3", "192.0.2.3") == []
     assert make_linear(_Cam({"Gamma": 1.0, "LUTEnable": False}), "cam3", "192.0.2.3") == []
+    # unreadable (a node of another type): nothing known to undo, nothing refused
+    assert make_linear(_Cam({"Gamma": 45}, unreadable={"Gamma"}), "cam3", "192.0.2.3") == []
     # switched off, its locked exponent does not apply
     assert make_linear(_Cam({"GammaEnable": False, "Gamma": 0.45}, locked={"Gamma"}), "cam3", "192.0.2.3") == []
 
