@@ -399,20 +399,21 @@ def _finite_cov(c: np.ndarray, fallback_var: float) -> np.ndarray:
     return c if np.all(np.isfinite(c)) else np.eye(3) * fallback_var
 
 
+def _detections_where(detections: dict, test) -> list[tuple[str, object]]:
+    """[(camera id, RimDetection)] of the cameras whose detection (not an error) passes ``test``."""
+    return [(cid, d) for cid, d in detections.items() if not isinstance(d, StationError) and test(d)]
+
+
 def _small_rim_warnings(detections: dict, config: StationConfig) -> list[tuple[str, str]]:
     """A warning per camera whose rim ellipse is smaller than ``measurement.min_rim_axis_px``
     (semi-major axis, px). The edge model's windows are in pixels, made for a flange a few
     pixels wide: on the simulator, rims of 125-175 px (640x512 cameras) gave toe errors of
     0.78 deg RMS, rims of 190-260 px 0.08, of 250-350 px 0.03-0.04 (docs/rim-detection.md)."""
     limit = config.measurement.min_rim_axis_px
-    out = []
-    for cid, d in detections.items():
-        if not isinstance(d, StationError) and d.ellipse.axes_px[0] < limit:
-            out.append((cid, f"{config.cameras[cid].wheel} {cid}: the rim spans only {d.ellipse.axes_px[0]:.0f} px "
-                             f"(semi-major axis; limit {limit:.0f} px, 250 or more measure best): its toe and camber "
-                             f"are less accurate; use a longer lens or a higher resolution, or bring {cid} closer "
-                             f"to the wheel"))
-    return out
+    return [(cid, f"{config.cameras[cid].wheel} {cid}: the rim spans only {d.ellipse.axes_px[0]:.0f} px "
+                  f"(semi-major axis; limit {limit:.0f} px, 250 or more measure best): its toe and camber are "
+                  f"less accurate; use a longer lens or a higher resolution, or bring {cid} closer to the wheel")
+            for cid, d in _detections_where(detections, lambda d: d.ellipse.axes_px[0] < limit)]
 
 
 def _soft_focus_warnings(detections: dict, config: StationConfig) -> list[tuple[str, str]]:
@@ -421,14 +422,10 @@ def _soft_focus_warnings(detections: dict, config: StationConfig) -> list[tuple[
     The detector copes (its windows grow with the blur), but such a station measured on the
     simulator is several times less accurate (docs/accuracy.md, soft-focus)."""
     limit = config.measurement.edge_blur_limit_px
-    out = []
-    for cid, d in detections.items():
-        blur = None if isinstance(d, StationError) else d.details.get("blur_px")
-        if blur is not None and blur > limit:
-            out.append((cid, f"{config.cameras[cid].wheel} {cid}: the rim edge is blurred over {blur:.1f} px "
-                             f"(limit {limit} px; a focused camera gives about 1): refocus {cid}'s lens and check "
-                             f"that the car stood still; its toe and camber are less accurate until then"))
-    return out
+    return [(cid, f"{config.cameras[cid].wheel} {cid}: the rim edge is blurred over {d.details['blur_px']:.1f} px "
+                  f"(limit {limit} px; a focused camera gives about 1): refocus {cid}'s lens and check that the "
+                  f"car stood still; its toe and camber are less accurate until then")
+            for cid, d in _detections_where(detections, lambda d: (d.details.get("blur_px") or 0.0) > limit)]
 
 
 def _white_edge_warnings(detections: dict, config: StationConfig) -> list[tuple[str, str]]:
@@ -438,14 +435,10 @@ def _white_edge_warnings(detections: dict, config: StationConfig) -> list[tuple[
     the metal would be twice the white (simulated station, exposure 1.5x too long: toe 0.038
     deg RMS instead of 0.026; 2x: 0.072)."""
     limit = config.measurement.white_edge_limit
-    out = []
-    for cid, d in detections.items():
-        share = None if isinstance(d, StationError) else d.details.get("white_share")
-        if share is not None and share > limit:
-            out.append((cid, f"{config.cameras[cid].wheel} {cid}: the rim edge reaches the sensor's white on "
-                             f"{share:.0%} of the rim (limit {limit:.0%}): shorten {cid}'s exposure or lower its "
-                             f"gain; its toe and camber are less accurate until then"))
-    return out
+    return [(cid, f"{config.cameras[cid].wheel} {cid}: the rim edge reaches the sensor's white on "
+                  f"{d.details['white_share']:.0%} of the rim (limit {limit:.0%}): shorten {cid}'s exposure or "
+                  f"lower its gain; its toe and camber are less accurate until then")
+            for cid, d in _detections_where(detections, lambda d: d.details.get("white_share", 0.0) > limit)]
 
 
 def _detection_summary(detections: dict) -> dict:
