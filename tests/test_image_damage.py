@@ -7,6 +7,7 @@ import pytest
 from simulators.image_damage import KINDS, damage
 from station.config import WHEELS
 from station.measure import measure_frames
+from station.plc.results import result_station_warning_bits
 from tests.station_fixtures import rendered_small_station
 
 
@@ -30,6 +31,11 @@ def test_a_damaged_image_is_measured_or_refused_never_a_traceback(sim, kind):
         assert np.isfinite(result["wheels"][w]["toe_deg"]) and np.isfinite(result["wheels"][w]["camber_deg"])
     if kind == "over-exposed":
         assert any(x.startswith("RL cam6: ") and "sensor's white" in x for x in result["warnings"]), result["warnings"]
+        assert {"kind": "exposure", "wheel": "RL", "camera": "cam6"} in result["warning_flags"]
+        assert result_station_warning_bits(result) & (1 << 1)  # the PLC's "a camera at the white"
+    if kind == "soft-focus":
+        assert {"kind": "focus", "wheel": "RL", "camera": "cam6"} in result["warning_flags"], result["warnings"]
+        assert result_station_warning_bits(result) & (1 << 2)
     if kind == "knocked":  # the pair cannot agree: a drift warning for RL (or a refusal, above)
         assert {"kind": "drift", "wheel": "RL"} in result["warning_flags"], result["warnings"]
 
