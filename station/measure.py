@@ -431,7 +431,7 @@ def _soft_focus_warnings(detections: dict, config: StationConfig) -> list[tuple[
 def _white_edge_warnings(detections: dict, config: StationConfig) -> list[tuple[str, str]]:
     """A warning per camera whose rim edge reaches the sensor's white on more than
     ``measurement.white_edge_limit`` of the rim (``details["white_share"]``, station/rim/
-    detector.py): a cut-off edge profile puts the edge toward the tyre, by half a pixel where
+    white_edge.py): a cut-off edge profile puts the edge toward the tyre, by half a pixel where
     the metal would be twice the white (simulated station, exposure 1.5x too long: toe 0.038
     deg RMS instead of 0.026; 2x: 0.072)."""
     limit = config.measurement.white_edge_limit

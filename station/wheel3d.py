@@ -21,7 +21,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from calibration.camera_model import CameraModel
-from calibration.triangulation import homogeneous, triangulate_paper
+from calibration.triangulation import homogeneous, triangulate_paper, triangulate_paper_full
 from station.blas_threads import single_thread_blas
 from station.epipolar import (epipolar_tangency_px, fit_conic, pair_relation, pair_tangency, pencil_basis,
                               tangent_point_gaps_deg)
@@ -164,15 +164,11 @@ def circle_from_ellipses(cam_l: CameraModel, cam_r: CameraModel, ellipse_l, elli
     on the simulated station, a start for the circle fit, not a measurement. But it holds
     whatever part of the rim the cameras see, where the paper's centroid of the triangulated
     points lies toward the seen part (0.1-0.16 m off for half a rim)."""
-    o, d = [], []
-    for cam, e in ((cam_l, ellipse_l), (cam_r, ellipse_r)):
-        ray = np.linalg.solve(cam.K, [e.center_px[0], e.center_px[1], 1.0]) @ cam.R_cam_station
-        o.append(cam.center_station)
-        d.append(ray / np.linalg.norm(ray))
-    # o_l + s d_l and o_r + u d_r closest: the 2x2 normal equations of the two ray parameters
-    A = np.array([[d[0] @ d[0], -d[0] @ d[1]], [d[0] @ d[1], -d[1] @ d[1]]])
-    s, u = np.linalg.solve(A, [(o[1] - o[0]) @ d[0], (o[1] - o[0]) @ d[1]])
-    centre = 0.5 * (o[0] + s * d[0] + o[1] + u * d[1])
+    R, t = pair_relation(cam_l, cam_r)
+    rays = [np.linalg.solve(cam.K, [e.center_px[0], e.center_px[1], 1.0]) for cam, e in
+            ((cam_l, ellipse_l), (cam_r, ellipse_r))]              # homogeneous normalised centres
+    mid_l = triangulate_paper_full(rays[0][None], rays[1][None], R, t).midpoint_l[0]  # left camera frame
+    centre = (mid_l - cam_l.t_cam_station) @ cam_l.R_cam_station
     depth = [(cam.R_cam_station @ centre + cam.t_cam_station)[2] for cam in (cam_l, cam_r)]
     radius = np.mean([e.axes_px[0] * z / (0.5 * (cam.K[0, 0] + cam.K[1, 1]))
                       for cam, e, z in ((cam_l, ellipse_l, depth[0]), (cam_r, ellipse_r, depth[1]))])

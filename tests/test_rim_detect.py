@@ -249,7 +249,7 @@ def test_a_sharp_image_keeps_its_full_resolution_fit_within_noise():
 def test_the_share_of_the_rim_at_the_sensors_white_is_measured():
     from dataclasses import replace
 
-    from station.rim.detector import white_share
+    from station.rim.white_edge import white_share
 
     spec = random_spec(np.random.default_rng(12))
     img, truth = render_wheel(replace(spec, glare=False), seed=12)

@@ -31,6 +31,7 @@ from station.rim.ellipse import Ellipse
 from station.rim.ellipse_fit import fit_direct, fit_geometric, ransac_ellipse
 from station.rim.preprocess import PixelMap, detection_scale, downscale, equalize, to_grey
 from station.rim.subpixel import edge_points, window_scale
+from station.rim.white_edge import white_share
 from station.wheel_arcs import sector_medians
 
 MIN_COVERAGE = 0.5         # below: "no closed rim contour" (choosing the candidate)
@@ -404,32 +405,6 @@ def detect_rim(image: np.ndarray, *, camera=None, prior: Ellipse | None = None, 
             return _finer_of(grey, best.ellipse, sc.s, (fit, samples, mask), info, clock, camera_id)
     info["blur_px"] = blur
     return _with_white_share(_result(fit, samples, mask, info, clock, camera, pmap, camera_id), grey)
-
-
-WHITE_GREY = 254.5   # grey (of 0..255, also for 16-bit input) at which the sensor is at its white
-WHITE_RADIUS_PX = 2  # a rim point with a white pixel this near has its edge profile cut off
-
-
-def white_share(grey: np.ndarray, points_px: np.ndarray, radius: int = WHITE_RADIUS_PX) -> float:
-    """Share of the rim points (N,2) with a pixel at the sensor's white within ``radius`` px in x and y.
-
-    A bright rim driven to the white (a long exposure, a polished lip under a lamp) has its
-    edge profile cut off at the top: the blurred step's 50 % level then lies toward the dark
-    tyre, by half a pixel where the metal would be twice the white. On the simulated station
-    an exposure 1.5x (2x) too long made toe 0.038 (0.072) deg RMS instead of 0.026. A fit of
-    the samples under the white alone was tried and not kept (docs/rim-detection.md)."""
-    if len(points_px) == 0:
-        return 0.0
-    h, w = grey.shape
-    p = np.round(points_px).astype(int)
-    lo = np.clip(p.min(axis=0) - radius, 0, [w - 1, h - 1])
-    hi = np.clip(p.max(axis=0) + radius + 1, 1, [w, h])
-    if not (grey[lo[1]:hi[1], lo[0]:hi[0]] >= WHITE_GREY).any():  # the usual case: nothing at the white
-        return 0.0
-    d = np.arange(-radius, radius + 1)
-    x = np.clip(p[:, 0, None, None] + d[None, None, :], 0, w - 1)    # (N,1,K)
-    y = np.clip(p[:, 1, None, None] + d[None, :, None], 0, h - 1)    # (N,K,1)
-    return float(np.mean((grey[y, x] >= WHITE_GREY).any(axis=(1, 2))))
 
 
 def _with_white_share(det: RimDetection, grey: np.ndarray) -> RimDetection:

@@ -242,7 +242,7 @@ def find_candidates(edges: EdgeSet, r_min: float, r_max: float, max_centres: int
         sizes = size_peaks(edges, c, M, r_min, r_max)
         for a in sizes:
             e0 = Ellipse(c, (a, a * q), theta)
-            wide = max(3.0, 0.05 * a)
+            wide = max(3.0, 0.05 * a)  # the band: 5 % of the size, at least 3 px
             # a band reaching the next concentric size takes in its contour too (a narrow lip's
             # flange edge and inner edge lie 5 coarse px apart): then also one reaching halfway
             gap = min([abs(a - o) for o in sizes if o != a], default=np.inf)
@@ -254,12 +254,11 @@ def find_candidates(edges: EdgeSet, r_min: float, r_max: float, max_centres: int
     return _dedupe(out)[:max_candidates]
 
 
-def _refine(e0: Ellipse, edges: EdgeSet, height: float, band_px: float | None = None) -> Candidate | None:
-    """Fit a voted ellipse to its own polarity-consistent edge pixels within ``band_px`` of it
-    (default 5 % of its size, at least 3 px): consensus (RANSAC) on that band first, so that two
-    concentric contours (flange edge, lip's inner edge) are not merged into a compromise, then
-    an algebraic fit of the consensus set."""
-    idx = polarity_inliers(e0, edges, max(3.0, 0.05 * e0.axes_px[0]) if band_px is None else band_px)
+def _refine(e0: Ellipse, edges: EdgeSet, height: float, band_px: float) -> Candidate | None:
+    """Fit a voted ellipse to its own polarity-consistent edge pixels within ``band_px`` of it:
+    consensus (RANSAC) on that band first, so that two concentric contours (flange edge, lip's
+    inner edge) are not merged into a compromise, then an algebraic fit of the consensus set."""
+    idx = polarity_inliers(e0, edges, band_px)
     if len(idx) < 12:
         return None
     inl = ransac_ellipse(edges.points[idx], threshold_px=1.0, iterations=96, seed=len(idx))
