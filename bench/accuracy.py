@@ -32,6 +32,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from bench import outside_envelope  # noqa: E402
+from simulators import image_cache  # noqa: E402
 from station.config import WHEELS, load_config  # noqa: E402
 from station.measure import add_truth, measure_frames  # noqa: E402
 
@@ -84,16 +85,13 @@ def _images(world, scene, scenario: str, seed: int, cache: Path | None, capture:
     scene captured again, with the k-th fresh draw of sensor noise (``-r<k>`` in the cache)."""
     name = f"{outside_envelope.images_of(scenario)}-{seed}" + (f"-r{capture}" if capture else "")
     path = cache / f"{name}.npz" if cache is not None else None
-    if path is not None and path.exists():
-        with np.load(path) as z:
-            return {c: z[c] for c in world.cameras}
+    images = image_cache.load(path, world) if path is not None else None  # None: another station's, or none
+    if images is not None:
+        return images
     rng = np.random.default_rng(10_000 + seed) if capture == 0 else np.random.default_rng([10_000 + seed, capture])
     images = outside_envelope.encode(scenario, world.render_all(rng))
     if path is not None:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(path.stem + ".part.npz")
-        np.savez(tmp, **images)
-        tmp.replace(path)
+        image_cache.save(path, images, world)
     return images
 
 

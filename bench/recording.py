@@ -34,14 +34,16 @@ def station_images(config, seed: int):
     """(cameras, images, source) of one simulated cycle (renders are cached in the temp folder:
     rendering eight frames takes minutes on a busy machine)."""
     try:
+        from simulators import image_cache
         from simulators.world import SimWorld
         world = SimWorld.from_config(config)
         cache = Path(tempfile.gettempdir()) / f"bench-recording-render-seed{seed}.npz"
-        if cache.exists():
-            return world.cameras, dict(np.load(cache)), "simulator render (cached)"
+        images = image_cache.load(cache, world)
+        if images is not None:
+            return world.cameras, images, "simulator render (cached)"
         world.set_scene(world.vehicle_scene(seed))
         images = world.render_all()
-        np.savez(cache, **images)
+        image_cache.save(cache, images, world)
         return world.cameras, images, "simulator render"
     except Exception as e:  # noqa: BLE001 - the bench still runs without the renderer
         print(f"(renderer unavailable: {type(e).__name__}: {e}; using synthetic frames)")

@@ -51,6 +51,7 @@ WHEEL_OF = {"cam1": "FR", "cam2": "FR", "cam3": "FL", "cam4": "FL",
 # --- images ---------------------------------------------------------------------------------
 def station_at(scale: float, cache: Path, seed: int):
     """(config, world, scene, images) at ``scale`` of the configured resolution; cached."""
+    from simulators import image_cache
     from simulators.world import SimWorld
     from tests.station_fixtures import small_station_config
 
@@ -61,16 +62,14 @@ def station_at(scale: float, cache: Path, seed: int):
     scene = world.vehicle_scene(seed)
     world.set_scene(scene)
     path = d / f"images-seed{seed}.npz"
-    if path.exists():
-        with np.load(path) as z:
-            images = {c: z[c] for c in world.cameras}
-    else:
+    images = image_cache.load(path, world)  # None: not rendered yet, or for another station
+    if images is None:
         images = {}
         for i, c in enumerate(world.cameras):
             print(f"  rendering {c} at {config.cameras[c].width}x{config.cameras[c].height} "
                   f"({i + 1}/8, once; cached in {d})", flush=True)
             images[c] = world.render(c, np.random.default_rng([seed, i]))
-        np.savez(path, **images)
+        image_cache.save(path, images, world)
     return config, world, scene, images
 
 

@@ -35,7 +35,7 @@ def _key(world, seed: int, wheel: str, toe_steps_deg, cams: list[str], supersamp
     parts = {"seed": seed, "wheel": wheel, "steps": [round(float(t), 6) for t in toe_steps_deg],
              "cams": cams, "ss": supersample, "station_seed": cfg.simulation.station_seed,
              "res": {c: [m.width, m.height, float(m.K[0, 0])] for c, m in world.cameras.items()},
-             "body": world.body, "version": 1}
+             "body": world.body, "world": world.fingerprint(), "version": 2}
     return hashlib.sha1(json.dumps(parts, sort_keys=True).encode()).hexdigest()[:16]
 
 

@@ -9,6 +9,8 @@ a PSF blur of 0.6..0.9 px. The calibration must recover these; ``truth()`` write
 
 from __future__ import annotations
 
+import hashlib
+import json
 from dataclasses import asdict, fields, replace
 
 import numpy as np
@@ -75,6 +77,21 @@ class SimWorld:
                                                nom.look_at_m, nom.focal_px, rng)
             blur[cam_id] = float(rng.uniform(0.6, 0.9))
         return cls(config, cameras, blur, noise_sigma, gain_override, body, supersample)
+
+    def fingerprint(self) -> str:
+        """16 hex digits naming what every image depends on besides the scene and the noise
+        draw: each true camera (size, K, distortion, pose) and its blur, the sensor noise, the
+        gains, the body and the supersampling. Caches of rendered images keyed by seed keep it
+        and render again where it differs: images rendered for another camera layout, lens or
+        station seed are never measured as if they were this station's."""
+        parts = []
+        for cam_id in sorted(self.cameras):
+            m = self.cameras[cam_id]
+            parts.append([cam_id, m.width, m.height, *np.round(m.K.ravel(), 9), *np.round(m.dist, 12),
+                          *np.round(m.R_cam_station.ravel(), 12), *np.round(m.t_cam_station, 12),
+                          round(self.blur_sigma[cam_id], 12), self.gain_override.get(cam_id, 1.0)])
+        parts.append([self.noise_sigma, self.body, self.supersample])
+        return hashlib.sha1(json.dumps(parts, default=float).encode()).hexdigest()[:16]
 
     # --- scenes -----------------------------------------------------------------------------
     def set_scene(self, scene: Scene) -> None:
