@@ -5,6 +5,7 @@ highlight 14 px inside is the only edge: an ellipse through the flange on two th
 highlight on the rest is a compromise; the same wheel's runner-up shares only the flange's arcs.
 """
 
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -93,14 +94,15 @@ def test_a_fit_on_one_curve_stays_and_distant_or_weak_runners_up_are_not_refined
 
 
 def test_harsh_light_the_simulated_station_does_not_follow_the_lip_highlight():
-    """Vehicle 1000 + 4 of the harsh-light probe, cam1: one lamp leaves the flange of the lower
-    left in shadow; the chosen candidate followed the lip's highlight 14 px inside there."""
+    """Vehicle 1000 + 4 of the harsh-light probe, cam1 of the paper's layout (where it was found:
+    the camera on the wheel's axis): one lamp leaves the flange of the lower left in shadow; the
+    chosen candidate followed the lip's highlight 14 px inside there."""
     from bench import outside_envelope as oe
     from simulators.world import SimWorld
     from station.config import load_config
     from station.rim import detect_rim
 
-    cfg = load_config(None)
+    cfg = load_config(Path(__file__).parents[1] / "config" / "station-paper-layout.yaml")
     world = SimWorld.from_config(cfg, noise_sigma=2.0)
     scene = oe.scene_for(world, "harsh-light", 1004, cfg.nominal_vehicle)
     world.set_scene(scene)
