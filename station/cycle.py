@@ -96,7 +96,7 @@ class Station:
         except StationError as e:
             saved = getattr(e, "saved_to", None)
             result = self._base(cycle_id, job_id, vehicle_spec)
-            result["failure"] = {"code": e.code, "message": str(e)}
+            result["failure"] = {"code": e.code, "message": str(e), "hint": e.hint}
             result["captures_dir"] = str(saved) if saved else None
             self._finish(result, record=False, store=store)
             return result

@@ -1,5 +1,6 @@
 """A whole measurement on simulated images: angles near the truth, failures named, CLI output."""
 
+import io
 import json
 import subprocess
 import sys
@@ -42,6 +43,11 @@ def test_a_black_camera_invalidates_the_cycle_and_is_named(sim):
     assert result["failure"]["camera"] == "cam5" and result["failure"]["wheel"] == "RL"
     assert "cam5" in result["failure"]["message"]
     assert not result["wheels"], "no angle of an invalid cycle is reported"
+    from station.commands.measure import print_result  # the technician reads what to do, not only what failed
+    out = io.StringIO()
+    print_result(result, out)
+    assert "MEASUREMENT FAILED" in out.getvalue() and f"what to do: {result['failure']['hint']}" in out.getvalue()
+    assert result["failure"]["hint"]
 
 
 def test_unknown_method_is_refused(sim):
@@ -81,10 +87,10 @@ def test_a_knocked_camera_is_reported_as_calibration_drift(sim):
 @pytest.mark.slow
 def test_a_rim_seen_on_part_of_its_perimeter_is_measured_and_its_unchecked_pair_named(sim, monkeypatch):
     """One 3-D circle fits both views, but the epipolar tangents of a rim seen on part of its
-    perimeter are extrapolated (9 px): the wheel is measured, with a warning that this cycle
-    could not check the pair's calibration. Were the circle not to fit one view, it is refused.
-    Where both cameras see most of the rim, nothing is extrapolated: the same residual is a
-    camera moved since calibration (drift)."""
+    perimeter, not where the epipolar planes touch it, are extrapolated (9 px): the wheel is
+    measured, with a warning that this cycle could not check the pair's calibration. Were the
+    circle not to fit one view, it is refused. Where both cameras saw the tangent points,
+    nothing is extrapolated: the same residual is a camera moved since calibration (drift)."""
     from dataclasses import replace
 
     import station.measure as measure
@@ -93,10 +99,12 @@ def test_a_rim_seen_on_part_of_its_perimeter_is_measured_and_its_unchecked_pair_
     cfg, world, scene, images = sim
     fit = measure.refine_circle
     detect = measure.detect_one
+    missed = {"tangent_gap_deg": (0.3, 40.0)}  # cam6 saw no rim within 40 deg of a tangent point
+    residual = {"epipolar_rms_px": 9.0}
 
     def extrapolated(pl, pr, cl, cr, init, **kw):
         c = fit(pl, pr, cl, cr, init, **kw)
-        return replace(c, epipolar_rms_px=9.0) if cl.name == "cam5" else c
+        return replace(c, **residual, **missed) if cl.name == "cam5" else c
 
     def partly_seen(image, camera, cam_id):
         d = detect(image, camera, cam_id)
@@ -110,10 +118,16 @@ def test_a_rim_seen_on_part_of_its_perimeter_is_measured_and_its_unchecked_pair_
     assert len(note) == 1 and "too little to check the pair's calibration" in note[0], result["warnings"]
     assert {"kind": "unchecked", "wheel": "RL"} in result["warning_flags"]
     assert not any("may have moved" in w for w in result["warnings"])
+    missed.clear()  # both saw the tangent points: however much of the rim cam6 sees, the residual is a moved camera
+    seen_part = measure_frames(images, world.cameras, cfg)
+    assert not seen_part["valid"] and "did not find the same rim" in seen_part["failure"]["message"]
     monkeypatch.setattr(measure, "detect_one", detect)
     seen = measure_frames(images, world.cameras, cfg)
-    assert {"kind": "drift", "wheel": "RL"} in seen["warning_flags"], seen["warnings"]
-    assert any(w.startswith("pair RL") and "whole cycle as suspect" in w for w in seen["warnings"])
+    assert not seen["valid"] and "a camera may have moved" in seen["failure"]["hint"]
+    residual["epipolar_rms_px"] = 3.0  # under the mismatch limit: measured, and the drift named
+    drift = measure_frames(images, world.cameras, cfg)
+    assert drift["valid"] and {"kind": "drift", "wheel": "RL"} in drift["warning_flags"], drift["warnings"]
+    assert any(w.startswith("pair RL") and "whole cycle as suspect" in w for w in drift["warnings"])
     o = result["_observations"]["RL"]
     wrong = replace(o, circle=replace(o.circle, view_median_px=(o.circle.view_median_px[0], 3.0)))
     with pytest.raises(MeasurementError, match="did not find the same rim"):

@@ -52,6 +52,8 @@ def print_result(result: dict, out=sys.stdout) -> None:
     if not result["valid"]:
         f = result.get("failure") or {}
         p(f"MEASUREMENT FAILED (error {f.get('code')}): {f.get('message')}")
+        if f.get("hint"):
+            p(f"  what to do: {f['hint']}")
         p("no angle of this cycle is valid.")
         if result.get("captures_dir"):
             p(f"the images are kept for review in {result['captures_dir']}")
