@@ -31,11 +31,8 @@ NOISE_BANK = 8  # noise fields per camera; each frame takes one, rolled by a ran
 
 
 def _key(world, seed: int, wheel: str, toe_steps_deg, cams: list[str], supersample: int) -> str:
-    cfg = world.config
     parts = {"seed": seed, "wheel": wheel, "steps": [round(float(t), 6) for t in toe_steps_deg],
-             "cams": cams, "ss": supersample, "station_seed": cfg.simulation.station_seed,
-             "res": {c: [m.width, m.height, float(m.K[0, 0])] for c, m in world.cameras.items()},
-             "body": world.body, "world": world.fingerprint(), "version": 2}
+             "cams": cams, "ss": supersample, "world": world.fingerprint(), "version": 3}  # the world: cameras, body
     return hashlib.sha1(json.dumps(parts, sort_keys=True).encode()).hexdigest()[:16]
 
 

@@ -18,9 +18,9 @@ import numpy as np
 STAMP = "_world"  # the key of the fingerprint in the .npz
 
 
-def load(path: Path, world, cams=None) -> dict[str, np.ndarray] | None:
-    """{camera id: image} of ``cams`` (default: all of the world's) from ``path``, or None when
-    the file is missing, unreadable, rendered by another world or lacks a camera."""
+def load(path: Path, world) -> dict[str, np.ndarray] | None:
+    """{camera id: image} of every camera of the world from ``path``, or None when the file is
+    missing, unreadable, rendered by another world or lacks a camera."""
     path = Path(path)
     if not path.exists():
         return None
@@ -28,7 +28,7 @@ def load(path: Path, world, cams=None) -> dict[str, np.ndarray] | None:
         with np.load(path) as z:
             if STAMP not in z.files or str(z[STAMP]) != world.fingerprint():
                 return None
-            return {c: z[c] for c in (cams if cams is not None else world.cameras)}
+            return {c: z[c] for c in world.cameras}
     except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
         return None
 
