@@ -89,6 +89,7 @@ def measure_wheel(wheel: str, cams: tuple[str, str], images: dict, cameras: dict
     return out
 
 
+WEIGHT_BY_CONTRAST = True  # weight each rim point in the circle fit by its edge step (wheel3d.contrast_weights)
 DIVERGED_PX = 1.0  # a circle fit whose median residual in a view exceeds this is not on its points
 
 
@@ -109,16 +110,17 @@ def reconstruct_wheel(wheel: str, cams: tuple[str, str], detections: dict, camer
     cam_l, cam_r = (cameras[c] for c in cams)
     det_l, det_r = detections[cams[0]], detections[cams[1]]
     paper = reconstruct_paper(det_l.points_px, det_r.points_px, cam_l, cam_r)
-    circle = refine_circle(det_l.points_px, det_r.points_px, cam_l, cam_r, paper)
+    contrast = (det_l.points_contrast, det_r.points_contrast) if WEIGHT_BY_CONTRAST else None
+    circle = refine_circle(det_l.points_px, det_r.points_px, cam_l, cam_r, paper, contrast=contrast)
     if not max(circle.view_median_px) <= DIVERGED_PX:  # the paper's circle was too far off to start from
         centre, radius = circle_from_ellipses(cam_l, cam_r, det_l.ellipse, det_r.ellipse)
         start = replace(paper, center_station=centre, radius_m=radius)
-        retry = refine_circle(det_l.points_px, det_r.points_px, cam_l, cam_r, start)
+        retry = refine_circle(det_l.points_px, det_r.points_px, cam_l, cam_r, start, contrast=contrast)
         if max(retry.view_median_px) <= DIVERGED_PX:
             circle = retry
     if uncertainty_limit_deg is not None:
         circle = refit_other_contour(det_l.points_px, det_r.points_px, cam_l, cam_r, circle,
-                                     uncertainty_limit_deg) or circle
+                                     uncertainty_limit_deg, contrast=contrast) or circle
     if calibration_cov is not None:
         cov_pair = pair_perturbation_covariance(cam_l, cam_r, calibration_cov)
         cc, ca = calibration_covariance(det_l.points_px, det_r.points_px, cam_l, cam_r, circle, cov_pair=cov_pair)

@@ -30,7 +30,8 @@ from calibration.triangulation import homogeneous
 from station.errors import MeasurementError
 from station.robust_lsq import soft_l1_least_squares
 from station.epipolar import epipolar_tangency_px
-from station.wheel3d import BIAS_MODES, MIN_VIEW_POINTS, WheelFit, circle_conics, sampson_jacobian, tangent_gaps
+from station.wheel3d import (BIAS_MODES, MIN_VIEW_POINTS, WheelFit, circle_conics, contrast_weights, sampson_jacobian,
+                            tangent_gaps)
 from station.wheel_fit_uncertainty import axis_basis, axis_covariance, bias_covariance, noise_covariance, normal_from
 from station.wheel_arcs import rim_angles
 
@@ -148,7 +149,8 @@ def other_contour_points(views, circle, fit_plain):
 MIN_SECOND_PER_VIEW = 20  # points on the second contour in each view, to fit it as well
 
 
-def fit_two_contours(views, labels, init, loss_scale_px: float = 0.3, bias_modes: int = BIAS_MODES):
+def fit_two_contours(views, labels, init, loss_scale_px: float = 0.3, bias_modes: int = BIAS_MODES,
+                     weights=None):
     """One spin axis, centre and radius for the points of label 1, and a second concentric
     circle (its own radius, its plane offset along the axis) for those of label 2.
 
@@ -156,18 +158,21 @@ def fit_two_contours(views, labels, init, loss_scale_px: float = 0.3, bias_modes
     1 or 2 (0: neither, left out); init: a WheelFit to start from. Parameters (a, b, c (3),
     R1, R2, h2): the normal n0 + a e1 + b e2 (normalised), contour 1 the circle (c, n, R1),
     contour 2 (c + h2 n, n, R2). Residuals: Sampson distances (px), soft-L1 at
-    ``loss_scale_px``. Returns a WheelFit of contour 1, its covariances as the circle fit
+    ``loss_scale_px``, each weighted by ``weights`` (per view (N,), or None: 1; as in
+    :func:`station.wheel3d.refine_circle`). Returns a WheelFit of contour 1, its covariances as the circle fit
     states them (Jacobian, residual correlation along the rim, slow edge biases); None when a
     view keeps fewer than MIN_VIEW_POINTS points of contour 1 (no 3-D circle rests on it)."""
     if any(int((lab == 1).sum()) < MIN_VIEW_POINTS for lab in labels):
         return None
     n0, e1, e2 = axis_basis(init.axis_station)
-    used = [(cam, xy[lab > 0], lab[lab > 0], 0.5 * (cam.K[0, 0] + cam.K[1, 1])) for (cam, xy), lab in zip(views, labels)]
-    hviews = [(cam, homogeneous(xy), lab, f) for cam, xy, lab, f in used]
-    second = all(int((lab == 2).sum()) >= MIN_SECOND_PER_VIEW for _, _, lab, _ in used)
+    weights = weights or [np.ones(len(xy)) for _, xy in views]
+    used = [(cam, xy[lab > 0], lab[lab > 0], 0.5 * (cam.K[0, 0] + cam.K[1, 1]), w[lab > 0])
+            for (cam, xy), lab, w in zip(views, labels, weights)]
+    second = all(int((lab == 2).sum()) >= MIN_SECOND_PER_VIEW for _, _, lab, _, _ in used)
     if not second:  # too little of the other contour to place it: contour 1 alone
-        hviews = [(cam, X[lab == 1], lab[lab == 1], f) for cam, X, lab, f in hviews]
-        used = [(cam, xy[lab == 1], lab[lab == 1], f) for cam, xy, lab, f in used]
+        used = [(cam, xy[lab == 1], lab[lab == 1], f, w[lab == 1]) for cam, xy, lab, f, w in used]
+    hviews = [(cam, homogeneous(xy), lab, f) for cam, xy, lab, f, _ in used]
+    w_all = np.concatenate([w for *_, w in used])
 
     def conics(P, cam):
         """(K,3,3) image conics of contour 1 and contour 2 for K parameter vectors P (K,8)."""
@@ -196,15 +201,15 @@ def fit_two_contours(views, labels, init, loss_scale_px: float = 0.3, bias_modes
                     r[m], J[m] = sampson_jacobian(C[0], dC, X[m], f)
             r_all.append(r)
             J_all.append(J)
-        return np.concatenate(r_all), np.vstack(J_all)
+        return w_all * np.concatenate(r_all), w_all[:, None] * np.vstack(J_all)
 
     x0 = np.concatenate([[0.0, 0.0], init.center_station, [init.radius_m]])
     if second:
         r2 = [np.median(radial_offsets_m(cam, xy[lab == 2], init.center_station, n0, init.radius_m))
-              for cam, xy, lab, _ in used]
+              for cam, xy, lab, _, _ in used]
         x0 = np.concatenate([x0, [init.radius_m + float(np.mean(r2)), 0.0]])
     sol = soft_l1_least_squares(residuals_and_jacobian, x0, f_scale=loss_scale_px)
-    fviews = [(cam, xy, f) for cam, xy, _, f in used]
+    fviews = [(cam, xy, f, w) for cam, xy, _, f, w in used]
     cov_p, inlier = noise_covariance(sol, fviews)
     if cov_p is None:
         return None
@@ -213,10 +218,10 @@ def fit_two_contours(views, labels, init, loss_scale_px: float = 0.3, bias_modes
     n = normal_from(sol.x[:2], n0, e1, e2)
     if n @ init.axis_station < 0:
         n = -n
-    r = sol.fun
+    r = sol.fun / w_all  # px again
     return WheelFit("circle", sol.x[2:5].copy(), n, float(sol.x[5]),
                     view_median_px=tuple(float(np.median(np.abs(v)))
-                                         for v in np.split(r, np.cumsum([len(xy) for _, xy, _ in fviews])[:-1])),
+                                         for v in np.split(r, np.cumsum([len(v[1]) for v in fviews])[:-1])),
                     cov_center=cov_p[2:5, 2:5], cov_axis=axis_covariance(n, e1, e2, cov_p[:2, :2]),
                     reprojection_rms_px=float(np.sqrt(np.mean(r[inlier] ** 2))),
                     epipolar_rms_px=init.epipolar_rms_px, n_points=(len(used[0][1]), len(used[1][1])),
@@ -224,27 +229,30 @@ def fit_two_contours(views, labels, init, loss_scale_px: float = 0.3, bias_modes
 
 
 def refit_other_contour(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: CameraModel, cam_r: CameraModel,
-                        circle: WheelFit, above_deg: float) -> WheelFit | None:
+                        circle: WheelFit, above_deg: float, contrast: tuple | None = None) -> WheelFit | None:
     """The wheel fitted with its arcs on another concentric contour told apart, or None.
 
     Tried only when ``circle`` (the fit of all points, (N,2) and (M,2) pixels) states an axis
     uncertainty above ``above_deg`` (the station's uncertainty limit: such a cycle would be
-    reported as uncertain), and kept only when it states a smaller one."""
+    reported as uncertain), and kept only when it states a smaller one. ``contrast``: as for
+    :func:`station.wheel3d.refine_circle`."""
     if not np.degrees(np.sqrt(max(np.trace(circle.cov_axis), 0.0))) > above_deg:  # (NaN: not above)
         return None
-    views = []
-    for cam, pts in ((cam_l, points_l_px), (cam_r, points_r_px)):
+    views, weights = [], []
+    for cam, pts, con in zip((cam_l, cam_r), (points_l_px, points_r_px), contrast or (None, None)):
         xy = cam.pixels_to_normalized(pts)
-        views.append((cam, xy[np.all(np.isfinite(xy), axis=1)]))
+        finite = np.all(np.isfinite(xy), axis=1)
+        views.append((cam, xy[finite]))
+        weights.append(np.ones(int(finite.sum())) if con is None else contrast_weights(con)[finite])
 
     def fit_plain(sel_l, sel_r, start):  # one robust solve: the refits trim what does not fit
-        return fit_two_contours(views, [sel_l.astype(int), sel_r.astype(int)], start, bias_modes=0)
+        return fit_two_contours(views, [sel_l.astype(int), sel_r.astype(int)], start, bias_modes=0, weights=weights)
 
     found = other_contour_points(views, circle, fit_plain)
     if found is None:
         return None
     labels, info = found
-    alt = fit_two_contours(views, labels, circle)
+    alt = fit_two_contours(views, labels, circle, weights=weights)
     if alt is None or not np.trace(alt.cov_axis) < np.trace(circle.cov_axis):
         return None
     if alt.other_contour_mm is None and info["offset_mm"] is not None:

@@ -225,7 +225,7 @@ def _sector_jackknife(residuals, x, views, n0, e1, e2, n_sectors: int, loss_scal
     """Block-jackknife covariance (6,6) of the circle parameters, leaving out one rim sector at a time."""
     c = x[2:5]
     n = normal_from(x[:2], n0, e1, e2)
-    labels = [sector_labels(rim_angles(cam, xy, c, n), n_sectors) for cam, xy, _ in views]
+    labels = [sector_labels(rim_angles(cam, xy, c, n), n_sectors) for cam, xy, *_ in views]
     estimates = []
     for k in range(n_sectors):
         keep = [lab != k for lab in labels]
@@ -251,8 +251,14 @@ def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: Camer
                   visibility_margin: float | None = None, jackknife_sectors: int = 0,
                   inward_weight: float = INWARD_WEIGHT, bias_modes: int = BIAS_MODES,
                   occlusion_test: bool = OCCLUSION_TEST, init_is_fitted: bool = False,
-                  grazing_test: bool = GRAZING_TEST) -> WheelFit:
+                  grazing_test: bool = GRAZING_TEST, contrast: tuple | None = None) -> WheelFit:
     """Fit one 3-D circle to both views' rim points by minimising image distance (px).
+
+    ``contrast``: per view, each point's edge step (grey levels, (N,) and (M,), as
+    :class:`station.rim.RimDetection` gives them) or None. A point's residual is then weighted
+    by :func:`contrast_weights`: an edge's position is as uncertain as its noise over its step,
+    and a faint stretch of the flange edge is also where a nearby stronger edge (a shaded tyre
+    bead) pulls the sub-pixel point off it.
 
     Residuals of points inside the circle's projection count ``inward_weight`` times (1: a
     symmetric fit): the tyre bulge and a lip shaded as dark as the tyre hide the flange edge
@@ -274,45 +280,73 @@ def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: Camer
     ``init_is_fitted``: ``init`` is already a circle fitted this way (``station live``'s previous
     frame): the test is made against it, without the first fit.
     """
-    xys = []
-    for cam, pts in ((cam_l, points_l_px), (cam_r, points_r_px)):
+    xys, ws = [], []
+    for cam, pts, con in zip((cam_l, cam_r), (points_l_px, points_r_px), contrast or (None, None)):
         xy = cam.pixels_to_normalized(pts)
-        xy = xy[np.all(np.isfinite(xy), axis=1)]
+        w = None if con is None else contrast_weights(con)
+        keep = np.all(np.isfinite(xy), axis=1)
         if visibility_margin is not None:
-            xy = xy[edge_visibility(cam, xy, init) > visibility_margin]
-        xys.append(xy)
-    fit = _fit_circle(xys[0], xys[1], cam_l, cam_r, init, loss_scale_px, jackknife_sectors, inward_weight,
-                      bias_modes, occlusion_test, init_is_fitted, grazing_test)
+            keep[keep] = edge_visibility(cam, xy[keep], init) > visibility_margin
+        xys.append(xy[keep])
+        ws.append(_subset(w, keep))
+    fit = _fit_circle(xys[0], xys[1], ws[0], ws[1], cam_l, cam_r, init, loss_scale_px, jackknife_sectors,
+                      inward_weight, bias_modes, occlusion_test, init_is_fitted, grazing_test)
     # on every point the cameras found: did they see the rim where the epipolar planes touch it?
     return replace(fit, tangent_gap_deg=tangent_gaps(xys[0], xys[1], cam_l, cam_r))
 
 
-def _fit_circle(xy_l: np.ndarray, xy_r: np.ndarray, cam_l: CameraModel, cam_r: CameraModel, init: WheelFit,
-                loss_scale_px: float, jackknife_sectors: int, inward_weight: float, bias_modes: int,
-                occlusion_test: bool, init_is_fitted: bool, grazing_test: bool) -> WheelFit:
-    """:func:`refine_circle` on the views' undistorted normalised points (N,2), (M,2)."""
-    views = [(cam, xy, 0.5 * (cam.K[0, 0] + cam.K[1, 1])) for cam, xy in ((cam_l, xy_l), (cam_r, xy_r))]
+MIN_CONTRAST_WEIGHT = 0.05  # a weight never reaches 0: the residual divided by it gives px again
+
+
+def contrast_weights(contrast: np.ndarray) -> np.ndarray:
+    """(N,) residual weights of a view's points from their edge steps ``contrast`` (N,): the step
+    over the view's median step, at most 1 (inverse-sigma weighting for the faint points; the
+    strong ones stay equal, so that a lit highlight next to the flange cannot outweigh the rest)."""
+    c = np.asarray(contrast, float)
+    med = float(np.median(c)) if len(c) else 0.0
+    if not med > 0:
+        return np.ones(len(c))
+    return np.clip(c / med, MIN_CONTRAST_WEIGHT, 1.0)
+
+
+def _subset(w: np.ndarray | None, keep: np.ndarray) -> np.ndarray | None:
+    return None if w is None else w[keep]
+
+
+def _fit_circle(xy_l: np.ndarray, xy_r: np.ndarray, w_l: np.ndarray | None, w_r: np.ndarray | None,
+                cam_l: CameraModel, cam_r: CameraModel, init: WheelFit, loss_scale_px: float, jackknife_sectors: int,
+                inward_weight: float, bias_modes: int, occlusion_test: bool, init_is_fitted: bool,
+                grazing_test: bool) -> WheelFit:
+    """:func:`refine_circle` on the views' undistorted normalised points (N,2), (M,2) and their
+    residual weights (N,), (M,) (None: all 1)."""
+    # views: (camera, points (N,2), focal px, residual weights (N,)), subset together below
+    views = [(cam, xy, 0.5 * (cam.K[0, 0] + cam.K[1, 1]), np.ones(len(xy)) if w is None else w)
+             for cam, xy, w in ((cam_l, xy_l, w_l), (cam_r, xy_r, w_r))]
     n_input = sum(len(v[1]) for v in views)
     n0, e1, e2 = axis_basis(init.axis_station)
 
     def homogeneous_views(keep=None):
-        return [(cam, homogeneous(xy if keep is None else xy[keep[k]]), f) for k, (cam, xy, f) in enumerate(views)]
+        return [(cam, homogeneous(xy), f, w) if keep is None else (cam, homogeneous(xy[keep[k]]), f, w[keep[k]])
+                for k, (cam, xy, f, w) in enumerate(views)]
 
     def raw_residuals(p, keep=None, hviews=None):
+        """(N,) distances (px) of the points to the circle's projections, unweighted."""
         c = p[2:5]
         n = normal_from(p[:2], n0, e1, e2)
         out = []
-        for cam, X, f in hviews or homogeneous_views(keep):
+        for cam, X, f, _ in hviews or homogeneous_views(keep):
             C = circle_conic(cam.R_cam_station @ c + cam.t_cam_station, cam.R_cam_station @ n, p[5])
             out.append(sampson_px(C, X, f))
         return np.concatenate(out)
 
     def residuals(p, keep=None, hviews=None):
-        r = raw_residuals(p, keep, hviews)
+        hviews = hviews or homogeneous_views(keep)
+        r = raw_residuals(p, hviews=hviews)
         # an edge seen inside the rim's projection is more likely a hidden or shaded flange
         # (tyre bulge, dark lip) than a real one: occlusion only ever moves the edge inward
         # beyond the noise (loss_scale_px) only; within it the fit stays unbiased
-        return np.where(r < -loss_scale_px, inward_weight * (r + loss_scale_px) - loss_scale_px, r)
+        return np.concatenate([v[3] for v in hviews]) * \
+            np.where(r < -loss_scale_px, inward_weight * (r + loss_scale_px) - loss_scale_px, r)
 
     def per_view(values):
         """A stacked (N,) array over the current views -> one array per view."""
@@ -327,15 +361,16 @@ def _fit_circle(xy_l: np.ndarray, xy_r: np.ndarray, cam_l: CameraModel, cam_r: C
         n = n0 + P[:, :1] * e1 + P[:, 1:2] * e2
         n /= np.linalg.norm(n, axis=1, keepdims=True)
         raw, J = [], []
-        for cam, X, f in hviews:
+        for cam, X, f, _ in hviews:
             C = circle_conics(P[:, 2:5] @ cam.R_cam_station.T + cam.t_cam_station, n @ cam.R_cam_station.T, P[:, 5])
             r_k, J_k = sampson_jacobian(C[0], (C[1:7] - C[7:]) / (2 * h)[:, None, None], X, f)
             raw.append(r_k)
             J.append(J_k)
         r = np.concatenate(raw)
+        w = np.concatenate([v[3] for v in hviews])
         inward = r < -loss_scale_px
-        return (np.where(inward, inward_weight * (r + loss_scale_px) - loss_scale_px, r),
-                np.vstack(J) * np.where(inward, inward_weight, 1.0)[:, None])
+        return (w * np.where(inward, inward_weight * (r + loss_scale_px) - loss_scale_px, r),
+                np.vstack(J) * (w * np.where(inward, inward_weight, 1.0))[:, None])
 
     def solve(x0, keep=None):
         hviews = homogeneous_views(keep)
@@ -344,7 +379,7 @@ def _fit_circle(xy_l: np.ndarray, xy_r: np.ndarray, cam_l: CameraModel, cam_r: C
     x0 = np.concatenate([[0.0, 0.0], init.center_station, [init.radius_m]])
     doubtful = False
     if occlusion_test:
-        vis = [edge_visibility(cam, xy, init) for cam, xy, _ in views]
+        vis = [edge_visibility(cam, xy, init) for cam, xy, *_ in views]
         safe = [v >= 0.0 for v in vis]
         if all(k.sum() >= MIN_SAFE_FRACTION * len(k) for k in safe):
             # every other safe point: the test needs the circle to a tenth of a pixel, not better
@@ -353,12 +388,12 @@ def _fit_circle(xy_l: np.ndarray, xy_r: np.ndarray, cam_l: CameraModel, cam_r: C
             r_all = per_view(raw_residuals(x_safe))
             c_safe, n_safe = x_safe[2:5], normal_from(x_safe[:2], n0, e1, e2)
             keeps = [hidden_arcs(r, k, rim_angles(cam, xy, c_safe, n_safe), loss_scale_px)
-                     for r, k, (cam, xy, _) in zip(r_all, safe, views)]
+                     for r, k, (cam, xy, *_) in zip(r_all, safe, views)]
             # leaving out more than half of a view is either a camera that sees little of the
             # flange past the sidewall or a test judged against a circle extrapolated from
             # narrow safe arcs: fit it both ways below and keep the better-determined axis
             doubtful = not all(k.sum() >= MIN_KEPT_FRACTION * len(k) for k in keeps)
-            views = [(cam, xy[k], f) for (cam, xy, f), k in zip(views, keeps)]
+            views = [(cam, xy[k], f, w[k]) for (cam, xy, f, w), k in zip(views, keeps)]
             x0 = x_safe
     sol = solve(x0)
     # points far off the circle in either view are another contour (a lip's inner edge taken
@@ -368,8 +403,8 @@ def _fit_circle(xy_l: np.ndarray, xy_r: np.ndarray, cam_l: CameraModel, cam_r: C
     sigma = 1.4826 * float(np.median(np.abs(r - np.median(r))))
     far = np.abs(r) > max(GROSS_PX, GROSS_SIGMAS * sigma)
     if far.any():
-        views = [(cam, xy[~out], f) for (cam, xy, f), out in zip(views, per_view(far))]
-        for cam, xy, _ in views:  # a view with (almost) nothing on the circle: no 3-D rim
+        views = [(cam, xy[~out], f, w[~out]) for (cam, xy, f, w), out in zip(views, per_view(far))]
+        for cam, xy, *_ in views:  # a view with (almost) nothing on the circle: no 3-D rim
             if len(xy) < MIN_VIEW_POINTS:
                 raise MeasurementError(f"{cam.name}: only {len(xy)} of its rim points lie on the 3-D circle "
                                        "the pair's points agree on", hint="the two cameras may have found different rims")
@@ -382,14 +417,14 @@ def _fit_circle(xy_l: np.ndarray, xy_r: np.ndarray, cam_l: CameraModel, cam_r: C
     for _ in range(INWARD_ARC_PASSES):
         c_now, n_now = sol.x[2:5], normal_from(sol.x[:2], n0, e1, e2)
         keeps = []
-        for r_v, (cam, xy, _), n_v in zip(per_view(raw_residuals(sol.x)), views, n_start):
+        for r_v, (cam, xy, *_), n_v in zip(per_view(raw_residuals(sol.x)), views, n_start):
             keep = ~stray_arcs(r_v, rim_angles(cam, xy, c_now, n_now), loss_scale_px)
             keeps.append(keep if keep.sum() >= MIN_KEPT_FRACTION * n_v else np.ones(len(xy), bool))
         if all(k.all() for k in keeps):
             break
-        views = [(cam, xy[k], f) for (cam, xy, f), k in zip(views, keeps)]
+        views = [(cam, xy[k], f, w[k]) for (cam, xy, f, w), k in zip(views, keeps)]
         sol = solve(sol.x)
-    r = sol.fun
+    r = sol.fun / np.concatenate([v[3] for v in views])  # px again (weights are > 0)
     cov_p, inlier = noise_covariance(sol, views)
     if cov_p is None:
         cov_p = np.full((6, 6), np.nan)
@@ -419,8 +454,9 @@ def _fit_circle(xy_l: np.ndarray, xy_r: np.ndarray, cam_l: CameraModel, cam_r: C
                     epipolar_rms_px=epipolar, n_points=(len(views[0][1]), len(views[1][1])),
                     cov_axis_noise=axis_covariance(n, e1, e2, cov_noise[:2, :2]))
     if doubtful:
-        plain = _fit_circle(xy_l, xy_r, cam_l, cam_r, init, loss_scale_px, jackknife_sectors, inward_weight,
-                            bias_modes, occlusion_test=False, init_is_fitted=init_is_fitted, grazing_test=False)
+        plain = _fit_circle(xy_l, xy_r, w_l, w_r, cam_l, cam_r, init, loss_scale_px, jackknife_sectors,
+                            inward_weight, bias_modes, occlusion_test=False, init_is_fitted=init_is_fitted,
+                            grazing_test=False)
         if np.trace(plain.cov_axis) < np.trace(fit.cov_axis):
             fit = plain
     if grazing_test:
@@ -428,8 +464,9 @@ def _fit_circle(xy_l: np.ndarray, xy_r: np.ndarray, cam_l: CameraModel, cam_r: C
         if not (keep_l.all() and keep_r.all()):
             # the fit without the grazing points, made from ``init`` as this one was (from
             # ``fit``, the sidewall test would be judged against a circle they had shaped)
-            alt = _fit_circle(xy_l[keep_l], xy_r[keep_r], cam_l, cam_r, init, loss_scale_px, jackknife_sectors,
-                              inward_weight, bias_modes, occlusion_test, init_is_fitted, grazing_test=False)
+            alt = _fit_circle(xy_l[keep_l], xy_r[keep_r], _subset(w_l, keep_l), _subset(w_r, keep_r), cam_l, cam_r,
+                              init, loss_scale_px, jackknife_sectors, inward_weight, bias_modes, occlusion_test,
+                              init_is_fitted, grazing_test=False)
             # the least expected squared error between the two: the grazing points' bias is
             # estimated from how far they move the axis beyond what their noise explains, and
             # the result moves that share of the way toward the fit without them (SOFT_GRAZING;

@@ -68,8 +68,10 @@ def bias_covariance(sol, views, n0, e1, e2, n_modes: int, n_sectors: int = 18) -
     bounds = np.cumsum([0] + [len(v[1]) for v in views])
     cov = np.zeros((J.shape[1], J.shape[1]))
     common = np.zeros((J.shape[1], 1))
-    for (cam, xy, _), a, b in zip(views, bounds[:-1], bounds[1:]):
-        r = sol.fun[a:b]
+    for view, a, b in zip(views, bounds[:-1], bounds[1:]):
+        cam, xy = view[0], view[1]
+        w = view[3] if len(view) > 3 else np.ones(b - a)  # residual weights: the biases are in px
+        r = sol.fun[a:b] / w
         phi = rim_angles(cam, xy, c, n)
         med, count = sector_medians(r, sector_labels(phi, n_sectors), n_sectors)
         full = np.nonzero(count >= 3)[0]
@@ -83,7 +85,7 @@ def bias_covariance(sol, views, n0, e1, e2, n_modes: int, n_sectors: int = 18) -
         if modes == 2:
             amps += [high] * 2
         funcs = [np.ones_like(phi)] + [f(k * phi) for k in range(1, modes + 1) for f in (np.cos, np.sin)]
-        dp = pinv[:, a:b] @ (np.stack(funcs, axis=1) * np.array(amps))   # (P, modes)
+        dp = pinv[:, a:b] @ (np.stack(funcs, axis=1) * np.array(amps) * w[:, None])   # (P, modes)
         common += dp[:, :1]                # the uniform offset: the same in both views
         cov += dp[:, 1:] @ dp[:, 1:].T     # the rest: each view's own
     return cov + common @ common.T
@@ -166,7 +168,7 @@ def axis_basis(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def noise_covariance(sol, views) -> tuple[np.ndarray | None, np.ndarray]:
     """(P,P) covariance of a fit's parameters from its residuals' robust sigma and the Jacobian
     (None if singular), inflated by the residuals' correlation along the rim, and the (N,)
-    inlier mask it was estimated on. sol: fun (N,), jac (N,P); views: [(camera, points, f)]
+    inlier mask it was estimated on. sol: fun (N,), jac (N,P); views: [(camera, points, f, ...)]
     in the order of the residuals."""
     r, J = sol.fun, sol.jac
     mad = 1.4826 * np.median(np.abs(r - np.median(r)))
@@ -179,7 +181,7 @@ def noise_covariance(sol, views) -> tuple[np.ndarray | None, np.ndarray]:
     # Edge errors are not independent from point to point (shading, blur and occlusion move
     # whole stretches of the rim): inflate by the residuals' correlation along the rim.
     per_view = np.split(r, np.cumsum([len(v[1]) for v in views])[:-1])
-    factors = [correlation_factor(along_rim(res, xy)) for res, (_, xy, _) in zip(per_view, views)]
+    factors = [correlation_factor(along_rim(res, v[1])) for res, v in zip(per_view, views)]
     return cov_p * float(np.average(factors, weights=[len(v[1]) for v in views])), inlier
 
 

@@ -331,9 +331,9 @@ def test_a_circle_fit_that_ran_off_its_points_starts_again_from_the_image_ellips
     good = measure.reconstruct_wheel("FR", ("cam1", "cam2"), dets, world.cameras).circle
     real, starts = measure.refine_circle, []
 
-    def first_runs_off(*args):
+    def first_runs_off(*args, **kwargs):
         starts.append(args[4])
-        fit = real(*args)
+        fit = real(*args, **kwargs)
         if len(starts) == 1:  # as from a paper centroid 0.16 m off (harsh-light vehicle 1018 RR)
             fit = dataclasses.replace(fit, center_station=fit.center_station + [0, 0, -3.0], radius_m=4.2,
                                       view_median_px=(13.5, 10.9))

@@ -54,6 +54,7 @@ class RimDetection:
     points_norm: (N,2) the same points in undistorted normalised coordinates (camera given), else None.
     score: 0..1; ellipse_cov: (5,5) covariance of (cx, cy, a, b, angle) in px^2 / rad^2;
     point_sigma_px: robust rms distance of the inliers to the fit; timing_s: seconds per stage.
+    points_contrast: (N,) each point's edge step (grey levels), for weighting the points.
     """
 
     ellipse: Ellipse
@@ -68,6 +69,7 @@ class RimDetection:
     coverage: float = 0.0
     contrast: float = 0.0
     details: dict = field(default_factory=dict)
+    points_contrast: np.ndarray | None = None
 
     def to_dict(self) -> dict:
         return {
@@ -575,7 +577,8 @@ def _result(fit, samples, mask, info: dict, clock: _Clock, camera, pmap: PixelMa
         timing_s=dict(clock.stages), camera_id=camera_id,
         points_norm=pmap.normalized(pts) if camera is not None else None,
         ellipse_frame="pixels" if pmap.identity else "ideal_pixels",
-        coverage=coverage, contrast=float(np.median(samples.contrast[mask])), details=info)
+        coverage=coverage, contrast=float(np.median(samples.contrast[mask])), details=info,
+        points_contrast=samples.contrast[mask].copy())
 
 
 def _holds(fit, samples, mask, prior: Ellipse, shift: float, min_coverage: float = 0.8) -> bool:
