@@ -29,7 +29,7 @@ from station.errors import MeasurementError, StationError
 from station.cycle import open_capture
 from station.wheel_workers import WheelWorkers, default_workers
 from station.camera_response import linear_images
-from station.measure import WheelObservation, check_same_rim, measure_frames
+from station.measure import WEIGHT_BY_CONTRAST, WheelObservation, check_same_rim, measure_frames
 from station.other_contour import on_circle
 from station.wheel3d import WheelFit, reconstruct_paper, refine_circle
 from station.wheel_arcs import not_grazing
@@ -234,6 +234,7 @@ def live_wheel(wheel: str, cams: tuple[str, str], images: dict, models: dict, pr
             cam_l, cam_r = models[cams[0]], models[cams[1]]
             det_l, det_r = detections[cams[0]], detections[cams[1]]
             pl, pr = (_thin(d.points_px, LIVE_MAX_POINTS) for d in (det_l, det_r))
+            con_l, con_r = (_thin(d.points_contrast, LIVE_MAX_POINTS) for d in (det_l, det_r))  # (as measure's)
             paper = reconstruct_paper(pl, pr, cam_l, cam_r)
             # the baseline cycle chose, by the covariance, whether this wheel is fitted without
             # the points seen across the lip at a grazing angle; live keeps that choice (no
@@ -241,15 +242,16 @@ def live_wheel(wheel: str, cams: tuple[str, str], images: dict, models: dict, pr
             grazing_out = previous_circle is not None and previous_circle.grazing_left_out
             if grazing_out:
                 keep_l, keep_r = not_grazing(previous_circle, pl, pr, cam_l, cam_r)
-                pl, pr = pl[keep_l], pr[keep_r]
+                pl, pr, con_l, con_r = pl[keep_l], pr[keep_r], con_l[keep_l], con_r[keep_r]
             # and whether arcs on another concentric contour are left out (station/other_contour.py)
             other_out = previous_circle is not None and previous_circle.arcs_left_out
             if other_out:
                 views = [(cam, cam.pixels_to_normalized(p)) for cam, p in ((cam_l, pl), (cam_r, pr))]
                 keep_l, keep_r = on_circle(views, previous_circle)
-                pl, pr = pl[keep_l], pr[keep_r]
+                pl, pr, con_l, con_r = pl[keep_l], pr[keep_r], con_l[keep_l], con_r[keep_r]
             circle = refine_circle(pl, pr, cam_l, cam_r, previous_circle or paper, bias_modes=0,
-                                   init_is_fitted=previous_circle is not None, grazing_test=False)
+                                   init_is_fitted=previous_circle is not None, grazing_test=False,
+                                   contrast=(con_l, con_r) if WEIGHT_BY_CONTRAST else None)
             circle = replace(circle, grazing_left_out=grazing_out, arcs_left_out=other_out,
                              other_contour_mm=previous_circle.other_contour_mm if other_out else None)
             obs = WheelObservation(wheel, cams, (det_l, det_r), paper, circle)
