@@ -60,7 +60,13 @@ def bias_covariance(sol, views, n0, e1, e2, n_modes: int, n_sectors: int = 18) -
     stated toe, over 0.674 (its value for honest Gaussian errors), was 0.3-0.8 per benchmark
     set, and is 0.8-1.3 with the common offset (docs/measurement.md).
     The slowly varying modes come from the viewing geometry (a hidden strip, a grazing lip)
-    and stay each view's own."""
+    and stay each view's own.
+
+    With residuals weighted by edge contrast (``refine_circle(contrast=...)``) the modes are
+    those of the weighted residuals: a faint arc's edge is off by more, and counts for less,
+    in about the same proportion. Sized in raw pixels instead, its bias was counted in full
+    against a fit that gives it little weight: toe was stated 1.5x too uncertain (held-out
+    vehicles 1050-1089, 1.34 with the weighted modes, no floor)."""
     c = sol.x[2:5]
     n = normal_from(sol.x[:2], n0, e1, e2)
     J = sol.jac
@@ -70,8 +76,7 @@ def bias_covariance(sol, views, n0, e1, e2, n_modes: int, n_sectors: int = 18) -
     common = np.zeros((J.shape[1], 1))
     for view, a, b in zip(views, bounds[:-1], bounds[1:]):
         cam, xy = view[0], view[1]
-        w = view[3] if len(view) > 3 else np.ones(b - a)  # residual weights: the biases are in px
-        r = sol.fun[a:b] / w
+        r = sol.fun[a:b]
         phi = rim_angles(cam, xy, c, n)
         med, count = sector_medians(r, sector_labels(phi, n_sectors), n_sectors)
         full = np.nonzero(count >= 3)[0]
@@ -85,7 +90,7 @@ def bias_covariance(sol, views, n0, e1, e2, n_modes: int, n_sectors: int = 18) -
         if modes == 2:
             amps += [high] * 2
         funcs = [np.ones_like(phi)] + [f(k * phi) for k in range(1, modes + 1) for f in (np.cos, np.sin)]
-        dp = pinv[:, a:b] @ (np.stack(funcs, axis=1) * np.array(amps) * w[:, None])   # (P, modes)
+        dp = pinv[:, a:b] @ (np.stack(funcs, axis=1) * np.array(amps))   # (P, modes)
         common += dp[:, :1]                # the uniform offset: the same in both views
         cov += dp[:, 1:] @ dp[:, 1:].T     # the rest: each view's own
     return cov + common @ common.T
