@@ -265,3 +265,17 @@ def test_the_share_of_the_rim_at_the_sensors_white_is_measured():
     pts = np.array([[30.0, 20.0], [32.4, 21.6], [33.0, 20.0], [10.0, 10.0]])
     assert white_share(grey, pts) == pytest.approx(0.5)
     assert white_share(grey, pts[:0]) == 0.0
+
+
+def test_the_edge_model_cache_does_not_remember_which_blur_came_first():
+    """Two blurs that share a cache entry get the projector of that entry's blur, whichever of
+    them came first: a detection must not depend on the images a process saw before it."""
+    from station.rim import subpixel
+
+    s, grid = np.arange(-4.0, 5.0), np.arange(-2.0, 2.01, 0.25)
+    subpixel._PROJECTORS.clear()
+    first = subpixel._kink_projector(s, grid, 0.7000001)[1]
+    subpixel._PROJECTORS.clear()
+    subpixel._kink_projector(s, grid, 0.7000004)
+    second = subpixel._kink_projector(s, grid, 0.7000001)[1]
+    np.testing.assert_array_equal(first, second)

@@ -199,7 +199,11 @@ def _kink_projector(s: np.ndarray, grid: np.ndarray, sigma: float, curvature: bo
     map from a profile to its jump coefficient h at every s0 (cached: the same window and blur
     serve every profile of an image and the next image)."""
     curvature = METAL_CURVATURE if curvature is None else curvature
-    key = (s.tobytes(), grid.tobytes(), round(float(sigma), 6), curvature, TYRE_CURVATURE)
+    # built at the blur it is kept under: from the exact blur, the projector of a later blur
+    # with the same key would depend on which blur came first, and so the detection on the
+    # images the process saw before (a point more or less reseeds the consensus search)
+    sigma = round(float(sigma), 6)
+    key = (s.tobytes(), grid.tobytes(), sigma, curvature, TYRE_CURVATURE)
 
     def make():
         B = _kink_basis(s[None, :] - grid[:, None], sigma, curvature)  # (G,S,nb)
