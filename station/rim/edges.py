@@ -70,7 +70,10 @@ def detect_edges(grey_u8: np.ndarray, blur_sigma: float = 1.0, max_points: int =
     img = cv2.GaussianBlur(grey_u8, (0, 0), blur_sigma) if blur_sigma > 0 else grey_u8
     dx = cv2.Sobel(img, cv2.CV_16S, 1, 0, ksize=3)
     dy = cv2.Sobel(img, cv2.CV_16S, 0, 1, ksize=3)
-    mag = cv2.magnitude(dx.astype(np.float32), dy.astype(np.float32))
+    # exact squares, then a correctly rounded root: cv2.magnitude's result moved by an ulp with
+    # the arrays' place in memory, and with it the edges' gradients, so the same image gave
+    # another rim after other images had been processed
+    mag = np.sqrt(dx.astype(np.int32) ** 2 + dy.astype(np.int32) ** 2)
     low, high = canny_thresholds(mag, high_percentile)
     edges = cv2.Canny(dx, dy, low, high, L2gradient=True)
     v, u = np.nonzero(edges)
