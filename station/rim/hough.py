@@ -178,9 +178,10 @@ def polarity_inliers(ellipse: Ellipse, edges: EdgeSet, tol_px: float, inward: bo
     a = ellipse.axes_px[0]
     curve = ellipse.points(int(np.clip(2 * np.pi * a / 4.0, 32, 2048)))  # a point every ~4 px
     cand = edges.near_curve(curve, tol_px + 2.0)
-    d, n = ellipse.approx_distance(edges.points[cand])
+    d, (gx, gy, g) = ellipse.approx_distance_grad(edges.points[cand])
     near = np.nonzero(np.abs(d) < tol_px)[0]
-    cosg = -np.einsum("ij,ij->i", n[near], edges.grad[cand[near]])
+    n = ellipse.approx_normal(gx[near], gy[near], g[near])  # (K,2) of the near pixels only
+    cosg = -np.einsum("ij,ij->i", n, edges.grad[cand[near]])
     if not inward:
         cosg = np.abs(cosg)
     return cand[near[cosg > NORMAL_COS]]
