@@ -7,6 +7,7 @@ rim); here the hysteresis thresholds come from the image's own gradient distribu
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import cv2
 import numpy as np
@@ -44,12 +45,21 @@ class EdgeSet:
         _, _, gh, gw, cell_of_point = self._grid
         mask = np.zeros((gh, gw), np.uint8)
         ok = np.isfinite(curve_px).all(axis=1)
-        cu = np.clip(np.floor(curve_px[ok, 0] / cell_px), -1, gw).astype(np.int64)
-        cv = np.clip(np.floor(curve_px[ok, 1] / cell_px), -1, gh).astype(np.int64)
-        mask[np.clip(cv, 0, gh - 1), np.clip(cu, 0, gw - 1)] = 1  # off the grid: its border cell
+        # (M,2) cell (column, row) of each curve point; off the grid: its border cell
+        cell = np.clip(np.floor(curve_px[ok] / cell_px), 0, (gw - 1, gh - 1)).astype(np.int64)
+        mask[cell[:, 1], cell[:, 0]] = 1
         r = int(np.ceil(radius_px / cell_px))
-        mask = cv2.dilate(mask, np.ones((2 * r + 1, 2 * r + 1), np.uint8))
-        return np.nonzero(mask.ravel()[cell_of_point])[0]
+        mask = cv2.dilate(mask, _square(2 * r + 1))
+        return np.flatnonzero(mask.ravel()[cell_of_point])
+
+
+@lru_cache(maxsize=8)
+def _square(k: int) -> np.ndarray:
+    """(k,k) uint8 ones: a square structuring element (made once per size, read-only)."""
+    kernel = np.ones((k, k), np.uint8)
+    kernel.flags.writeable = False
+    return kernel
+
 
 def canny_thresholds(mag: np.ndarray, high_percentile: float = 90.0) -> tuple[float, float]:
     """(low, high) hysteresis thresholds from the gradient magnitude image.

@@ -167,13 +167,13 @@ def fit_kinks(prof: np.ndarray, s: np.ndarray, sigma: float, polarity: float = -
     ss = np.einsum("ns,ns->n", prof, prof)
     res = ss[:, None] - np.einsum("ngk,ngk->ng", proj, proj)         # (N,G) residual sum of squares
     h_all = prof @ H                                                 # (N,G) jump coefficient at each s0
-    res[h_all * polarity <= 0] = np.inf
+    np.copyto(res, np.inf, where=h_all * polarity <= 0)   # (a masked assignment, faster)
     g = np.argmin(res, axis=1)
     r = np.arange(n)
     ok = np.isfinite(res[r, g])
     g = np.clip(g, 1, G - 2)
     y0, y1, y2 = res[r, g - 1], res[r, g], res[r, g + 1]
-    s0 = grid[g] + _parabola(np.where(np.isfinite(y0), y0, y1), y1, np.where(np.isfinite(y2), y2, y1)) * grid_step
+    s0 = grid[g] + _parabola(y0, y1, y2) * grid_step  # (it takes y1 where a neighbour is inf)
     if not refine:  # the grid's best residual only (for the blur estimate)
         return s0, h_all[r, g], np.sqrt(np.maximum(res[r, g], 0) / S), ok
     # one refinement with per-profile bases at s0 - d, s0, s0 + d and a parabola
@@ -260,7 +260,7 @@ def _blur_rms(prof: np.ndarray, s: np.ndarray, polarity: float, grid_step: float
     Q, H = _BLUR_STACKS.get(key, make)                               # (S, B*G*nb), (S, B*G)
     proj = (prof @ Q).reshape(n, B, G, -1)
     res = np.einsum("ns,ns->n", prof, prof)[:, None, None] - np.einsum("nbgk,nbgk->nbg", proj, proj)
-    res[(prof @ H).reshape(n, B, G) * polarity <= 0] = np.inf
+    np.copyto(res, np.inf, where=(prof @ H).reshape(n, B, G) * polarity <= 0)
     g = np.clip(np.argmin(res, axis=2), 1, G - 2)                    # (N,B), as fit_kinks clips it
     best = np.take_along_axis(res, g[:, :, None], axis=2)[:, :, 0]
     return np.sqrt(np.maximum(best, 0) / S)
@@ -362,10 +362,13 @@ def _tyre_side_flat(prof: np.ndarray, s: np.ndarray, s0: np.ndarray, h: np.ndarr
     x = s[None, :] - s0[:, None]
     near = (x > 1.5 * sigma) & (x < 1.5 * sigma + 1.01)
     far = x > 1.5 * sigma
-    with np.errstate(invalid="ignore"):
-        low = np.where(near, prof, np.nan)
-        low = np.nanmean(np.where(near.any(axis=1, keepdims=True), low, prof[:, -1:]), axis=1)
-        top = np.max(np.where(far, prof, -np.inf), axis=1)
+    # low (N,): the mean of the near samples, else of the row filled with its last sample,
+    # summed as np.nanmean sums them (the same values in the same order) without its overhead
+    # (prof is finite: to_grey refuses non-finite images)
+    near_any = near.any(axis=1)
+    filled = np.where(near_any[:, None], np.where(near, prof, 0.0), prof[:, -1:])   # (N,S)
+    low = filled.sum(axis=1) / np.where(near_any, near.sum(axis=1), len(s))
+    top = np.max(np.where(far, prof, -np.inf), axis=1)
     top = np.where(np.isfinite(top), top, low)
     return (top - low) < max_rise * np.abs(h)
 
