@@ -123,6 +123,19 @@ class Ellipse:
         n = np.stack([c * nx - s * ny, s * nx + c * ny], axis=1)
         return n / np.linalg.norm(n, axis=1, keepdims=True)
 
+    def scaled_points(self, factors, t: np.ndarray) -> np.ndarray:
+        """(F*N,2) the points at parameters t (N,) of the concentric similar ellipses with axes
+        scaled by each of ``factors`` (F,) > 0, ellipse after ellipse: the points of
+        ``Ellipse(c, axes * f, angle).point_at(t)`` for each f, by the same arithmetic, with
+        one cos and sin of t for all of them."""
+        same = Ellipse(self.center_px, self.axes_px, self.angle_rad)  # the scaled ones' angle
+        axes = self.axes_px * np.asarray(factors, float)[:, None]       # (F,2)
+        t = np.asarray(t, float)
+        x, y = axes[:, :1] * np.cos(t), axes[:, 1:] * np.sin(t)          # (F,N)
+        c, s = same._cos_sin
+        return np.stack([(self.center_px[0] + c * x - s * y).ravel(),
+                         (self.center_px[1] + s * x + c * y).ravel()], axis=1)
+
     def points(self, n: int) -> np.ndarray:
         """(n,2) points at equal parameter steps, t = 2 pi k / n."""
         return self.point_at(np.arange(n) * (2 * np.pi / n))
