@@ -29,6 +29,7 @@ from station.rim import edges as edges_mod
 from station.rim import hough
 from station.rim.ellipse import Ellipse
 from station.rim.ellipse_fit import fit_direct, fit_geometric, ransac_ellipse
+from station.rim.order_stats import median, percentile
 from station.rim.preprocess import PixelMap, detection_scale, downscale, equalize, to_grey
 from station.rim.subpixel import edge_points, window_scale
 from station.rim.white_edge import white_share
@@ -194,24 +195,10 @@ def _ring_darkness(sc: _Scene, e: Ellipse, n_angles: int = 96) -> float:
     if vis.sum() < n_angles // 4:
         return 0.0
     c = contrast[vis]
-    ref = _percentile(c, 80)
+    ref = percentile(c, 80)
     if ref <= 4:
         return 0.0
     return float(np.mean(c > 0.5 * ref))
-
-
-def _percentile(x: np.ndarray, q: float) -> float:
-    """``np.percentile(x, q)`` (linear method) of a 1-D finite float64 array x (N,), N >= 1:
-    the same value by the same arithmetic, without numpy's generic machinery (20 us a call)."""
-    n = len(x)
-    at = (n - 1) * (q / 100)          # the virtual index
-    if at >= n - 1:
-        return float(x.max())
-    lo = int(np.floor(at))
-    part = np.partition(x, [lo, lo + 1])
-    a, b, gamma = part[lo], part[lo + 1], at - lo
-    diff = b - a
-    return float(b - diff * (1 - gamma) if gamma >= 0.5 else a + diff * gamma)
 
 
 def _outer_contour(sc: _Scene, e: Ellipse) -> float:
@@ -307,7 +294,7 @@ def _consensus_threshold(d: np.ndarray) -> float:
     model error cancels), so that a compromise between two concentric edges, which passes
     within a pixel or so of both, does not win the consensus."""
     dd = np.diff(d, 2)
-    sigma = 1.4826 * np.median(np.abs(dd - np.median(dd))) / np.sqrt(6.0)
+    sigma = 1.4826 * median(np.abs(dd - median(dd))) / np.sqrt(6.0)
     return float(np.clip(3.0 * sigma, 0.25, 1.5))
 
 
@@ -593,7 +580,7 @@ def _result(fit, samples, mask, info: dict, clock: _Clock, camera, pmap: PixelMa
         timing_s=dict(clock.stages), camera_id=camera_id,
         points_norm=pmap.normalized(pts) if camera is not None else None,
         ellipse_frame="pixels" if pmap.identity else "ideal_pixels",
-        coverage=coverage, contrast=float(np.median(samples.contrast[mask])), details=info)
+        coverage=coverage, contrast=float(median(samples.contrast[mask])), details=info)
 
 
 def _holds(fit, samples, mask, prior: Ellipse, shift: float, min_coverage: float = 0.8) -> bool:

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from station.rim.ellipse import Ellipse
+from station.rim.order_stats import median
 
 COV_CORRELATION_FACTOR = 1.0  # replaced by the measured value below (see module docstring)
 
@@ -106,7 +107,7 @@ def fit_geometric(pts: np.ndarray, init: Ellipse | None = None, iterations: int 
     d, t = feet.d, feet.t
     it = 0
     for it in range(1, iterations + 1):
-        sig = 1.4826 * np.median(np.abs(d[inl])) + 1e-6
+        sig = 1.4826 * median(np.abs(d[inl])) + 1e-6
         inl = np.abs(d) < max(reject_sigma * sig, 1e-3)
         ad = np.abs(d) / sig
         w = np.where(ad < huber_k, 1.0, huber_k / np.maximum(ad, 1e-12)) * inl
@@ -131,7 +132,7 @@ def fit_geometric(pts: np.ndarray, init: Ellipse | None = None, iterations: int 
             # every point moved < 1e-4 px (far below the noise, 0.05-0.2 px); a near-circle's
             # angle moves its curve by (a - b) per radian
             break
-    sig = 1.4826 * np.median(np.abs(d[inl])) + 1e-9
+    sig = 1.4826 * median(np.abs(d[inl])) + 1e-9
     inl = np.abs(d) < reject_sigma * sig
     J = _jacobian(e, feet)[inl]
     rms = float(np.sqrt(np.mean(d[inl] ** 2))) if inl.any() else float("inf")

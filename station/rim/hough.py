@@ -35,6 +35,7 @@ import numpy as np
 from station.rim.edges import EdgeSet
 from station.rim.ellipse import Ellipse
 from station.rim.ellipse_fit import ransac_ellipse
+from station.rim.order_stats import median
 
 N_DIR_BINS = 64             # gradient-direction bins for pairing (5.6 degrees)
 MIN_CHORD_COS = 0.84        # chord within 33 degrees of the gradient (b/a >= 0.55)
@@ -142,7 +143,7 @@ def estimate_shape(x: np.ndarray, g: np.ndarray, iterations: int = 4) -> np.ndar
         _, _, Vt = np.linalg.svd(A * w[:, None], full_matrices=False)
         m = Vt[-1]
         r = A @ m
-        s = 1.4826 * np.median(np.abs(r)) + 1e-12
+        s = 1.4826 * median(np.abs(r)) + 1e-12
         w = 1.0 / (1.0 + (r / (2.5 * s)) ** 2)
     M = np.array([[m[0], m[1]], [m[1], m[2]]])
     if M[0, 0] < 0:

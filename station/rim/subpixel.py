@@ -22,6 +22,7 @@ from scipy.special import erf
 
 from station.bounded_cache import BoundedCache
 from station.rim.ellipse import Ellipse
+from station.rim.order_stats import median
 from station.rim.preprocess import PixelMap
 
 SQRT2 = np.sqrt(2.0)
@@ -238,7 +239,7 @@ def estimate_blur(prof: np.ndarray, s: np.ndarray, polarity: float = -1.0) -> fl
     G, r = len(BLUR_GRID_PX), np.arange(len(prof))
     k = np.clip(np.argmin(rms, axis=1), 1, G - 2)
     at = k + _parabola(rms[r, k - 1], rms[r, k], rms[r, k + 1])
-    return float(np.exp(np.median(np.interp(at, np.arange(G), np.log(BLUR_GRID_PX)))))
+    return float(np.exp(median(np.interp(at, np.arange(G), np.log(BLUR_GRID_PX)))))
 
 
 def _blur_rms(prof: np.ndarray, s: np.ndarray, polarity: float, grid_step: float = 0.25,
@@ -314,7 +315,7 @@ def _blur_profiles(p: np.ndarray, conv: np.ndarray) -> np.ndarray:
     """Indices of up to ``BLUR_PROFILES`` profiles for the blur estimate, spread evenly round
     the rim: fitted, with at least half the median contrast (params p (N,5) of fit_steps)."""
     h = np.abs(p[:, 2])
-    use = conv & (h > 0.5 * np.median(h[conv])) if conv.sum() >= 10 else np.ones(len(h), bool)
+    use = conv & (h > 0.5 * median(h[conv])) if conv.sum() >= 10 else np.ones(len(h), bool)
     idx = np.nonzero(use)[0]
     return idx[np.linspace(0, len(idx) - 1, min(BLUR_PROFILES, len(idx))).astype(int)]
 
@@ -431,9 +432,9 @@ def edge_points(grey: np.ndarray, ellipse: Ellipse, pmap: PixelMap | None = None
         ok[idx] = conv
     # reject weak or badly fitting edges relative to the typical profile of this ellipse
     if ok.sum() >= 8:
-        c_med = np.median(contrast[ok])
-        r_med = np.median(rms[ok])
-        w_med = np.median(width[ok])
+        c_med = median(contrast[ok])
+        r_med = median(rms[ok])
+        w_med = median(width[ok])
         ok &= (contrast > 0.2 * c_med) & (contrast > 4 * r_med) & (rms < 3.0 * r_med + 1e-6) \
             & (width < 2.5 * w_med + 0.3) & (width > 0.25)
     return EdgeSamples(pts, t, contrast, width, rms, ok), sigma
