@@ -65,44 +65,45 @@ def pair_midpoints(edges: EdgeSet, d_min: float, d_max: float, max_pairs: int = 
     Returns (mid (P,2), ia (P,), ib (P,)): the midpoint of each accepted pair and the indices
     of its two edge pixels into ``edges``.
     """
-    P = edges.points.astype(np.float32)
-    g = edges.grad.astype(np.float32)
     phi = np.arctan2(edges.grad[:, 1], edges.grad[:, 0])
     k = ((phi + np.pi) * (N_DIR_BINS / (2 * np.pi))).astype(np.int64) % N_DIR_BINS
     order = np.argsort(k, kind="stable")
     starts = np.concatenate([[0], np.cumsum(np.bincount(k, minlength=N_DIR_BINS))])
+    # (N,) float32 columns in bin order: each bin's pixels are a slice, no gather per bin
+    u, v = edges.points[order].astype(np.float32).T
+    gu, gv = edges.grad[order].astype(np.float32).T
     half = N_DIR_BINS // 2
-    mids, ias, ibs = [], [], []
+    ias, ibs = [], []
     total = 0
     d_min2, d_max2 = d_min * d_min, d_max * d_max
     c2 = MIN_CHORD_COS**2
     for b in range(half):
-        ia = order[starts[b]:starts[b + 1]]
-        ib = order[starts[b + half]:starts[b + half + 1]]
-        if len(ia) == 0 or len(ib) == 0:
+        a0, a1, b0, b1 = starts[b], starts[b + 1], starts[b + half], starts[b + half + 1]
+        if a0 == a1 or b0 == b1:
             continue
-        du = P[ib, 0][None, :] - P[ia, 0][:, None]          # (na, nb)
-        dv = P[ib, 1][None, :] - P[ia, 1][:, None]
+        A, B = slice(a0, a1), slice(b0, b1)
+        du = u[None, B] - u[A, None]          # (na, nb)
+        dv = v[None, B] - v[A, None]
         dist2 = du * du + dv * dv
         # the partner must lie along this point's gradient (bright inside) and this point
         # along the reverse of the partner's gradient, each within 40 degrees
-        dot_a = du * g[ia, 0][:, None] + dv * g[ia, 1][:, None]
-        dot_b = -(du * g[ib, 0][None, :] + dv * g[ib, 1][None, :])
+        dot_a = du * gu[A, None] + dv * gv[A, None]
+        dot_b = du * gu[None, B] + dv * gv[None, B]   # minus the dot with the reverse gradient
         lim = c2 * dist2
-        ok = (dist2 > d_min2) & (dist2 < d_max2) & (dot_a > 0) & (dot_b > 0) \
+        ok = (dist2 > d_min2) & (dist2 < d_max2) & (dot_a > 0) & (dot_b < 0) \
             & (dot_a * dot_a > lim) & (dot_b * dot_b > lim)
         i, j = np.nonzero(ok)
         if len(i) == 0:
             continue
-        mids.append(0.5 * (edges.points[ia[i]] + edges.points[ib[j]]))
-        ias.append(ia[i])
-        ibs.append(ib[j])
+        ias.append(order[a0 + i])
+        ibs.append(order[b0 + j])
         total += len(i)
         if total > max_pairs:
             break
-    if not mids:
+    if not ias:
         return np.empty((0, 2)), np.empty(0, np.int64), np.empty(0, np.int64)
-    return np.concatenate(mids), np.concatenate(ias), np.concatenate(ibs)
+    ia, ib = np.concatenate(ias), np.concatenate(ibs)
+    return 0.5 * (edges.points[ia] + edges.points[ib]), ia, ib
 
 
 def centre_peaks(mid: np.ndarray, shape: tuple[int, int], max_peaks: int = 6,

@@ -51,9 +51,9 @@ class EdgeSamples:
 
 def sample_profiles(grey: np.ndarray, base_px: np.ndarray, normal_px: np.ndarray, s: np.ndarray) -> np.ndarray:
     """Bilinear samples of ``grey`` (H,W) float32 at base + s * normal: (N,S)."""
-    coords = base_px[:, None, :] + s[None, :, None] * normal_px[:, None, :]
-    mx = np.ascontiguousarray(coords[..., 0], dtype=np.float32)
-    my = np.ascontiguousarray(coords[..., 1], dtype=np.float32)
+    # (N,S) sample coordinates, x and y apart (no (N,S,2) array to split)
+    mx = (base_px[:, 0:1] + s[None, :] * normal_px[:, 0:1]).astype(np.float32)
+    my = (base_px[:, 1:2] + s[None, :] * normal_px[:, 1:2]).astype(np.float32)
     return cv2.remap(grey, mx, my, INTERPOLATION, borderMode=cv2.BORDER_REPLICATE).astype(np.float64)
 
 
