@@ -204,14 +204,14 @@ def _ring_darkness(sc: _Scene, e: Ellipse, n_angles: int = 96) -> float:
 def _outer_contour(sc: _Scene, e: Ellipse) -> float:
     """Evidence (0..1) of a concentric contour 1.15-2.0 times larger (the tyre outline), any polarity."""
     E = sc.edges
-    x, y = e._local_xy(E.points)                     # (N,) each, in the ellipse's frame
+    x, y = e.local_xy(E.points)                      # (N,) each, in the ellipse's frame
     a, b = e.axes_px
     rr = np.sqrt((x / a) ** 2 + (y / b) ** 2)        # e.radius_ratio
     sel = np.flatnonzero((rr > 1.15) & (rr < 2.0))
     if len(sel) < 10:
         return 0.0
     nx, ny = x[sel] / a**2, y[sel] / b**2            # normal of the concentric ellipse, local frame
-    c, s = e._cos_sin
+    c, s = e.cos_sin
     nx, ny = c * nx - s * ny, s * nx + c * ny        # in pixels, then unit length
     norm = np.sqrt(nx * nx + ny * ny)
     grad = E.grad[sel]

@@ -14,7 +14,7 @@ point at parameter ``t`` is ``c + a cos t (cos theta, sin theta) + b sin t (-sin
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cached_property
+from functools import cached_property, lru_cache
 from typing import NamedTuple
 
 import numpy as np
@@ -23,6 +23,16 @@ import numpy as np
 def _wrap_angle(theta: float) -> float:
     """Ellipse angles are defined modulo pi: map to [-pi/2, pi/2)."""
     return float((theta + np.pi / 2) % np.pi - np.pi / 2)
+
+
+@lru_cache(maxsize=64)
+def _circle(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """cos t, sin t (n,) (read-only) at t = 2 pi k / n: :meth:`Ellipse.points` samples every
+    candidate ellipse of a size with the same n."""
+    t = np.arange(n) * (2 * np.pi / n)
+    ct, st = np.cos(t), np.sin(t)
+    ct.flags.writeable = st.flags.writeable = False
+    return ct, st
 
 
 class Feet(NamedTuple):
@@ -79,7 +89,7 @@ class Ellipse:
     def to_conic(self) -> np.ndarray:
         """(6,) (A, B, C, D, E, F) with A u^2 + B u v + C v^2 + D u + E v + F = 0, unit norm, A > 0."""
         (u0, v0), (a, b) = self.center_px, self.axes_px
-        c, s = self._cos_sin
+        c, s = self.cos_sin
         A = c * c / a**2 + s * s / b**2
         C = s * s / a**2 + c * c / b**2
         B = 2 * c * s * (1 / a**2 - 1 / b**2)
@@ -109,16 +119,20 @@ class Ellipse:
     def point_at(self, t: np.ndarray) -> np.ndarray:
         """(N,) parameters -> (N,2) points."""
         t = np.asarray(t, float)
+        return self.point_from_cos_sin(np.cos(t), np.sin(t))
+
+    def point_from_cos_sin(self, ct: np.ndarray, st: np.ndarray) -> np.ndarray:
+        """:meth:`point_at` from cos t and sin t (N,) (tables kept for a fixed set of t)."""
         a, b = self.axes_px
-        c, s = self._cos_sin
-        x, y = a * np.cos(t), b * np.sin(t)
+        c, s = self.cos_sin
+        x, y = a * ct, b * st
         return np.stack([self.center_px[0] + c * x - s * y, self.center_px[1] + s * x + c * y], axis=1)
 
     def normal_at(self, t: np.ndarray) -> np.ndarray:
         """(N,) parameters -> (N,2) outward unit normals."""
         t = np.asarray(t, float)
         a, b = self.axes_px
-        c, s = self._cos_sin
+        c, s = self.cos_sin
         nx, ny = b * np.cos(t), a * np.sin(t)  # ∝ (cos t / a, sin t / b)
         n = np.stack([c * nx - s * ny, s * nx + c * ny], axis=1)
         return n / np.linalg.norm(n, axis=1, keepdims=True)
@@ -132,13 +146,13 @@ class Ellipse:
         axes = self.axes_px * np.asarray(factors, float)[:, None]       # (F,2)
         t = np.asarray(t, float)
         x, y = axes[:, :1] * np.cos(t), axes[:, 1:] * np.sin(t)          # (F,N)
-        c, s = same._cos_sin
+        c, s = same.cos_sin
         return np.stack([(self.center_px[0] + c * x - s * y).ravel(),
                          (self.center_px[1] + s * x + c * y).ravel()], axis=1)
 
     def points(self, n: int) -> np.ndarray:
         """(n,2) points at equal parameter steps, t = 2 pi k / n."""
-        return self.point_at(np.arange(n) * (2 * np.pi / n))
+        return self.point_from_cos_sin(*_circle(n))
 
     def perimeter(self) -> float:
         """Ramanujan's approximation (relative error < 1e-9 for a/b < 1.5)."""
@@ -149,18 +163,18 @@ class Ellipse:
     # --- geometry ---------------------------------------------------------------------------
     def to_local(self, pts: np.ndarray) -> np.ndarray:
         """(N,2) pixels -> (N,2) (u_e, v_e) of eqs 2-3."""
-        return np.stack(self._local_xy(pts), axis=1)
+        return np.stack(self.local_xy(pts), axis=1)
 
-    def _local_xy(self, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(N,2) pixels -> u_e (N,), v_e (N,) of eqs 2-3 (no (N,2) stack for callers that
-        use the columns apart)."""
+    def local_xy(self, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(N,2) pixels -> u_e (N,), v_e (N,) of eqs 2-3: :meth:`to_local`'s columns, without
+        the (N,2) stack for callers that use them apart."""
         d = np.asarray(pts, float) - self.center_px
-        c, s = self._cos_sin
+        c, s = self.cos_sin
         du, dv = d[:, 0], d[:, 1]
         return du * c + dv * s, -du * s + dv * c
 
     @cached_property
-    def _cos_sin(self) -> tuple[float, float]:
+    def cos_sin(self) -> tuple[float, float]:
         """cos and sin of the angle, once per ellipse (many callers transform points)."""
         return np.cos(self.angle_rad), np.sin(self.angle_rad)
 
@@ -182,7 +196,7 @@ class Ellipse:
         """:meth:`approx_distance`'s distance d (N,) and what its normal is made of, (gx, gy,
         |g|) (N,) each: the normal of only the points that pass a distance test costs less
         (:meth:`approx_normal` of a subset of them)."""
-        x, y = self._local_xy(pts)
+        x, y = self.local_xy(pts)
         a, b = self.axes_px
         gx, gy = x / (a * a), y / (b * b)
         r = np.sqrt(x * gx + y * gy)
@@ -192,7 +206,7 @@ class Ellipse:
 
     def approx_normal(self, gx: np.ndarray, gy: np.ndarray, g: np.ndarray) -> np.ndarray:
         """(N,2) outward unit normals from :meth:`approx_distance_grad`'s (gx, gy, |g|)."""
-        c, s = self._cos_sin
+        c, s = self.cos_sin
         return np.stack([c * gx - s * gy, s * gx + c * gy], axis=1) / np.maximum(g, 1e-12)[:, None]
 
     def distance(self, pts: np.ndarray, iterations: int = 4, t0: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -208,7 +222,7 @@ class Ellipse:
     def feet(self, pts: np.ndarray, iterations: int = 4, t0: np.ndarray | None = None) -> "Feet":
         """:meth:`distance` with what it computed at the feet on the way (:class:`Feet`), for a
         fit's Jacobian at the same feet (no second cos / sin of t)."""
-        x, y = self._local_xy(pts)
+        x, y = self.local_xy(pts)
         a, b = self.axes_px
         t = np.arctan2(a * y, b * x) if t0 is None else t0
         for _ in range(iterations):

@@ -75,7 +75,7 @@ def _jacobian(e: Ellipse, feet) -> np.ndarray:
     cos t, sin t and the normal in the ellipse's frame). Written per column in the ellipse's
     own frame, where the dot products are one product each."""
     a, b = e.axes_px
-    c, s = e._cos_sin
+    c, s = e.cos_sin
     ct, st, nlx, nly = feet.ct, feet.st, feet.nx, feet.ny
     J = np.empty((len(ct), 5))
     J[:, 0] = -(c * nlx - s * nly)
@@ -84,6 +84,9 @@ def _jacobian(e: Ellipse, feet) -> np.ndarray:
     J[:, 3] = -nly * st
     J[:, 4] = nlx * b * st - nly * a * ct
     return J
+
+
+_TINY_EYE = 1e-12 * np.eye(5)  # keeps the damped normal equations regular
 
 
 def fit_geometric(pts: np.ndarray, init: Ellipse | None = None, iterations: int = 12,
@@ -117,7 +120,7 @@ def fit_geometric(pts: np.ndarray, init: Ellipse | None = None, iterations: int 
         g = JtW @ d
         cost = (w * d * d).sum()
         while True:
-            step = -np.linalg.solve(H + lam * (np.diag(np.diag(H)) + 1e-12 * np.eye(5)), g)
+            step = -np.linalg.solve(H + lam * (np.diag(np.diag(H)) + _TINY_EYE), g)
             e_new = Ellipse.from_params(p + step)
             feet_new = evaluate(e_new, t)
             d_new = feet_new.d
