@@ -29,7 +29,7 @@ from station.rim import edges as edges_mod
 from station.rim import hough
 from station.rim.ellipse import Ellipse
 from station.rim.ellipse_fit import fit_direct, fit_geometric, ransac_ellipse
-from station.rim.order_stats import median, percentile
+from station.rim.npfast import finite_rows, median, percentile, percentiles
 from station.rim.preprocess import PixelMap, detection_scale, downscale, equalize, to_grey
 from station.rim.subpixel import edge_points, window_scale
 from station.rim.white_edge import white_share
@@ -100,7 +100,7 @@ class _Clock:
 
 def _check_exposure(grey: np.ndarray, tag: str) -> None:
     step = max(1, int(np.sqrt(grey.size / 20000)))  # ~2e4 pixels tell the exposure
-    lo, hi = np.percentile(grey[::step, ::step], [1.0, 99.5])
+    lo, hi = percentiles(grey[::step, ::step], [1.0, 99.5])
     if hi < 12:
         raise RimNotFound(f"{tag}: image is black (brightest grey level {hi:.0f} of 255)",
                           hint="check the lighting, the exposure time and that the lens is uncovered")
@@ -151,7 +151,7 @@ class _Scene:
             iv = self.edges.points[:, 1].astype(np.int64)
             iu = self.edges.points[:, 0].astype(np.int64)
             ideal = table[iv, iu]  # Canny pixels sit on the coarse grid: a lookup
-            good = np.isfinite(ideal).all(axis=1)
+            good = finite_rows(ideal)
             self.edges = self.edges.subset(good)
             self.edges.points = ideal[good]
 
@@ -166,7 +166,7 @@ class _Scene:
         p = self.pmap.distort(self.to_full(pts_ideal_coarse))
         p = self.to_coarse(p)
         h, w = self.coarse.shape
-        ok = np.isfinite(p).all(axis=1) & (p[:, 0] >= 0) & (p[:, 0] <= w - 1.001) & (p[:, 1] >= 0) & (p[:, 1] <= h - 1.001)
+        ok = finite_rows(p) & (p[:, 0] >= 0) & (p[:, 0] <= w - 1.001) & (p[:, 1] >= 0) & (p[:, 1] <= h - 1.001)
         out = np.full(len(p), np.nan)
         u, v = p[ok, 0], p[ok, 1]
         u0, v0 = np.floor(u).astype(int), np.floor(v).astype(int)

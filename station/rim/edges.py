@@ -12,6 +12,8 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
+from station.rim.npfast import finite_rows, percentiles
+
 
 @dataclass
 class EdgeSet:
@@ -44,7 +46,7 @@ class EdgeSet:
             self._grid = (cell_px, id(self.points), gh, gw, cv * gw + cu)
         _, _, gh, gw, cell_of_point = self._grid
         mask = np.zeros((gh, gw), np.uint8)
-        ok = np.isfinite(curve_px).all(axis=1)
+        ok = finite_rows(curve_px)
         # (M,2) cell (column, row) of each curve point; off the grid: its border cell
         cell = np.clip(np.floor(curve_px[ok] / cell_px), 0, (gw - 1, gh - 1)).astype(np.int64)
         mask[cell[:, 1], cell[:, 0]] = 1
@@ -68,7 +70,7 @@ def canny_thresholds(mag: np.ndarray, high_percentile: float = 90.0) -> tuple[fl
     noise level: most of an image is flat), so a flat noisy image yields few edges;
     low = 0.4 high.
     """
-    noise, p_hi = (float(v) for v in np.percentile(mag[::2, ::2], [50.0, high_percentile]))
+    noise, p_hi = (float(v) for v in percentiles(mag[::2, ::2], [50.0, high_percentile]))
     high = max(p_hi, 4.0 * noise, 8.0)
     return 0.4 * high, high
 

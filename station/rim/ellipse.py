@@ -19,6 +19,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from station.rim.npfast import row_norms
+
 
 def _wrap_angle(theta: float) -> float:
     """Ellipse angles are defined modulo pi: map to [-pi/2, pi/2)."""
@@ -135,7 +137,7 @@ class Ellipse:
         c, s = self.cos_sin
         nx, ny = b * np.cos(t), a * np.sin(t)  # ∝ (cos t / a, sin t / b)
         n = np.stack([c * nx - s * ny, s * nx + c * ny], axis=1)
-        return n / np.linalg.norm(n, axis=1, keepdims=True)
+        return n / row_norms(n)[:, None]
 
     def scaled_points(self, factors, t: np.ndarray) -> np.ndarray:
         """(F*N,2) the points at parameters t (N,) of the concentric similar ellipses with axes

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from station.rim.ellipse import Ellipse
-from station.rim.order_stats import median
+from station.rim.npfast import median, row_sq_sums
 
 COV_CORRELATION_FACTOR = 1.0  # replaced by the measured value below (see module docstring)
 
@@ -30,7 +30,7 @@ def fit_direct(pts: np.ndarray) -> Ellipse:
     if len(pts) < 5:
         raise ValueError("an ellipse needs at least 5 points")
     mean = pts.mean(axis=0)
-    scale = np.sqrt(((pts - mean) ** 2).sum(axis=1).mean()) + 1e-12
+    scale = np.sqrt(row_sq_sums(pts - mean).mean()) + 1e-12
     x, y = ((pts - mean) / scale).T
     D1 = np.stack([x * x, x * y, y * y], axis=1)
     D2 = np.stack([x, y, np.ones_like(x)], axis=1)
@@ -170,7 +170,7 @@ def ransac_ellipse(pts: np.ndarray, threshold_px: float, iterations: int = 160,
     if n < 10:
         return None
     mean = pts.mean(axis=0)
-    scale = np.sqrt(((pts - mean) ** 2).sum(axis=1).mean()) + 1e-12
+    scale = np.sqrt(row_sq_sums(pts - mean).mean()) + 1e-12
     x, y = ((pts - mean) / scale).T
     rng = np.random.default_rng(seed)
     idx = rng.integers(0, n, (iterations, 5))  # (a repeated index gives a degenerate conic that loses)

@@ -36,7 +36,7 @@ import numpy as np
 from station.rim.edges import EdgeSet
 from station.rim.ellipse import Ellipse
 from station.rim.ellipse_fit import ransac_ellipse
-from station.rim.order_stats import median
+from station.rim.npfast import median, row_norms
 
 N_DIR_BINS = 64             # gradient-direction bins for pairing (5.6 degrees)
 MIN_CHORD_COS = 0.84        # chord within 33 degrees of the gradient (b/a >= 0.55)
@@ -135,7 +135,7 @@ def estimate_shape(x: np.ndarray, g: np.ndarray, iterations: int = 4) -> np.ndar
     None when the points do not define an ellipse with b/a >= MIN_AXIS_RATIO."""
     if len(x) < 8:
         return None
-    rn = np.linalg.norm(x, axis=1, keepdims=True)
+    rn = row_norms(x)[:, None]
     xn = x / np.maximum(rn, 1e-9)
     # g_x (M12 x + M22 y) - g_y (M11 x + M12 y) = 0 for m = (M11, M12, M22)
     A = np.stack([-g[:, 1] * xn[:, 0], g[:, 0] * xn[:, 0] - g[:, 1] * xn[:, 1], g[:, 0] * xn[:, 1]], axis=1)
@@ -204,7 +204,7 @@ def size_peaks(edges: EdgeSet, centre: np.ndarray, M: np.ndarray, r_min: float, 
     x = edges.points - centre
     Mx = x @ M
     rho = np.sqrt(np.maximum(np.einsum("ij,ij->i", x, Mx), 0))
-    n = Mx / np.maximum(np.linalg.norm(Mx, axis=1, keepdims=True), 1e-9)
+    n = Mx / np.maximum(row_norms(Mx)[:, None], 1e-9)
     inward = -np.einsum("ij,ij->i", n, edges.grad) > NORMAL_COS
     sel = inward & (rho >= r_min) & (rho <= r_max)
     if sel.sum() < 10:
@@ -240,7 +240,7 @@ def find_candidates(edges: EdgeSet, r_min: float, r_max: float, max_centres: int
         return []
     out: list[Candidate] = []
     for c0, height in centre_peaks(mid, edges.shape, max_centres, min_separation_px=max(6.0, 0.3 * r_min)):
-        near = np.linalg.norm(mid - c0, axis=1) < 1.6 * CELL_PX
+        near = row_norms(mid - c0) < 1.6 * CELL_PX
         if near.sum() < 6:
             continue
         c = mid[near].mean(axis=0)

@@ -22,7 +22,7 @@ from scipy.special import erf
 
 from station.bounded_cache import BoundedCache
 from station.rim.ellipse import Ellipse
-from station.rim.order_stats import median
+from station.rim.npfast import finite_rows, median, row_norms
 from station.rim.preprocess import PixelMap
 
 SQRT2 = np.sqrt(2.0)
@@ -108,7 +108,7 @@ def fit_steps(prof: np.ndarray, s: np.ndarray, polarity: float = -1.0, iteration
 
 def _step_found(p: np.ndarray, s: np.ndarray, polarity: float) -> np.ndarray:
     """(N,) bool: a finite step of the expected polarity, not at the window's end (params p (N,5))."""
-    return np.isfinite(p).all(axis=1) & (np.abs(p[:, 3]) < s[-1] - 0.75) & (p[:, 2] * polarity > 0)
+    return finite_rows(p) & (np.abs(p[:, 3]) < s[-1] - 0.75) & (p[:, 2] * polarity > 0)
 
 
 def initial_steps(prof: np.ndarray, s: np.ndarray, polarity: float = -1.0) -> np.ndarray:
@@ -398,10 +398,10 @@ def edge_points(grey: np.ndarray, ellipse: Ellipse, pmap: PixelMap | None = None
     else:
         tip = pmap.distort(p_ideal + n_ideal)
         nrm = tip - base
-        nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+        nrm /= row_norms(nrm)[:, None]
     s = np.arange(window_px[0], window_px[1] + step_px / 2, step_px)
     h, w = grey.shape
-    inside = np.isfinite(base).all(axis=1)
+    inside = finite_rows(base)
     for e in (base + s[0] * nrm, base + s[-1] * nrm):
         inside &= (e[:, 0] >= 0) & (e[:, 0] <= w - 1) & (e[:, 1] >= 0) & (e[:, 1] <= h - 1)
     pts = np.full((n, 2), np.nan)
