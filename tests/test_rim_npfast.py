@@ -4,7 +4,7 @@ move by a rounding)."""
 import numpy as np
 import pytest
 
-from station.rim.npfast import finite_rows, median, percentile, percentiles, row_norms, row_sq_sums
+from station.rim.npfast import finite_rows, median, percentile, percentiles, row_norms, row_sq_sums, rows
 
 
 @pytest.mark.parametrize("seed", range(4))
@@ -62,3 +62,15 @@ def test_row_helpers_are_numpys():
             assert np.array_equal(finite_rows(x), np.isfinite(x).all(axis=1))
         x = rng.normal(size=(n, 2)) * 300
         assert np.array_equal(row_sq_sums(x), (x ** 2).sum(axis=1))
+
+
+def test_rows_is_fancy_indexing():
+    rng = np.random.default_rng(9)
+    a = rng.normal(size=(300, 2))
+    for index in (rng.integers(0, 300, 50), np.sort(rng.integers(-300, 300, 400)), rng.random(300) < 0.3,
+                  np.zeros(0, np.int64), np.zeros(300, bool)):
+        got, want = rows(a, index), a[index]
+        assert np.array_equal(got, want) and got.shape == want.shape and got.flags["C_CONTIGUOUS"]
+    assert np.array_equal(rows(rng.normal(size=(40, 5, 5)), np.arange(40) % 3 == 0).shape, (14, 5, 5))
+    with pytest.raises(IndexError):
+        rows(a, np.ones(299, bool))

@@ -29,7 +29,7 @@ from station.rim import edges as edges_mod
 from station.rim import hough
 from station.rim.ellipse import Ellipse
 from station.rim.ellipse_fit import fit_direct, fit_geometric, ransac_ellipse
-from station.rim.npfast import finite_rows, median, percentile, percentiles
+from station.rim.npfast import finite_rows, median, percentile, percentiles, rows
 from station.rim.preprocess import PixelMap, detection_scale, downscale, equalize, to_grey
 from station.rim.subpixel import edge_points, window_scale
 from station.rim.white_edge import white_share
@@ -153,7 +153,7 @@ class _Scene:
             ideal = table[iv, iu]  # Canny pixels sit on the coarse grid: a lookup
             good = finite_rows(ideal)
             self.edges = self.edges.subset(good)
-            self.edges.points = ideal[good]
+            self.edges.points = rows(ideal, good)
 
     def to_full(self, p):
         return (p + 0.5) * self.s - 0.5
@@ -214,7 +214,7 @@ def _outer_contour(sc: _Scene, e: Ellipse) -> float:
     c, s = e.cos_sin
     nx, ny = c * nx - s * ny, s * nx + c * ny        # in pixels, then unit length
     norm = np.sqrt(nx * nx + ny * ny)
-    grad = E.grad[sel]
+    grad = rows(E.grad, sel)
     aligned = np.abs(nx / norm * grad[:, 0] + ny / norm * grad[:, 1]) > hough.NORMAL_COS
     r = rr[sel][aligned] * a  # semi-major of the concentric ellipse through each point (coarse px)
     if len(r) < 10:
@@ -324,14 +324,14 @@ def _refine(grey: np.ndarray, e_full: Ellipse, pmap: PixelMap, passes=PASSES, bl
         ok = samples.ok
         if ok.sum() < MIN_POINTS:
             return None, samples, ok, sigma
-        ideal = pmap.undistort(samples.points_px[ok])
+        ideal = pmap.undistort(rows(samples.points_px, ok))
         d_prev = None if tracking and fit is None else e.distance(ideal)[0]  # (tracking needs neither use)
         if fit is not None:  # a later pass: its edge is the curve the earlier pass fitted
             near = np.abs(d_prev) <= max(GATE_PX, GATE_SIGMAS * fit.sigma_px)
             ok[np.nonzero(ok)[0][~near]] = False
             if ok.sum() < MIN_POINTS:
                 return None, samples, ok, sigma
-            ideal, d_prev = ideal[near], d_prev[near]
+            ideal, d_prev = rows(ideal, near), d_prev[near]
         # one curve, not a compromise between concentric edges: consensus first, then the
         # robust fit of ALL points from the consensus ellipse (a tight consensus band alone
         # would bias the fit toward the minimal sample that defined it)
@@ -340,7 +340,7 @@ def _refine(grey: np.ndarray, e_full: Ellipse, pmap: PixelMap, passes=PASSES, bl
         if not tracking and (keep is None or keep.sum() < MIN_POINTS):
             return None, samples, ok, sigma
         try:
-            e_cons = e if tracking else fit_direct(ideal[keep])
+            e_cons = e if tracking else fit_direct(rows(ideal, keep))
             fit = fit_geometric(ideal, init=e_cons, iterations=12 if final else 5)
         except (ValueError, np.linalg.LinAlgError):
             return None, samples, ok, sigma
@@ -505,7 +505,7 @@ def _untangled(grey: np.ndarray, pmap: PixelMap, candidates: list[dict], fit, sa
             and np.linalg.norm(np.asarray(c["ellipse"]["center_px"]) - c0) <= SAME_WHEEL * a0]
     if not ties:
         return None
-    pts = pmap.undistort(samples.points_px[mask])     # (N,2) the best's inliers, ideal pixels
+    pts = pmap.undistort(rows(samples.points_px, mask))  # (N,2) the best's inliers, ideal pixels
     _, t = fit.ellipse.distance(pts)
     arc = (np.mod(t, 2 * np.pi) * (UNTANGLE_ARCS / (2 * np.pi))).astype(int) % UNTANGLE_ARCS
     seen = np.bincount(arc, minlength=UNTANGLE_ARCS) >= 5
@@ -517,7 +517,7 @@ def _untangled(grey: np.ndarray, pmap: PixelMap, candidates: list[dict], fit, sa
         if shared.sum() < MIN_SHARED * UNTANGLE_ARCS:
             continue
         try:
-            shared_fit = fit_geometric(pts[shared[arc]], init=fit.ellipse, iterations=12)
+            shared_fit = fit_geometric(rows(pts, shared[arc]), init=fit.ellipse, iterations=12)
         except (ValueError, np.linalg.LinAlgError):
             continue
         off = _arc_medians(np.abs(shared_fit.ellipse.distance(pts)[0]), arc, seen)
@@ -526,7 +526,7 @@ def _untangled(grey: np.ndarray, pmap: PixelMap, candidates: list[dict], fit, sa
             return None  # the best follows one curve all round: it stays
         on_rim = (off < APART_PX)[arc]  # the arcs on the shared arcs' ellipse, shared or not
         try:
-            rim_fit = fit_geometric(pts[on_rim], init=shared_fit.ellipse, iterations=12)
+            rim_fit = fit_geometric(rows(pts, on_rim), init=shared_fit.ellipse, iterations=12)
         except (ValueError, np.linalg.LinAlgError):
             continue
         kept = np.zeros_like(mask)
@@ -569,7 +569,7 @@ def _result(fit, samples, mask, info: dict, clock: _Clock, camera, pmap: PixelMa
     if coverage < MIN_REFINED_COVERAGE:
         raise RimNotFound(f"{tag}: no closed rim contour (sub-pixel edge on {coverage:.0%} of the perimeter)",
                           hint="check that the whole rim is in view and evenly lit")
-    pts = samples.points_px[mask]
+    pts = rows(samples.points_px, mask)
     ring = info.get("ring", 1.0)
     outer = info.get("outer", 1.0)
     sharp = float(np.exp(-max(fit.sigma_px - 0.1, 0.0) / 0.5))

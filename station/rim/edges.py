@@ -12,7 +12,7 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
-from station.rim.npfast import finite_rows, percentiles
+from station.rim.npfast import finite_rows, percentiles, rows
 
 
 @dataclass
@@ -32,7 +32,7 @@ class EdgeSet:
         return len(self.points)
 
     def subset(self, idx) -> "EdgeSet":
-        return EdgeSet(self.points[idx], self.grad[idx], self.mag[idx], self.shape)
+        return EdgeSet(rows(self.points, idx), rows(self.grad, idx), self.mag[idx], self.shape)
 
     def near_curve(self, curve_px: np.ndarray, radius_px: float, cell_px: float = 8.0) -> np.ndarray:
         """Indices (sorted) of the edge pixels in the grid cells of ``cell_px`` that lie within
@@ -48,7 +48,7 @@ class EdgeSet:
         mask = np.zeros((gh, gw), np.uint8)
         ok = finite_rows(curve_px)
         # (M,2) cell (column, row) of each curve point; off the grid: its border cell
-        cell = np.clip(np.floor(curve_px[ok] / cell_px), 0, (gw - 1, gh - 1)).astype(np.int64)
+        cell = np.clip(np.floor(rows(curve_px, ok) / cell_px), 0, (gw - 1, gh - 1)).astype(np.int64)
         mask[cell[:, 1], cell[:, 0]] = 1
         r = int(np.ceil(radius_px / cell_px))
         mask = cv2.dilate(mask, _square(2 * r + 1))

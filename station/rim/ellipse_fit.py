@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from station.rim.ellipse import Ellipse
-from station.rim.npfast import median, row_sq_sums
+from station.rim.npfast import median, row_sq_sums, rows
 
 COV_CORRELATION_FACTOR = 1.0  # replaced by the measured value below (see module docstring)
 
@@ -137,7 +137,7 @@ def fit_geometric(pts: np.ndarray, init: Ellipse | None = None, iterations: int 
             break
     sig = 1.4826 * median(np.abs(d[inl])) + 1e-9
     inl = np.abs(d) < reject_sigma * sig
-    J = _jacobian(e, feet)[inl]
+    J = rows(_jacobian(e, feet), inl)
     rms = float(np.sqrt(np.mean(d[inl] ** 2))) if inl.any() else float("inf")
     dof = max(int(inl.sum()) - 5, 1)
     s2 = float((d[inl] ** 2).sum() / dof)

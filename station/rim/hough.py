@@ -36,7 +36,7 @@ import numpy as np
 from station.rim.edges import EdgeSet
 from station.rim.ellipse import Ellipse
 from station.rim.ellipse_fit import ransac_ellipse
-from station.rim.npfast import median, row_norms
+from station.rim.npfast import median, row_norms, rows
 
 N_DIR_BINS = 64             # gradient-direction bins for pairing (5.6 degrees)
 MIN_CHORD_COS = 0.84        # chord within 33 degrees of the gradient (b/a >= 0.55)
@@ -71,8 +71,8 @@ def pair_midpoints(edges: EdgeSet, d_min: float, d_max: float, max_pairs: int = 
     order = np.argsort(k, kind="stable")
     starts = np.concatenate([[0], np.cumsum(np.bincount(k, minlength=N_DIR_BINS))])
     # (N,) float32 columns in bin order: each bin's pixels are a slice, no gather per bin
-    u, v = edges.points[order].astype(np.float32).T
-    gu, gv = edges.grad[order].astype(np.float32).T
+    u, v = rows(edges.points, order).astype(np.float32).T
+    gu, gv = rows(edges.grad, order).astype(np.float32).T
     half = N_DIR_BINS // 2
     ias, ibs = [], []
     total = 0
@@ -93,7 +93,7 @@ def pair_midpoints(edges: EdgeSet, d_min: float, d_max: float, max_pairs: int = 
         lim = c2 * dist2
         ok = (dist2 > d_min2) & (dist2 < d_max2) & (dot_a > 0) & (dot_b < 0) \
             & (dot_a * dot_a > lim) & (dot_b * dot_b > lim)
-        i, j = np.nonzero(ok)
+        i, j = np.divmod(np.flatnonzero(ok), b1 - b0)  # np.nonzero(ok), 2-3x faster in 2-D
         if len(i) == 0:
             continue
         ias.append(order[a0 + i])
@@ -104,7 +104,7 @@ def pair_midpoints(edges: EdgeSet, d_min: float, d_max: float, max_pairs: int = 
     if not ias:
         return np.empty((0, 2)), np.empty(0, np.int64), np.empty(0, np.int64)
     ia, ib = np.concatenate(ias), np.concatenate(ibs)
-    return 0.5 * (edges.points[ia] + edges.points[ib]), ia, ib
+    return 0.5 * (rows(edges.points, ia) + rows(edges.points, ib)), ia, ib
 
 
 def centre_peaks(mid: np.ndarray, shape: tuple[int, int], max_peaks: int = 6,
@@ -189,10 +189,10 @@ def polarity_inliers(ellipse: Ellipse, edges: EdgeSet, tol_px: float, inward: bo
     a = ellipse.axes_px[0]
     curve = ellipse.points(int(np.clip(2 * np.pi * a / 4.0, 32, 2048)))  # a point every ~4 px
     cand = edges.near_curve(curve, tol_px + 2.0)
-    d, (gx, gy, g) = ellipse.approx_distance_grad(edges.points[cand])
+    d, (gx, gy, g) = ellipse.approx_distance_grad(rows(edges.points, cand))
     near = np.nonzero(np.abs(d) < tol_px)[0]
     n = ellipse.approx_normal(gx[near], gy[near], g[near])  # (K,2) of the near pixels only
-    cosg = -np.einsum("ij,ij->i", n, edges.grad[cand[near]])
+    cosg = -np.einsum("ij,ij->i", n, rows(edges.grad, cand[near]))
     if not inward:
         cosg = np.abs(cosg)
     return cand[near[cosg > NORMAL_COS]]
@@ -243,9 +243,9 @@ def find_candidates(edges: EdgeSet, r_min: float, r_max: float, max_centres: int
         near = row_norms(mid - c0) < 1.6 * CELL_PX
         if near.sum() < 6:
             continue
-        c = mid[near].mean(axis=0)
+        c = rows(mid, near).mean(axis=0)
         idx = np.unique(np.concatenate([ia[near], ib[near]]))
-        M = estimate_shape(edges.points[idx] - c, edges.grad[idx])
+        M = estimate_shape(rows(edges.points, idx) - c, rows(edges.grad, idx))
         if M is None:
             continue
         w, V = np.linalg.eigh(M)
@@ -273,7 +273,7 @@ def _refine(e0: Ellipse, edges: EdgeSet, height: float, band_px: float) -> Candi
     idx = polarity_inliers(e0, edges, band_px)
     if len(idx) < 12:
         return None
-    inl = ransac_ellipse(edges.points[idx], threshold_px=1.0, iterations=96, seed=len(idx))
+    inl = ransac_ellipse(rows(edges.points, idx), threshold_px=1.0, iterations=96, seed=len(idx))
     if inl is None or inl.sum() < 12:
         return None
     e = e0
@@ -282,7 +282,7 @@ def _refine(e0: Ellipse, edges: EdgeSet, height: float, band_px: float) -> Candi
         if len(sel) < 12:
             return None
         try:
-            (cx, cy), (d1, d2), ang = cv2.fitEllipseDirect(edges.points[sel].astype(np.float32))
+            (cx, cy), (d1, d2), ang = cv2.fitEllipseDirect(rows(edges.points, sel).astype(np.float32))
         except cv2.error:
             return None
         if not (np.isfinite(d1) and np.isfinite(d2)) or min(d1, d2) <= 0:
@@ -293,7 +293,7 @@ def _refine(e0: Ellipse, edges: EdgeSet, height: float, band_px: float) -> Candi
             return None
         e = e_new
     idx = polarity_inliers(e, edges, 1.5)
-    return Candidate(e, height, coverage_of(e, edges.points[idx], edges.shape), len(idx))
+    return Candidate(e, height, coverage_of(e, rows(edges.points, idx), edges.shape), len(idx))
 
 
 def _dedupe(cands: list[Candidate]) -> list[Candidate]:

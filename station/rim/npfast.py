@@ -6,7 +6,9 @@
   partition at several positions, which takes a slow path (0.42 ms against 0.07 for 36k values);
 * ``row_norms`` / ``finite_rows`` / ``row_sq_sums``: np.linalg.norm(v, axis=1),
   np.isfinite(v).all(axis=1) and (v ** 2).sum(axis=1) of (N,2) arrays, written as the two
-  columns' operation they are: numpy reduces a length-2 axis 5-15x slower.
+  columns' operation they are: numpy reduces a length-2 axis 5-15x slower;
+* ``rows``: a[index] for the rows of a 2-D array, by np.take / np.compress: numpy's fancy
+  indexing of rows is 5-10x slower (0.2 ms for 3e4 rows, where np.take takes 0.02).
 
 All are checked equal to numpy's, bit for bit, in tests/test_rim_npfast.py.
 """
@@ -90,3 +92,14 @@ def finite_rows(v: np.ndarray) -> np.ndarray:
     for k in range(1, v.shape[1]):
         ok &= np.isfinite(v[:, k])
     return ok
+
+
+def rows(a: np.ndarray, index: np.ndarray) -> np.ndarray:
+    """``a[index]`` for a (N,...) array and a 1-D integer or boolean index (M,) / (N,): the same
+    rows, a new C-contiguous array."""
+    index = np.asarray(index)
+    if index.dtype == bool:
+        if len(index) != len(a):  # (np.compress would take a short mask)
+            raise IndexError(f"boolean index of length {len(index)} for {len(a)} rows")
+        return np.compress(index, a, axis=0)
+    return np.take(a, index, axis=0)

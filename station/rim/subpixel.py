@@ -22,7 +22,7 @@ from scipy.special import erf
 
 from station.bounded_cache import BoundedCache
 from station.rim.ellipse import Ellipse
-from station.rim.npfast import finite_rows, median, row_norms
+from station.rim.npfast import finite_rows, median, row_norms, rows
 from station.rim.preprocess import PixelMap
 
 SQRT2 = np.sqrt(2.0)
@@ -411,12 +411,13 @@ def edge_points(grey: np.ndarray, ellipse: Ellipse, pmap: PixelMap | None = None
     ok = np.zeros(n, bool)
     idx = np.nonzero(inside)[0]
     if len(idx):
-        prof = sample_profiles(grey, base[idx], nrm[idx], s)
+        base_in, nrm_in = rows(base, idx), rows(nrm, idx)  # (M,2) the profiles inside the image
+        prof = sample_profiles(grey, base_in, nrm_in, s)
         if method == "kink":
             if sigma is None:  # from the profiles' plain step positions
                 p = initial_steps(prof, s)
                 sel = _blur_profiles(p, _step_found(p, s, -1.0))
-                sigma = _estimate_blur_any(prof[sel], s, p[sel, 3], blur_hint)
+                sigma = _estimate_blur_any(rows(prof, sel), s, p[:, 3][sel], blur_hint)
             s0, hh, r, conv = fit_kinks(prof, s, sigma, grid_step=0.125, refine=False)  # parabola on a fine grid: < 0.003 px
             if CURVED_LIP_F is not None and not METAL_CURVATURE:
                 s0, hh, r, conv = _curved_where_needed(prof, s, sigma, s0, hh, r, conv)
@@ -425,7 +426,7 @@ def edge_points(grey: np.ndarray, ellipse: Ellipse, pmap: PixelMap | None = None
             p[:, 3], p[:, 2], p[:, 4] = s0, hh / 2, sigma
         else:
             p, r, conv = fit_steps(prof, s, iterations=8 if method == "erf" else 0)
-        pts[idx] = base[idx] + p[:, 3:4] * nrm[idx]
+        pts[idx] = base_in + p[:, 3:4] * nrm_in
         contrast[idx] = np.abs(2 * p[:, 2])
         width[idx] = p[:, 4]
         rms[idx] = r
