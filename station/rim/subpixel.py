@@ -217,8 +217,10 @@ def _parabola(y0, y1, y2):
         y0 = np.where(np.isfinite(y0), y0, y1)
         y2 = np.where(np.isfinite(y2), y2, y1)
         den = y0 - 2 * y1 + y2
-        off = np.where(den > 1e-12, 0.5 * (y0 - y2) / np.where(den > 1e-12, den, 1.0), 0.0)
-    return np.clip(np.nan_to_num(off), -1, 1)
+        up = den > 1e-12
+        off = np.where(up, 0.5 * (y0 - y2) / np.where(up, den, 1.0), 0.0)
+        # np.clip(np.nan_to_num(off), -1, 1), without nan_to_num's overhead (half the time here)
+        return np.where(np.isnan(off), 0.0, np.minimum(np.maximum(off, -1.0), 1.0))
 
 
 WIDE_BLUR_PX = 1.1  # edge blur (px) above which the windows grow with it (window_scale)
