@@ -71,8 +71,8 @@ def pair_midpoints(edges: EdgeSet, d_min: float, d_max: float, max_pairs: int = 
     order = np.argsort(k, kind="stable")
     starts = np.concatenate([[0], np.cumsum(np.bincount(k, minlength=N_DIR_BINS))])
     # (N,) float32 columns in bin order: each bin's pixels are a slice, no gather per bin
-    u, v = rows(edges.points, order).astype(np.float32).T
-    gu, gv = rows(edges.grad, order).astype(np.float32).T
+    u, v = np.ascontiguousarray(rows(edges.points, order).T, dtype=np.float32)
+    gu, gv = np.ascontiguousarray(rows(edges.grad, order).T, dtype=np.float32)
     half = N_DIR_BINS // 2
     ias, ibs = [], []
     total = 0
