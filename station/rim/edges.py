@@ -52,7 +52,7 @@ class EdgeSet:
         mask[cell[:, 1], cell[:, 0]] = 1
         r = int(np.ceil(radius_px / cell_px))
         mask = cv2.dilate(mask, _square(2 * r + 1))
-        return np.flatnonzero(mask.ravel()[cell_of_point])
+        return np.flatnonzero(mask.view(bool).ravel()[cell_of_point])  # (0/1: nonzero of a bool is 2x faster)
 
 
 @lru_cache(maxsize=8)
@@ -86,8 +86,8 @@ def detect_edges(grey_u8: np.ndarray, blur_sigma: float = 1.0, max_points: int =
     low, high = canny_thresholds(mag, high_percentile)
     edges = cv2.Canny(dx, dy, low, high, L2gradient=True)
     # np.nonzero(edges) and the gathers at (v, u), by flat indices: 2-D nonzero and 2-D
-    # fancy indexing take numpy's slow paths (0.4 ms against 0.1 here)
-    flat = np.flatnonzero(edges)
+    # fancy indexing take numpy's slow paths (0.4 ms against 0.15 here)
+    flat = np.flatnonzero(edges != 0)  # (nonzero of a bool image: 2x faster than of uint8)
     v, u = np.divmod(flat, edges.shape[1])
     gx = dx.ravel()[flat].astype(np.float64)
     gy = dy.ravel()[flat].astype(np.float64)

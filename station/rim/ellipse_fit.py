@@ -31,7 +31,7 @@ def fit_direct(pts: np.ndarray) -> Ellipse:
         raise ValueError("an ellipse needs at least 5 points")
     mean = pts.mean(axis=0)
     scale = np.sqrt(row_sq_sums(pts - mean).mean()) + 1e-12
-    x, y = ((pts - mean) / scale).T
+    x, y = (pts[:, 0] - mean[0]) / scale, (pts[:, 1] - mean[1]) / scale  # contiguous (N,) each
     D1 = np.stack([x * x, x * y, y * y], axis=1)
     D2 = np.stack([x, y, np.ones_like(x)], axis=1)
     S1, S2, S3 = D1.T @ D1, D1.T @ D2, D2.T @ D2
@@ -171,7 +171,7 @@ def ransac_ellipse(pts: np.ndarray, threshold_px: float, iterations: int = 160,
         return None
     mean = pts.mean(axis=0)
     scale = np.sqrt(row_sq_sums(pts - mean).mean()) + 1e-12
-    x, y = ((pts - mean) / scale).T
+    x, y = (pts[:, 0] - mean[0]) / scale, (pts[:, 1] - mean[1]) / scale  # contiguous (N,) each
     rng = np.random.default_rng(seed)
     idx = rng.integers(0, n, (iterations, 5))  # (a repeated index gives a degenerate conic that loses)
     probe = rng.choice(n, min(n, 400), replace=False)  # score the hypotheses on a sample
