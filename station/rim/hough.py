@@ -188,12 +188,17 @@ def polarity_inliers(ellipse: Ellipse, edges: EdgeSet, tol_px: float, inward: bo
     """Indices of edge pixels within ``tol_px`` of the ellipse whose gradient agrees with its
     normal (inward = brighter inside)."""
     a = ellipse.axes_px[0]
-    curve = ellipse.points(int(np.clip(2 * np.pi * a / 4.0, 32, 2048)))  # a point every ~4 px
+    curve = ellipse.points(int(min(max(2 * np.pi * a / 4.0, 32), 2048)))  # a point every ~4 px
     cand = edges.near_curve(curve, tol_px + 2.0)
     d, (gx, gy, g) = ellipse.approx_distance_grad(rows(edges.points, cand))
-    near = np.nonzero(np.abs(d) < tol_px)[0]
-    n = ellipse.approx_normal(gx[near], gy[near], g[near])  # (K,2) of the near pixels only
-    cosg = -np.einsum("ij,ij->i", n, rows(edges.grad, cand[near]))
+    near = np.flatnonzero(np.abs(d) < tol_px)
+    # the cosine between the gradient and the approx_normal of the near pixels only, written
+    # out: (nx, ny) . (gu, gv) with n = R (gx, gy) / |g| (the same products and sums as
+    # approx_normal and a two-column einsum, without the (K,2) arrays)
+    c, s = ellipse.cos_sin
+    gx, gy, m = gx[near], gy[near], np.maximum(g[near], 1e-12)
+    grad = rows(edges.grad, cand[near])
+    cosg = -((c * gx - s * gy) / m * grad[:, 0] + (s * gx + c * gy) / m * grad[:, 1])
     if not inward:
         cosg = np.abs(cosg)
     return cand[near[cosg > NORMAL_COS]]

@@ -168,7 +168,7 @@ def fit_kinks(prof: np.ndarray, s: np.ndarray, sigma: float, polarity: float = -
     ss = np.einsum("ns,ns->n", prof, prof)
     res = ss[:, None] - np.einsum("ngk,ngk->ng", proj, proj)         # (N,G) residual sum of squares
     h_all = prof @ H                                                 # (N,G) jump coefficient at each s0
-    np.copyto(res, np.inf, where=h_all * polarity <= 0)   # (a masked assignment, faster)
+    np.copyto(res, np.inf, where=_against(h_all, polarity))
     g = np.argmin(res, axis=1)
     r = np.arange(n)
     ok = np.isfinite(res[r, g])
@@ -209,6 +209,16 @@ def _kink_projector(s: np.ndarray, grid: np.ndarray, sigma: float, curvature: bo
         return np.ascontiguousarray(Q.transpose(1, 0, 2).reshape(len(s), -1)), np.ascontiguousarray(H)
 
     return _PROJECTORS.get(key, make)
+
+
+def _against(h: np.ndarray, polarity: float) -> np.ndarray:
+    """``h * polarity <= 0``: jumps h against the expected polarity; for polarity +-1 (always,
+    here) by one comparison instead of a product and a comparison."""
+    if polarity == -1.0:
+        return h >= 0
+    if polarity == 1.0:
+        return h <= 0
+    return h * polarity <= 0
 
 
 def _parabola(y0, y1, y2):
@@ -263,7 +273,7 @@ def _blur_rms(prof: np.ndarray, s: np.ndarray, polarity: float, grid_step: float
     Q, H = _BLUR_STACKS.get(key, make)                               # (S, B*G*nb), (S, B*G)
     proj = (prof @ Q).reshape(n, B, G, -1)
     res = np.einsum("ns,ns->n", prof, prof)[:, None, None] - np.einsum("nbgk,nbgk->nbg", proj, proj)
-    np.copyto(res, np.inf, where=(prof @ H).reshape(n, B, G) * polarity <= 0)
+    np.copyto(res, np.inf, where=_against((prof @ H).reshape(n, B, G), polarity))
     g = np.clip(np.argmin(res, axis=2), 1, G - 2)                    # (N,B), as fit_kinks clips it
     best = np.take_along_axis(res, g[:, :, None], axis=2)[:, :, 0]
     return np.sqrt(np.maximum(best, 0) / S)
