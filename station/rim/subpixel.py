@@ -22,7 +22,7 @@ from scipy.special import erf
 
 from station.bounded_cache import BoundedCache
 from station.rim.ellipse import Ellipse
-from station.rim.npfast import finite_rows, median, row_norms, rows
+from station.rim.npfast import finite_rows, median, row_gradient, row_max, row_means, row_norms, rows
 from station.rim.preprocess import PixelMap
 
 SQRT2 = np.sqrt(2.0)
@@ -116,7 +116,7 @@ def initial_steps(prof: np.ndarray, s: np.ndarray, polarity: float = -1.0) -> np
     strongest derivative of the expected sign (parabolic peak), levels from the window's ends,
     w = 1 px (fit_steps' start, and all the kink model needs of it)."""
     n, S = prof.shape
-    d = np.gradient(prof, s, axis=1) * polarity
+    d = row_gradient(prof, s) * polarity
     j = np.clip(np.argmax(d, axis=1), 1, S - 2)
     r = np.arange(n)
     y0, y1, y2 = d[r, j - 1], d[r, j], d[r, j + 1]
@@ -125,7 +125,7 @@ def initial_steps(prof: np.ndarray, s: np.ndarray, polarity: float = -1.0) -> np
     step = s[1] - s[0]
     s0 = s[j] + np.clip(off, -1, 1) * step
     q = max(2, S // 5)
-    lo, hi = prof[:, :q].mean(axis=1), prof[:, -q:].mean(axis=1)
+    lo, hi = row_means(prof[:, :q]), row_means(prof[:, -q:])
     return np.stack([(lo + hi) / 2, np.zeros(n), (hi - lo) / 2, s0, np.full(n, 1.0)], axis=1)
 
 
@@ -378,10 +378,11 @@ def _tyre_side_flat(prof: np.ndarray, s: np.ndarray, s0: np.ndarray, h: np.ndarr
     # low (N,): the mean of the near samples, else of the row filled with its last sample,
     # summed as np.nanmean sums them (the same values in the same order) without its overhead
     # (prof is finite: to_grey refuses non-finite images)
-    near_any = near.any(axis=1)
+    n_near = near.sum(axis=1)
+    near_any = n_near > 0
     filled = np.where(near_any[:, None], np.where(near, prof, 0.0), prof[:, -1:])   # (N,S)
-    low = filled.sum(axis=1) / np.where(near_any, near.sum(axis=1), len(s))
-    top = np.max(np.where(far, prof, -np.inf), axis=1)
+    low = filled.sum(axis=1) / np.where(near_any, n_near, len(s))
+    top = row_max(np.where(far, prof, -np.inf))
     top = np.where(np.isfinite(top), top, low)
     return (top - low) < max_rise * np.abs(h)
 
