@@ -29,6 +29,7 @@ from station.rim import edges as edges_mod
 from station.rim import hough
 from station.rim.ellipse import Ellipse
 from station.rim.ellipse_fit import fit_direct, fit_geometric, ransac_ellipse
+from station.rim.npfast import finite_rows, median, percentile, percentiles, rows
 from station.rim.preprocess import PixelMap, detection_scale, downscale, equalize, to_grey
 from station.rim.subpixel import edge_points, window_scale
 from station.rim.white_edge import white_share
@@ -101,7 +102,7 @@ class _Clock:
 
 def _check_exposure(grey: np.ndarray, tag: str) -> None:
     step = max(1, int(np.sqrt(grey.size / 20000)))  # ~2e4 pixels tell the exposure
-    lo, hi = np.percentile(grey[::step, ::step], [1.0, 99.5])
+    lo, hi = percentiles(grey[::step, ::step], [1.0, 99.5])
     if hi < 12:
         raise RimNotFound(f"{tag}: image is black (brightest grey level {hi:.0f} of 255)",
                           hint="check the lighting, the exposure time and that the lens is uncovered")
@@ -151,10 +152,11 @@ class _Scene:
             table = _ideal_table(pmap, self.coarse.shape, self.s)
             iv = self.edges.points[:, 1].astype(np.int64)
             iu = self.edges.points[:, 0].astype(np.int64)
-            ideal = table[iv, iu]  # Canny pixels sit on the coarse grid: a lookup
-            good = np.isfinite(ideal).all(axis=1)
+            # Canny pixels sit on the coarse grid: a lookup (table[iv, iu], by rows: 7x faster)
+            ideal = rows(table.reshape(-1, 2), iv * table.shape[1] + iu)
+            good = finite_rows(ideal)
             self.edges = self.edges.subset(good)
-            self.edges.points = ideal[good]
+            self.edges.points = rows(ideal, good)
 
     def to_full(self, p):
         return (p + 0.5) * self.s - 0.5
@@ -167,33 +169,37 @@ class _Scene:
         p = self.pmap.distort(self.to_full(pts_ideal_coarse))
         p = self.to_coarse(p)
         h, w = self.coarse.shape
-        ok = np.isfinite(p).all(axis=1) & (p[:, 0] >= 0) & (p[:, 0] <= w - 1.001) & (p[:, 1] >= 0) & (p[:, 1] <= h - 1.001)
+        ok = finite_rows(p) & (p[:, 0] >= 0) & (p[:, 0] <= w - 1.001) & (p[:, 1] >= 0) & (p[:, 1] <= h - 1.001)
         out = np.full(len(p), np.nan)
-        u, v = p[ok, 0], p[ok, 1]
+        u, v = p[:, 0][ok], p[:, 1][ok]
         u0, v0 = np.floor(u).astype(int), np.floor(v).astype(int)
         fu, fv = u - u0, v - v0
-        c = self.coarse
-        out[ok] = ((1 - fu) * (1 - fv) * c[v0, u0] + fu * (1 - fv) * c[v0, u0 + 1]
-                   + (1 - fu) * fv * c[v0 + 1, u0] + fu * fv * c[v0 + 1, u0 + 1])
+        c = self.coarse.ravel()  # the four neighbours by flat index (2-D fancy indexing is slow)
+        i = v0 * w + u0
+        out[ok] = ((1 - fu) * (1 - fv) * c[i] + fu * (1 - fv) * c[i + 1]
+                   + (1 - fu) * fv * c[i + w] + fu * fv * c[i + w + 1])
         return out
+
+
+RING_FACTORS = (0.95, 0.975, 1.03, 1.06, 1.10)  # two rings just inside, three just outside
 
 
 def _ring_darkness(sc: _Scene, e: Ellipse, n_angles: int = 96) -> float:
     """Fraction of the visible angles where the band just outside ``e`` is clearly darker than
     the band just inside: a tyre all round (1.0) versus a disc seen between spokes (< 0.8)."""
     t = (np.arange(n_angles) + 0.5) * (2 * np.pi / n_angles)
-    rings = sc.sample_coarse(np.concatenate([Ellipse(e.center_px, e.axes_px * f, e.angle_rad).point_at(t)
-                                             for f in (0.95, 0.975, 1.03, 1.06, 1.10)])).reshape(5, n_angles)
+    rings = sc.sample_coarse(e.scaled_points(RING_FACTORS, t)).reshape(len(RING_FACTORS), n_angles)
     inner = rings[:2].mean(axis=0)
     outer = rings[2:]                                 # one lookup for the five rings
+    seen = np.isfinite(outer)
     with np.errstate(all="ignore"):
-        outer = np.where(np.isfinite(outer).any(axis=0), np.nanmax(np.where(np.isfinite(outer), outer, -np.inf), axis=0), np.nan)
+        outer = np.where(seen.any(axis=0), np.max(np.where(seen, outer, -np.inf), axis=0), np.nan)
     contrast = inner - outer
     vis = np.isfinite(contrast)
     if vis.sum() < n_angles // 4:
         return 0.0
     c = contrast[vis]
-    ref = np.percentile(c, 80)
+    ref = percentile(c, 80)
     if ref <= 4:
         return 0.0
     return float(np.mean(c > 0.5 * ref))
@@ -202,17 +208,18 @@ def _ring_darkness(sc: _Scene, e: Ellipse, n_angles: int = 96) -> float:
 def _outer_contour(sc: _Scene, e: Ellipse) -> float:
     """Evidence (0..1) of a concentric contour 1.15-2.0 times larger (the tyre outline), any polarity."""
     E = sc.edges
-    rr = e.radius_ratio(E.points)
-    sel = (rr > 1.15) & (rr < 2.0)
-    if sel.sum() < 10:
-        return 0.0
-    le = e.to_local(E.points[sel])
+    x, y = e.local_xy(E.points)                      # (N,) each, in the ellipse's frame
     a, b = e.axes_px
-    n = np.stack([le[:, 0] / a**2, le[:, 1] / b**2], axis=1)
-    c, s = np.cos(e.angle_rad), np.sin(e.angle_rad)
-    n = np.stack([c * n[:, 0] - s * n[:, 1], s * n[:, 0] + c * n[:, 1]], axis=1)
-    n /= np.linalg.norm(n, axis=1, keepdims=True)
-    aligned = np.abs(np.einsum("ij,ij->i", n, E.grad[sel])) > hough.NORMAL_COS
+    rr = np.sqrt((x / a) ** 2 + (y / b) ** 2)        # e.radius_ratio
+    sel = np.flatnonzero((rr > 1.15) & (rr < 2.0))
+    if len(sel) < 10:
+        return 0.0
+    nx, ny = x[sel] / a**2, y[sel] / b**2            # normal of the concentric ellipse, local frame
+    c, s = e.cos_sin
+    nx, ny = c * nx - s * ny, s * nx + c * ny        # in pixels, then unit length
+    norm = np.sqrt(nx * nx + ny * ny)
+    grad = rows(E.grad, sel)
+    aligned = np.abs(nx / norm * grad[:, 0] + ny / norm * grad[:, 1]) > hough.NORMAL_COS
     r = rr[sel][aligned] * a  # semi-major of the concentric ellipse through each point (coarse px)
     if len(r) < 10:
         return 0.0
@@ -291,7 +298,7 @@ def _consensus_threshold(d: np.ndarray) -> float:
     model error cancels), so that a compromise between two concentric edges, which passes
     within a pixel or so of both, does not win the consensus."""
     dd = np.diff(d, 2)
-    sigma = 1.4826 * np.median(np.abs(dd - np.median(dd))) / np.sqrt(6.0)
+    sigma = 1.4826 * median(np.abs(dd - median(dd))) / np.sqrt(6.0)
     return float(np.clip(3.0 * sigma, 0.25, 1.5))
 
 
@@ -321,14 +328,14 @@ def _refine(grey: np.ndarray, e_full: Ellipse, pmap: PixelMap, passes=PASSES, bl
         ok = samples.ok
         if ok.sum() < MIN_POINTS:
             return None, samples, ok, sigma
-        ideal = pmap.undistort(samples.points_px[ok])
+        ideal = pmap.undistort(rows(samples.points_px, ok))
         d_prev = None if tracking and fit is None else e.distance(ideal)[0]  # (tracking needs neither use)
         if fit is not None:  # a later pass: its edge is the curve the earlier pass fitted
             near = np.abs(d_prev) <= max(GATE_PX, GATE_SIGMAS * fit.sigma_px)
             ok[np.nonzero(ok)[0][~near]] = False
             if ok.sum() < MIN_POINTS:
                 return None, samples, ok, sigma
-            ideal, d_prev = ideal[near], d_prev[near]
+            ideal, d_prev = rows(ideal, near), d_prev[near]
         # one curve, not a compromise between concentric edges: consensus first, then the
         # robust fit of ALL points from the consensus ellipse (a tight consensus band alone
         # would bias the fit toward the minimal sample that defined it)
@@ -337,7 +344,7 @@ def _refine(grey: np.ndarray, e_full: Ellipse, pmap: PixelMap, passes=PASSES, bl
         if not tracking and (keep is None or keep.sum() < MIN_POINTS):
             return None, samples, ok, sigma
         try:
-            e_cons = e if tracking else fit_direct(ideal[keep])
+            e_cons = e if tracking else fit_direct(rows(ideal, keep))
             fit = fit_geometric(ideal, init=e_cons, iterations=12 if final else 5)
         except (ValueError, np.linalg.LinAlgError):
             return None, samples, ok, sigma
@@ -502,7 +509,7 @@ def _untangled(grey: np.ndarray, pmap: PixelMap, candidates: list[dict], fit, sa
             and np.linalg.norm(np.asarray(c["ellipse"]["center_px"]) - c0) <= SAME_WHEEL * a0]
     if not ties:
         return None
-    pts = pmap.undistort(samples.points_px[mask])     # (N,2) the best's inliers, ideal pixels
+    pts = pmap.undistort(rows(samples.points_px, mask))  # (N,2) the best's inliers, ideal pixels
     _, t = fit.ellipse.distance(pts)
     arc = (np.mod(t, 2 * np.pi) * (UNTANGLE_ARCS / (2 * np.pi))).astype(int) % UNTANGLE_ARCS
     seen = np.bincount(arc, minlength=UNTANGLE_ARCS) >= 5
@@ -514,7 +521,7 @@ def _untangled(grey: np.ndarray, pmap: PixelMap, candidates: list[dict], fit, sa
         if shared.sum() < MIN_SHARED * UNTANGLE_ARCS:
             continue
         try:
-            shared_fit = fit_geometric(pts[shared[arc]], init=fit.ellipse, iterations=12)
+            shared_fit = fit_geometric(rows(pts, shared[arc]), init=fit.ellipse, iterations=12)
         except (ValueError, np.linalg.LinAlgError):
             continue
         off = _arc_medians(np.abs(shared_fit.ellipse.distance(pts)[0]), arc, seen)
@@ -523,7 +530,7 @@ def _untangled(grey: np.ndarray, pmap: PixelMap, candidates: list[dict], fit, sa
             return None  # the best follows one curve all round: it stays
         on_rim = (off < APART_PX)[arc]  # the arcs on the shared arcs' ellipse, shared or not
         try:
-            rim_fit = fit_geometric(pts[on_rim], init=shared_fit.ellipse, iterations=12)
+            rim_fit = fit_geometric(rows(pts, on_rim), init=shared_fit.ellipse, iterations=12)
         except (ValueError, np.linalg.LinAlgError):
             continue
         kept = np.zeros_like(mask)
@@ -566,7 +573,7 @@ def _result(fit, samples, mask, info: dict, clock: _Clock, camera, pmap: PixelMa
     if coverage < MIN_REFINED_COVERAGE:
         raise RimNotFound(f"{tag}: no closed rim contour (sub-pixel edge on {coverage:.0%} of the perimeter)",
                           hint="check that the whole rim is in view and evenly lit")
-    pts = samples.points_px[mask]
+    pts = rows(samples.points_px, mask)
     ring = info.get("ring", 1.0)
     outer = info.get("outer", 1.0)
     sharp = float(np.exp(-max(fit.sigma_px - 0.1, 0.0) / 0.5))
@@ -577,7 +584,7 @@ def _result(fit, samples, mask, info: dict, clock: _Clock, camera, pmap: PixelMa
         timing_s=dict(clock.stages), camera_id=camera_id,
         points_norm=pmap.normalized(pts) if camera is not None else None,
         ellipse_frame="pixels" if pmap.identity else "ideal_pixels",
-        coverage=coverage, contrast=float(np.median(samples.contrast[mask])), details=info,
+        coverage=coverage, contrast=float(median(samples.contrast[mask])), details=info,
         points_contrast=samples.contrast[mask].copy())
 
 

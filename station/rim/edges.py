@@ -7,9 +7,12 @@ rim); here the hysteresis thresholds come from the image's own gradient distribu
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import cv2
 import numpy as np
+
+from station.rim.npfast import finite_rows, percentiles, rows
 
 
 @dataclass
@@ -29,7 +32,7 @@ class EdgeSet:
         return len(self.points)
 
     def subset(self, idx) -> "EdgeSet":
-        return EdgeSet(self.points[idx], self.grad[idx], self.mag[idx], self.shape)
+        return EdgeSet(rows(self.points, idx), rows(self.grad, idx), self.mag[idx], self.shape)
 
     def near_curve(self, curve_px: np.ndarray, radius_px: float, cell_px: float = 8.0) -> np.ndarray:
         """Indices (sorted) of the edge pixels in the grid cells of ``cell_px`` that lie within
@@ -43,13 +46,22 @@ class EdgeSet:
             self._grid = (cell_px, id(self.points), gh, gw, cv * gw + cu)
         _, _, gh, gw, cell_of_point = self._grid
         mask = np.zeros((gh, gw), np.uint8)
-        ok = np.isfinite(curve_px).all(axis=1)
-        cu = np.clip(np.floor(curve_px[ok, 0] / cell_px), -1, gw).astype(np.int64)
-        cv = np.clip(np.floor(curve_px[ok, 1] / cell_px), -1, gh).astype(np.int64)
-        mask[np.clip(cv, 0, gh - 1), np.clip(cu, 0, gw - 1)] = 1  # off the grid: its border cell
+        ok = finite_rows(curve_px)
+        # (M,2) cell (column, row) of each curve point; off the grid: its border cell
+        cell = np.clip(np.floor(rows(curve_px, ok) / cell_px), 0, (gw - 1, gh - 1)).astype(np.int64)
+        mask[cell[:, 1], cell[:, 0]] = 1
         r = int(np.ceil(radius_px / cell_px))
-        mask = cv2.dilate(mask, np.ones((2 * r + 1, 2 * r + 1), np.uint8))
-        return np.nonzero(mask.ravel()[cell_of_point])[0]
+        mask = cv2.dilate(mask, _square(2 * r + 1))
+        return np.flatnonzero(mask.view(bool).ravel()[cell_of_point])  # (0/1: nonzero of a bool is 2x faster)
+
+
+@lru_cache(maxsize=8)
+def _square(k: int) -> np.ndarray:
+    """(k,k) uint8 ones: a square structuring element (made once per size, read-only)."""
+    kernel = np.ones((k, k), np.uint8)
+    kernel.flags.writeable = False
+    return kernel
+
 
 def canny_thresholds(mag: np.ndarray, high_percentile: float = 90.0) -> tuple[float, float]:
     """(low, high) hysteresis thresholds from the gradient magnitude image.
@@ -58,7 +70,7 @@ def canny_thresholds(mag: np.ndarray, high_percentile: float = 90.0) -> tuple[fl
     noise level: most of an image is flat), so a flat noisy image yields few edges;
     low = 0.4 high.
     """
-    noise, p_hi = (float(v) for v in np.percentile(mag[::2, ::2], [50.0, high_percentile]))
+    noise, p_hi = (float(v) for v in percentiles(mag[::2, ::2], [50.0, high_percentile]))
     high = max(p_hi, 4.0 * noise, 8.0)
     return 0.4 * high, high
 
@@ -76,10 +88,13 @@ def detect_edges(grey_u8: np.ndarray, blur_sigma: float = 1.0, max_points: int =
     mag = np.sqrt(dx.astype(np.int32) ** 2 + dy.astype(np.int32) ** 2)
     low, high = canny_thresholds(mag, high_percentile)
     edges = cv2.Canny(dx, dy, low, high, L2gradient=True)
-    v, u = np.nonzero(edges)
-    gx = dx[v, u].astype(np.float64)
-    gy = dy[v, u].astype(np.float64)
-    m = mag[v, u].astype(np.float64)
+    # np.nonzero(edges) and the gathers at (v, u), by flat indices: 2-D nonzero and 2-D
+    # fancy indexing take numpy's slow paths (0.4 ms against 0.15 here)
+    flat = np.flatnonzero(edges != 0)  # (nonzero of a bool image: 2x faster than of uint8)
+    v, u = np.divmod(flat, edges.shape[1])
+    gx = dx.ravel()[flat].astype(np.float64)
+    gy = dy.ravel()[flat].astype(np.float64)
+    m = mag.ravel()[flat].astype(np.float64)
     if len(m) > max_points:
         keep = np.argpartition(-m, max_points)[:max_points]
         u, v, gx, gy, m = u[keep], v[keep], gx[keep], gy[keep], m[keep]

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from station.rim.ellipse import Ellipse
+from station.rim.npfast import median, row_sq_sums, rows
 
 COV_CORRELATION_FACTOR = 1.0  # replaced by the measured value below (see module docstring)
 
@@ -29,8 +30,8 @@ def fit_direct(pts: np.ndarray) -> Ellipse:
     if len(pts) < 5:
         raise ValueError("an ellipse needs at least 5 points")
     mean = pts.mean(axis=0)
-    scale = np.sqrt(((pts - mean) ** 2).sum(axis=1).mean()) + 1e-12
-    x, y = ((pts - mean) / scale).T
+    scale = np.sqrt(row_sq_sums(pts - mean).mean()) + 1e-12
+    x, y = (pts[:, 0] - mean[0]) / scale, (pts[:, 1] - mean[1]) / scale  # contiguous (N,) each
     D1 = np.stack([x * x, x * y, y * y], axis=1)
     D2 = np.stack([x, y, np.ones_like(x)], axis=1)
     S1, S2, S3 = D1.T @ D1, D1.T @ D2, D2.T @ D2
@@ -66,20 +67,26 @@ class GeometricFit:
     iterations: int
 
 
-def _jacobian(e: Ellipse, t: np.ndarray) -> np.ndarray:
-    """d(distance)/d(cx, cy, a, b, theta) at foot parameters t: (N,5).
+def _jacobian(e: Ellipse, feet) -> np.ndarray:
+    """d(distance)/d(cx, cy, a, b, theta) at the feet of :meth:`Ellipse.feet` on ``e``: (N,5).
 
     The foot point is x = c + R(theta) (a cos t, b sin t); the derivative of the distance is
-    -n . dx/dparam with n the unit normal, R(theta) (b cos t, a sin t) / norm. Written per
-    column in the ellipse's own frame, where the dot products are one product each."""
-    (a, b), th = e.axes_px, e.angle_rad
-    c, s = np.cos(th), np.sin(th)
-    ct, st = np.cos(t), np.sin(t)
-    nlx, nly = b * ct, a * st
-    nn = np.hypot(nlx, nly)
-    nlx, nly = nlx / nn, nly / nn
-    return np.stack([-(c * nlx - s * nly), -(s * nlx + c * nly), -nlx * ct, -nly * st,
-                     nlx * b * st - nly * a * ct], axis=1)
+    -n . dx/dparam with n the unit normal, R(theta) (b cos t, a sin t) / norm (``feet`` holds
+    cos t, sin t and the normal in the ellipse's frame). Written per column in the ellipse's
+    own frame, where the dot products are one product each."""
+    a, b = e.axes_px
+    c, s = e.cos_sin
+    ct, st, nlx, nly = feet.ct, feet.st, feet.nx, feet.ny
+    J = np.empty((len(ct), 5))
+    J[:, 0] = -(c * nlx - s * nly)
+    J[:, 1] = -(s * nlx + c * nly)
+    J[:, 2] = -nlx * ct
+    J[:, 3] = -nly * st
+    J[:, 4] = nlx * b * st - nly * a * ct
+    return J
+
+
+_TINY_EYE = 1e-12 * np.eye(5)  # keeps the damped normal equations regular
 
 
 def fit_geometric(pts: np.ndarray, init: Ellipse | None = None, iterations: int = 12,
@@ -97,37 +104,40 @@ def fit_geometric(pts: np.ndarray, init: Ellipse | None = None, iterations: int 
     inl = np.ones(len(pts), bool)
 
     def evaluate(ell, t0=None):  # from the last feet: the step moved the ellipse by little
-        return ell.distance(pts) if t0 is None else ell.distance(pts, iterations=2, t0=t0)
+        return ell.feet(pts) if t0 is None else ell.feet(pts, iterations=2, t0=t0)
 
-    d, t = evaluate(e)
+    feet = evaluate(e)
+    d, t = feet.d, feet.t
     it = 0
     for it in range(1, iterations + 1):
-        sig = 1.4826 * np.median(np.abs(d[inl])) + 1e-6
+        sig = 1.4826 * median(np.abs(d[inl])) + 1e-6
         inl = np.abs(d) < max(reject_sigma * sig, 1e-3)
         ad = np.abs(d) / sig
         w = np.where(ad < huber_k, 1.0, huber_k / np.maximum(ad, 1e-12)) * inl
-        J = _jacobian(e, t)
+        J = _jacobian(e, feet)
         JtW = J.T * w
         H = JtW @ J
         g = JtW @ d
         cost = (w * d * d).sum()
         while True:
-            step = -np.linalg.solve(H + lam * (np.diag(np.diag(H)) + 1e-12 * np.eye(5)), g)
+            step = -np.linalg.solve(H + lam * (np.diag(np.diag(H)) + _TINY_EYE), g)
             e_new = Ellipse.from_params(p + step)
-            d_new, t_new = evaluate(e_new, t)
+            feet_new = evaluate(e_new, t)
+            d_new = feet_new.d
             if (w * d_new * d_new).sum() <= cost or lam > 1e6:
                 break
             lam *= 10
         lam = max(lam * 0.1, 1e-7)
-        e, d, t = e_new, d_new, t_new
+        e, feet = e_new, feet_new
+        d, t = feet.d, feet.t
         p = e.params
         if np.all(np.abs(step[:4]) < 1e-4) and abs(step[4] * (p[2] - p[3])) < 1e-4:
             # every point moved < 1e-4 px (far below the noise, 0.05-0.2 px); a near-circle's
             # angle moves its curve by (a - b) per radian
             break
-    sig = 1.4826 * np.median(np.abs(d[inl])) + 1e-9
+    sig = 1.4826 * median(np.abs(d[inl])) + 1e-9
     inl = np.abs(d) < reject_sigma * sig
-    J = _jacobian(e, t)[inl]
+    J = rows(_jacobian(e, feet), inl)
     rms = float(np.sqrt(np.mean(d[inl] ** 2))) if inl.any() else float("inf")
     dof = max(int(inl.sum()) - 5, 1)
     s2 = float((d[inl] ** 2).sum() / dof)
@@ -160,8 +170,8 @@ def ransac_ellipse(pts: np.ndarray, threshold_px: float, iterations: int = 160,
     if n < 10:
         return None
     mean = pts.mean(axis=0)
-    scale = np.sqrt(((pts - mean) ** 2).sum(axis=1).mean()) + 1e-12
-    x, y = ((pts - mean) / scale).T
+    scale = np.sqrt(row_sq_sums(pts - mean).mean()) + 1e-12
+    x, y = (pts[:, 0] - mean[0]) / scale, (pts[:, 1] - mean[1]) / scale  # contiguous (N,) each
     rng = np.random.default_rng(seed)
     idx = rng.integers(0, n, (iterations, 5))  # (a repeated index gives a degenerate conic that loses)
     probe = rng.choice(n, min(n, 400), replace=False)  # score the hypotheses on a sample

@@ -26,9 +26,10 @@ def white_share(grey: np.ndarray, points_px: np.ndarray, radius: int = WHITE_RAD
     p = np.round(points_px).astype(int)
     lo = np.clip(p.min(axis=0) - radius, 0, [w - 1, h - 1])
     hi = np.clip(p.max(axis=0) + radius + 1, 1, [w, h])
-    if not (grey[lo[1]:hi[1], lo[0]:hi[0]] >= WHITE_GREY).any():  # the usual case: nothing at the white
+    if not grey[lo[1]:hi[1], lo[0]:hi[0]].max() >= WHITE_GREY:  # the usual case: nothing at the white
         return 0.0
     d = np.arange(-radius, radius + 1)
     x = np.clip(p[:, 0, None, None] + d[None, None, :], 0, w - 1)    # (N,1,K)
     y = np.clip(p[:, 1, None, None] + d[None, :, None], 0, h - 1)    # (N,K,1)
-    return float(np.mean((grey[y, x] >= WHITE_GREY).any(axis=(1, 2))))
+    white = grey.ravel()[y * w + x] >= WHITE_GREY                   # (N,K,K): grey[y, x], by flat index
+    return float(np.mean(white.any(axis=(1, 2))))
