@@ -258,7 +258,8 @@ def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: Camer
     :class:`station.rim.RimDetection` gives them) or None. A point's residual is then weighted
     by :func:`contrast_weights`: an edge's position is as uncertain as its noise over its step,
     and a faint stretch of the flange edge is also where a nearby stronger edge (a shaded tyre
-    bead) pulls the sub-pixel point off it.
+    bead) pulls the sub-pixel point off it. The weights enter the final solve, on the points
+    the tests below kept; the tests and the solves before it are unweighted.
 
     Residuals of points inside the circle's projection count ``inward_weight`` times (1: a
     symmetric fit): the tyre bulge and a lip shaded as dark as the tyre hide the flange edge
@@ -325,8 +326,9 @@ def _fit_circle(xy_l: np.ndarray, xy_r: np.ndarray, w_l: np.ndarray | None, w_r:
     n_input = sum(len(v[1]) for v in views)
     n0, e1, e2 = axis_basis(init.axis_station)
 
-    def homogeneous_views(keep=None):
-        return [(cam, homogeneous(xy), f, w) if keep is None else (cam, homogeneous(xy[keep[k]]), f, w[keep[k]])
+    def homogeneous_views(keep=None, weighted=True):
+        return [(cam, homogeneous(xy), f, w if weighted else np.ones(len(xy))) if keep is None else
+                (cam, homogeneous(xy[keep[k]]), f, w[keep[k]] if weighted else np.ones(int(np.sum(keep[k]))))
                 for k, (cam, xy, f, w) in enumerate(views)]
 
     def raw_residuals(p, keep=None, hviews=None):
@@ -372,8 +374,8 @@ def _fit_circle(xy_l: np.ndarray, xy_r: np.ndarray, w_l: np.ndarray | None, w_r:
         return (w * np.where(inward, inward_weight * (r + loss_scale_px) - loss_scale_px, r),
                 np.vstack(J) * (w * np.where(inward, inward_weight, 1.0))[:, None])
 
-    def solve(x0, keep=None):
-        hviews = homogeneous_views(keep)
+    def solve(x0, keep=None, weighted=False):  # (weighted: the last solve, below)
+        hviews = homogeneous_views(keep, weighted)
         return soft_l1_least_squares(lambda p: residuals_and_jacobian(p, hviews), x0, f_scale=loss_scale_px)
 
     x0 = np.concatenate([[0.0, 0.0], init.center_station, [init.radius_m]])
@@ -424,6 +426,10 @@ def _fit_circle(xy_l: np.ndarray, xy_r: np.ndarray, w_l: np.ndarray | None, w_r:
             break
         views = [(cam, xy[k], f, w[k]) for (cam, xy, f, w), k in zip(views, keeps)]
         sol = solve(sol.x)
+    # the points' weights (their edge steps) enter the last solve only, on the points every
+    # test above kept: weighted, the earlier solves moved those decisions (which arcs stay,
+    # which runner-up pairs), and on harsh-light vehicles wheels came out 1.5 deg off
+    sol = solve(sol.x, weighted=True)
     r = sol.fun / np.concatenate([v[3] for v in views])  # px again (weights are > 0)
     cov_p, inlier = noise_covariance(sol, views)
     if cov_p is None:
