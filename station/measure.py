@@ -303,6 +303,17 @@ def measure_frames(images: dict[str, np.ndarray], cameras: dict[str, CameraModel
             result["timing_s"] = {**timing, "total": time.perf_counter() - t0}
             return result
         observations[o.wheel] = o.observation
+    mismatch = axle_rim_mismatch(observations)
+    if mismatch is not None:
+        wheel, text = mismatch
+        cams = observations[wheel].cams
+        result["failure"] = {"code": MeasurementError.code, "wheel": wheel, "camera": f"{cams[0]}+{cams[1]}",
+                             "message": f"{wheel} ({cams[0]}, {cams[1]}): {text}",
+                             "hint": f"look at both cameras' images of {wheel} (station review); if another wheel "
+                                     "is fitted there (a spare), fit the matching one before aligning"}
+        result["timing_s"] = {**timing, "total": time.perf_counter() - t0}
+        result["detections"] = _detection_summary(detections)
+        return result
     t2 = time.perf_counter()
     fits = {w: (o.circle if method == "circle" else o.paper) for w, o in observations.items()}
     _fill_angles(result, fits, observations, config)
@@ -314,6 +325,30 @@ def measure_frames(images: dict[str, np.ndarray], cameras: dict[str, CameraModel
     result["detections"] = _detection_summary(detections)
     result["_observations"] = observations  # for recordings; dropped from JSON
     return result
+
+
+AXLE_RIM_TOLERANCE = 0.05  # the two rims of an axle agree in radius to 0.4 % on every benchmark set;
+                           # another contour differs by 3-6 % (the lip's inner edge) to 30 % and more (the tyre)
+
+
+def axle_rim_mismatch(observations: dict) -> tuple[str, str] | None:
+    """(wheel, why) when the two rims of an axle differ in radius by more than
+    AXLE_RIM_TOLERANCE: the rims of an axle are the same size, so one pair measured another
+    contour (both its cameras on the tyre's outline, say, which a 3-D circle fits as well as
+    the rim) or another wheel is fitted. The wheel named is the one farther from the median
+    radius of the four. None when they agree."""
+    radius = {w: o.circle.radius_m for w, o in observations.items()}
+    median = float(np.median(list(radius.values())))
+    for left, right in (("FL", "FR"), ("RL", "RR")):
+        if left not in radius or right not in radius:
+            continue
+        r_l, r_r = radius[left], radius[right]
+        if abs(r_l - r_r) > AXLE_RIM_TOLERANCE * 0.5 * (r_l + r_r):
+            wheel, other = (left, right) if abs(r_l - median) >= abs(r_r - median) else (right, left)
+            return wheel, (f"the rim found is {radius[wheel] * 1000:.0f} mm in radius, {other}'s "
+                           f"{radius[other] * 1000:.0f} mm: the rims of an axle are the same size, so this "
+                           "pair measured another contour (the tyre, the hub) or another wheel is fitted")
+    return None
 
 
 def _fill_angles(result: dict, fits: dict[str, WheelFit], observations: dict, config: StationConfig) -> None:

@@ -197,6 +197,45 @@ def test_cameras_that_found_different_rims_fail_the_wheel(sim):
 
 
 
+def test_an_axle_whose_rims_differ_in_size_fails_naming_the_odd_wheel(sim, monkeypatch):
+    """Both cameras of a pair on the tyre's outline fit one 3-D circle as well as the rim do
+    (station seed 8, vehicle 5008 RL: radius 339 mm against 241, every other toe 0.25 deg off
+    through the car frame): the rims of an axle are the same size, so the cycle fails there."""
+    import dataclasses
+
+    from station import measure
+
+    cfg, world, scene, images = sim
+    real = measure.measure_wheel
+
+    def rl_on_the_tyre(*args):
+        out = real(*args)
+        if out.wheel == "RL":
+            obs = out.observation
+            obs = dataclasses.replace(obs, circle=dataclasses.replace(obs.circle, radius_m=1.3 * obs.circle.radius_m))
+            out = dataclasses.replace(out, observation=obs)
+        return out
+
+    monkeypatch.setattr(measure, "measure_wheel", rl_on_the_tyre)
+    result = measure_frames(images, world.cameras, cfg)
+    assert not result["valid"] and not result["wheels"]
+    assert result["failure"]["wheel"] == "RL" and "RR's" in result["failure"]["message"]
+    assert result["failure"]["camera"] == "cam5+cam6" and result["failure"]["hint"]
+
+
+def test_axle_rim_mismatch_tolerates_what_a_measurement_varies_by():
+    from types import SimpleNamespace
+
+    from station.measure import axle_rim_mismatch
+
+    def obs(**radius):
+        return {w: SimpleNamespace(circle=SimpleNamespace(radius_m=r)) for w, r in radius.items()}
+
+    assert axle_rim_mismatch(obs(FL=0.2410, FR=0.2420, RL=0.2550, RR=0.2545)) is None  # 0.4 %; staggered axles
+    wheel, why = axle_rim_mismatch(obs(FL=0.2410, FR=0.2411, RL=0.2050, RR=0.2409))   # the lip's inner edge: 15 %
+    assert wheel == "RL" and "205 mm" in why
+
+
 def test_result_json_to_an_unwritable_place_is_a_storage_error_and_leaves_no_file(tmp_path):
     from station.cycle import write_json
     from station.errors import StorageError
