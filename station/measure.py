@@ -60,6 +60,7 @@ class WheelOutcome:
     error: StationError | None = None
     note: str | None = None
     timing_s: dict | None = None
+    first_choices: dict | None = None  # the detections before a runner-up pairing replaced them
 
 
 def measure_wheel(wheel: str, cams: tuple[str, str], images: dict, cameras: dict,
@@ -70,7 +71,7 @@ def measure_wheel(wheel: str, cams: tuple[str, str], images: dict, cameras: dict
     images = {c: resolve_frame(im) for c, im in images.items()}
     detections = {c: detect_one(images[c], cameras[c], c) for c in cams}
     t1 = time.perf_counter()
-    out = WheelOutcome(wheel, cams, detections)
+    out = WheelOutcome(wheel, cams, detections, first_choices=dict(detections))
     if not any(isinstance(d, StationError) for d in detections.values()):
         try:
             out.observation = reconstruct_wheel(wheel, cams, detections, cameras, calibration_cov,
@@ -214,10 +215,12 @@ def _alternatives(cid: str, det, image: np.ndarray, camera: CameraModel) -> list
 
 
 def resolve_pair(wheel: str, cams: tuple[str, str], detections: dict, images: dict, cameras: dict,
-                 config: StationConfig, calibration_cov: np.ndarray | None = None) -> tuple[WheelObservation, str] | None:
+                 config: StationConfig, calibration_cov: np.ndarray | None = None,
+                 radius_m: float | None = None) -> tuple[WheelObservation, str] | None:
     """A pair whose cameras' first choices are not the same rim (the hub won in one view, say):
     the best combination of each camera's candidates that is one 3-D rim, scored by the weaker
-    of its two detection scores; with a warning naming what was changed. None if there is none."""
+    of its two detection scores; with a warning naming what was changed. None if there is none.
+    ``radius_m``: the size the rim must have (its axle partner's, within AXLE_RIM_TOLERANCE)."""
     options = {c: _alternatives(c, detections[c], images[c], cameras[c]) for c in cams}
     best = None
     for i, (sl, dl) in enumerate(options[cams[0]]):
@@ -229,6 +232,8 @@ def resolve_pair(wheel: str, cams: tuple[str, str], detections: dict, images: di
                                       config.measurement.uncertainty_limit_deg)
                 check_same_rim(o, config, allow_unchecked=False)
             except StationError:
+                continue
+            if radius_m is not None and abs(o.circle.radius_m - radius_m) > AXLE_RIM_TOLERANCE * radius_m:
                 continue
             best = (min(sl, sr), o, (i, j))
     if best is None:
@@ -304,6 +309,16 @@ def measure_frames(images: dict[str, np.ndarray], cameras: dict[str, CameraModel
             return result
         observations[o.wheel] = o.observation
     mismatch = axle_rim_mismatch(observations)
+    if mismatch is not None:  # the odd wheel again, from its cameras' runner-up candidates, at the partner's size
+        wheel, text = mismatch
+        rescued = _rescued_to_size(wheel, observations, outcomes, images, cameras, config, calibration_cov)
+        if rescued is not None:
+            observations[wheel], note = rescued
+            stale = next(o.note for o in outcomes if o.wheel == wheel)  # (a runner-up pairing of the wheel's own)
+            result["warnings"] = [w for w in result["warnings"] if w != stale] + [note]
+            if {"kind": "runner_up", "wheel": wheel} not in result["warning_flags"]:
+                result["warning_flags"].append({"kind": "runner_up", "wheel": wheel})
+            mismatch = axle_rim_mismatch(observations)
     if mismatch is not None:
         wheel, text = mismatch
         cams = observations[wheel].cams
@@ -329,6 +344,26 @@ def measure_frames(images: dict[str, np.ndarray], cameras: dict[str, CameraModel
 
 AXLE_RIM_TOLERANCE = 0.05  # the two rims of an axle agree in radius to 0.4 % on every benchmark set;
                            # another contour differs by 3-6 % (the lip's inner edge) to 30 % and more (the tyre)
+
+
+AXLE_PARTNER = {"FL": "FR", "FR": "FL", "RL": "RR", "RR": "RL"}
+
+
+def _rescued_to_size(wheel: str, observations: dict, outcomes: list, images: dict, cameras: dict,
+                     config: StationConfig, calibration_cov: dict | None) -> tuple[WheelObservation, str] | None:
+    """The odd wheel of :func:`axle_rim_mismatch` from its cameras' first choices and runner-up
+    candidates, the combination that is one rim of its axle partner's size (with a warning
+    naming what was taken), or None."""
+    outcome = next(o for o in outcomes if o.wheel == wheel)
+    cams = outcome.cams
+    found = resolve_pair(wheel, cams, outcome.first_choices, {c: images[c] for c in cams},
+                         {c: cameras[c] for c in cams}, config, (calibration_cov or {}).get(wheel),
+                         radius_m=observations[AXLE_PARTNER[wheel]].circle.radius_m)
+    if found is None:
+        return None
+    obs, note = found
+    return obs, note.replace("the first choices were not the same rim",
+                             f"the first choices' rim was not the size of {AXLE_PARTNER[wheel]}'s")
 
 
 def axle_rim_mismatch(observations: dict) -> tuple[str, str] | None:

@@ -200,7 +200,8 @@ def test_cameras_that_found_different_rims_fail_the_wheel(sim):
 def test_an_axle_whose_rims_differ_in_size_fails_naming_the_odd_wheel(sim, monkeypatch):
     """Both cameras of a pair on the tyre's outline fit one 3-D circle as well as the rim do
     (station seed 8, vehicle 5008 RL: radius 339 mm against 241, every other toe 0.25 deg off
-    through the car frame): the rims of an axle are the same size, so the cycle fails there."""
+    through the car frame): the rims of an axle are the same size; when no pairing of the
+    wheel's candidates has its partner's size, the cycle fails there."""
     import dataclasses
 
     from station import measure
@@ -217,10 +218,44 @@ def test_an_axle_whose_rims_differ_in_size_fails_naming_the_odd_wheel(sim, monke
         return out
 
     monkeypatch.setattr(measure, "measure_wheel", rl_on_the_tyre)
+    monkeypatch.setattr(measure, "resolve_pair", lambda *a, **k: None)  # no candidate pairing of that size
     result = measure_frames(images, world.cameras, cfg)
     assert not result["valid"] and not result["wheels"]
     assert result["failure"]["wheel"] == "RL" and "RR's" in result["failure"]["message"]
     assert result["failure"]["camera"] == "cam5+cam6" and result["failure"]["hint"]
+
+
+def test_the_odd_wheel_of_an_axle_is_tried_again_at_its_partners_size(sim, monkeypatch):
+    """Before refusing, the odd wheel's runner-up candidates are paired again, asked for a rim
+    of its axle partner's size (5008 RL: cam6's second candidate, 0.4 mm off); the cycle is then
+    valid and says what was taken."""
+    import dataclasses
+
+    from station import measure
+
+    cfg, world, scene, images = sim
+    real_wheel, good, asked = measure.measure_wheel, {}, []
+
+    def rl_on_the_tyre(*args):
+        out = real_wheel(*args)
+        if out.wheel == "RL":
+            good["RL"] = out.observation
+            obs = dataclasses.replace(out.observation, circle=dataclasses.replace(
+                out.observation.circle, radius_m=1.3 * out.observation.circle.radius_m))
+            out = dataclasses.replace(out, observation=obs)
+        return out
+
+    def candidates_at_the_size(wheel, cams, detections, images, cameras, config, cov=None, radius_m=None):
+        asked.append((wheel, radius_m))
+        return good[wheel], f"{wheel} ({cams[0]}, {cams[1]}): the first choices were not the same rim; cam6 took its candidate 2"
+
+    monkeypatch.setattr(measure, "measure_wheel", rl_on_the_tyre)
+    monkeypatch.setattr(measure, "resolve_pair", candidates_at_the_size)
+    result = measure_frames(images, world.cameras, cfg)
+    assert result["valid"], result["failure"]
+    assert asked and asked[0][0] == "RL" and asked[0][1] == pytest.approx(good["RL"].circle.radius_m, rel=0.05)
+    assert any("not the size of RR's" in w for w in result["warnings"])
+    assert {"kind": "runner_up", "wheel": "RL"} in result["warning_flags"]
 
 
 def test_axle_rim_mismatch_tolerates_what_a_measurement_varies_by():
