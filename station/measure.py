@@ -308,24 +308,9 @@ def measure_frames(images: dict[str, np.ndarray], cameras: dict[str, CameraModel
             result["timing_s"] = {**timing, "total": time.perf_counter() - t0}
             return result
         observations[o.wheel] = o.observation
-    mismatch = axle_rim_mismatch(observations)
-    if mismatch is not None:  # the odd wheel again, from its cameras' runner-up candidates, at the partner's size
-        wheel, text = mismatch
-        rescued = _rescued_to_size(wheel, observations, outcomes, images, cameras, config, calibration_cov)
-        if rescued is not None:
-            observations[wheel], note = rescued
-            stale = next(o.note for o in outcomes if o.wheel == wheel)  # (a runner-up pairing of the wheel's own)
-            result["warnings"] = [w for w in result["warnings"] if w != stale] + [note]
-            if {"kind": "runner_up", "wheel": wheel} not in result["warning_flags"]:
-                result["warning_flags"].append({"kind": "runner_up", "wheel": wheel})
-            mismatch = axle_rim_mismatch(observations)
-    if mismatch is not None:
-        wheel, text = mismatch
-        cams = observations[wheel].cams
-        result["failure"] = {"code": MeasurementError.code, "wheel": wheel, "camera": f"{cams[0]}+{cams[1]}",
-                             "message": f"{wheel} ({cams[0]}, {cams[1]}): {text}",
-                             "hint": f"look at both cameras' images of {wheel} (station review); if another wheel "
-                                     "is fitted there (a spare), fit the matching one before aligning"}
+    failure = _settle_axles(result, observations, outcomes, images, cameras, config, calibration_cov)
+    if failure is not None:
+        result["failure"] = failure
         result["timing_s"] = {**timing, "total": time.perf_counter() - t0}
         result["detections"] = _detection_summary(detections)
         return result
@@ -364,6 +349,32 @@ def _rescued_to_size(wheel: str, observations: dict, outcomes: list, images: dic
     obs, note = found
     return obs, note.replace("the first choices were not the same rim",
                              f"the first choices' rim was not the size of {AXLE_PARTNER[wheel]}'s")
+
+
+def _settle_axles(result: dict, observations: dict, outcomes: list, images: dict, cameras: dict,
+                  config: StationConfig, calibration_cov: dict | None) -> dict | None:
+    """Where :func:`axle_rim_mismatch` finds an odd wheel, pair it again at its partner's size
+    (``observations`` and the result's warnings updated); the cycle's failure if that fails."""
+    mismatch = axle_rim_mismatch(observations)
+    if mismatch is None:
+        return None
+    wheel, text = mismatch
+    rescued = _rescued_to_size(wheel, observations, outcomes, images, cameras, config, calibration_cov)
+    if rescued is not None:
+        observations[wheel], note = rescued
+        stale = next(o.note for o in outcomes if o.wheel == wheel)  # (a runner-up pairing of the wheel's own)
+        result["warnings"] = [w for w in result["warnings"] if w != stale] + [note]
+        if {"kind": "runner_up", "wheel": wheel} not in result["warning_flags"]:
+            result["warning_flags"].append({"kind": "runner_up", "wheel": wheel})
+        mismatch = axle_rim_mismatch(observations)
+        if mismatch is None:
+            return None
+        wheel, text = mismatch
+    cams = observations[wheel].cams
+    return {"code": MeasurementError.code, "wheel": wheel, "camera": f"{cams[0]}+{cams[1]}",
+            "message": f"{wheel} ({cams[0]}, {cams[1]}): {text}",
+            "hint": f"look at both cameras' images of {wheel} (station review); if another wheel is fitted "
+                    "there (a spare), fit the matching one before aligning"}
 
 
 def axle_rim_mismatch(observations: dict) -> tuple[str, str] | None:
