@@ -429,7 +429,8 @@ def _fit_circle(xy_l: np.ndarray, xy_r: np.ndarray, w_l: np.ndarray | None, w_r:
     # the points' weights (their edge steps) enter the last solve only, on the points every
     # test above kept: weighted, the earlier solves moved those decisions (which arcs stay,
     # which runner-up pairs), and on harsh-light vehicles wheels came out 1.5 deg off
-    sol = solve(sol.x, weighted=True)
+    if not all(np.all(v[3] == 1.0) for v in views):
+        sol = solve(sol.x, weighted=True)
     r = sol.fun / np.concatenate([v[3] for v in views])  # px again (weights are > 0)
     cov_p, inlier = noise_covariance(sol, views)
     if cov_p is None:
