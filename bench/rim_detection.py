@@ -31,7 +31,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from station.errors import StationError  # noqa: E402
 from station.rim import detect_rim  # noqa: E402
 from station.rim import hough  # noqa: E402
-from station.rim.detector import _choose, _Scene  # noqa: E402
+from station.rim.choice import choose  # noqa: E402
+from station.rim.detector import _Scene  # noqa: E402
 from station.rim.ellipse import Ellipse  # noqa: E402
 from station.rim.ellipse_fit import fit_direct  # noqa: E402
 from station.rim.preprocess import PixelMap, to_grey  # noqa: E402
@@ -58,7 +59,7 @@ def paper_pipeline(grey: np.ndarray, camera) -> Ellipse:
     sc = _Scene(grey, PixelMap(camera), "global")
     hd, wd = sc.coarse.shape
     cands = hough.find_candidates(sc.edges, max(12.0, 0.05 * min(hd, wd)), 0.7 * max(hd, wd))
-    best, _ = _choose(sc, cands, "paper")
+    best, _ = choose(sc, cands, "paper")
     return best.ellipse.scaled(sc.s)
 
 

@@ -74,8 +74,7 @@ def bias_covariance(sol, views, n0, e1, e2, n_modes: int, n_sectors: int = 18) -
     bounds = np.cumsum([0] + [len(v[1]) for v in views])
     cov = np.zeros((J.shape[1], J.shape[1]))
     common = np.zeros((J.shape[1], 1))
-    for view, a, b in zip(views, bounds[:-1], bounds[1:]):
-        cam, xy = view[0], view[1]
+    for (cam, xy, *_), a, b in zip(views, bounds[:-1], bounds[1:]):
         r = sol.fun[a:b]
         phi = rim_angles(cam, xy, c, n)
         med, count = sector_medians(r, sector_labels(phi, n_sectors), n_sectors)

@@ -176,43 +176,43 @@ def test_a_hub_loses_to_a_concentric_dark_rim_seen_on_less_than_80_percent(monke
     the rim's flange shows on 77 % of its perimeter with a weak tyre band. A contour over
     HUB_RATIO times larger and concentric, closed as well as any chosen rim must be, makes
     the small one the hub."""
-    import station.rim.detector as det
+    import station.rim.choice as choice
     from station.rim.hough import Candidate
 
     hub = Candidate(Ellipse((684, 473), (80.4, 72.8), 0.1), 50.0, 0.82, 300)
     rim = Candidate(Ellipse((692, 467), (309.1, 287.6), 0.1), 40.0, 0.77, 900)
     looks = {80.4: (0.66, 0.68), 309.1: (0.47, 0.94)}                       # (ring, outer) measured
-    monkeypatch.setattr(det, "_ring_darkness", lambda sc, e: looks[e.axes_px[0]][0])
-    monkeypatch.setattr(det, "_outer_contour", lambda sc, e: looks[e.axes_px[0]][1])
+    monkeypatch.setattr(choice, "ring_darkness", lambda sc, e: looks[e.axes_px[0]][0])
+    monkeypatch.setattr(choice, "outer_contour", lambda sc, e: looks[e.axes_px[0]][1])
 
     class Scene:
         s = 1.0
 
-    best, info = det._choose(Scene(), [hub, rim], "cam4")
+    best, info = choice.choose(Scene(), [hub, rim], "cam4")
     assert best is rim, info["candidates"]
-    monkeypatch.setattr(det, "MIN_COVERAGE", 0.8)        # asking the rim for 80 %, as before: the hub wins
-    assert det._choose(Scene(), [hub, rim], "cam4")[0] is hub
+    monkeypatch.setattr(choice, "MIN_COVERAGE", 0.8)        # asking the rim for 80 %, as before: the hub wins
+    assert choice.choose(Scene(), [hub, rim], "cam4")[0] is hub
 
 
 def test_an_ellipse_inside_the_rim_is_not_another_wheel(monkeypatch):
     """Dark-rim seed 6001, cam7: spoke arcs make a flat ellipse inside the rim that scores
     within AMBIGUITY_RATIO of it. Two wheels never hold each other's centre, so that is no
     second wheel; the same ellipse beside the rim still is."""
-    import station.rim.detector as det
+    import station.rim.choice as choice
     from station.rim.hough import Candidate
 
-    monkeypatch.setattr(det, "_ring_darkness", lambda sc, e: 0.5)
-    monkeypatch.setattr(det, "_outer_contour", lambda sc, e: 0.5)
+    monkeypatch.setattr(choice, "ring_darkness", lambda sc, e: 0.5)
+    monkeypatch.setattr(choice, "outer_contour", lambda sc, e: 0.5)
 
     class Scene:
         s = 1.0
 
     rim = Candidate(Ellipse((677, 448), (339.0, 337.0), 0.0), 40.0, 0.62, 900)
     inside = Candidate(Ellipse((640, 260), (267.0, 169.0), 0.0), 40.0, 0.58, 500)
-    assert det._choose(Scene(), [rim, inside], "cam7")[0] is rim
+    assert choice.choose(Scene(), [rim, inside], "cam7")[0] is rim
     beside = Candidate(Ellipse((1400, 448), (267.0, 169.0), 0.0), 40.0, 0.58, 500)
     with pytest.raises(RimNotFound, match="two wheel-like ellipses"):
-        det._choose(Scene(), [rim, beside], "cam7")
+        choice.choose(Scene(), [rim, beside], "cam7")
 
 
 def test_a_large_photograph_with_edges_spread_over_pixels_is_refined_where_the_edge_model_fits(monkeypatch):

@@ -8,8 +8,9 @@ Stages (paper section 3.1, made industrial; docs/rim-detection.md):
 3. lens-distortion correction of the edge points when a camera model is given (``PixelMap``);
 4. the three-stage ellipse Hough vote (``hough``): centres from polarity-consistent chord
    midpoints, the shape from one linear solve, the sizes from a 1-D histogram;
-5. the choice of the rim among the candidates: closure (coverage of the perimeter by
-   bright-inside edges), a dark tyre band just outside, a concentric tyre outline further out;
+5. the choice of the rim among the candidates (``choice``): closure (coverage of the
+   perimeter by bright-inside edges), a dark tyre band just outside, a concentric tyre
+   outline further out;
 6. sub-pixel edge points along the normals of the chosen ellipse in the full-resolution
    original image (``subpixel``), twice, each followed by the robust geometric fit
    (``ellipse_fit``) that gives the ellipse, its covariance and the inliers.
@@ -27,20 +28,17 @@ from station.bounded_cache import BoundedCache
 from station.errors import RimNotFound
 from station.rim import edges as edges_mod
 from station.rim import hough
+from station.rim.choice import choose
 from station.rim.ellipse import Ellipse
 from station.rim.ellipse_fit import fit_direct, fit_geometric, ransac_ellipse
-from station.rim.npfast import finite_rows, median, percentile, percentiles, rows
+from station.rim.npfast import finite_rows, median, percentiles, rows
 from station.rim.preprocess import PixelMap, detection_scale, downscale, equalize, to_grey
 from station.rim.subpixel import edge_points, window_scale
 from station.rim.white_edge import white_share
 from station.wheel_arcs import sector_medians
 
-MIN_COVERAGE = 0.5         # below: "no closed rim contour" (choosing the candidate)
 MIN_REFINED_COVERAGE = 0.35  # the chosen rim's sub-pixel edge may be partly hidden (wheel arch,
                              # tyre bulge in oblique views): the 3-D fit works on arcs
-MIN_SCORE = 0.35
-HUB_RATIO = 2.2           # a closed contour this much larger and concentric makes this one the hub
-AMBIGUITY_RATIO = 0.85     # a second wheel-like ellipse scoring within this of the best: refuse
 MIN_POINTS = 32
 
 
@@ -181,108 +179,6 @@ class _Scene:
         return out
 
 
-RING_FACTORS = (0.95, 0.975, 1.03, 1.06, 1.10)  # two rings just inside, three just outside
-
-
-def _ring_darkness(sc: _Scene, e: Ellipse, n_angles: int = 96) -> float:
-    """Fraction of the visible angles where the band just outside ``e`` is clearly darker than
-    the band just inside: a tyre all round (1.0) versus a disc seen between spokes (< 0.8)."""
-    t = (np.arange(n_angles) + 0.5) * (2 * np.pi / n_angles)
-    rings = sc.sample_coarse(e.scaled_points(RING_FACTORS, t)).reshape(len(RING_FACTORS), n_angles)
-    inner = rings[:2].mean(axis=0)
-    outer = rings[2:]                                 # one lookup for the five rings
-    seen = np.isfinite(outer)
-    with np.errstate(all="ignore"):
-        outer = np.where(seen.any(axis=0), np.max(np.where(seen, outer, -np.inf), axis=0), np.nan)
-    contrast = inner - outer
-    vis = np.isfinite(contrast)
-    if vis.sum() < n_angles // 4:
-        return 0.0
-    c = contrast[vis]
-    ref = percentile(c, 80)
-    if ref <= 4:
-        return 0.0
-    return float(np.mean(c > 0.5 * ref))
-
-
-def _outer_contour(sc: _Scene, e: Ellipse) -> float:
-    """Evidence (0..1) of a concentric contour 1.15-2.0 times larger (the tyre outline), any polarity."""
-    E = sc.edges
-    x, y = e.local_xy(E.points)                      # (N,) each, in the ellipse's frame
-    a, b = e.axes_px
-    rr = np.sqrt((x / a) ** 2 + (y / b) ** 2)        # e.radius_ratio
-    sel = np.flatnonzero((rr > 1.15) & (rr < 2.0))
-    if len(sel) < 10:
-        return 0.0
-    nx, ny = x[sel] / a**2, y[sel] / b**2            # normal of the concentric ellipse, local frame
-    c, s = e.cos_sin
-    nx, ny = c * nx - s * ny, s * nx + c * ny        # in pixels, then unit length
-    norm = np.sqrt(nx * nx + ny * ny)
-    grad = rows(E.grad, sel)
-    aligned = np.abs(nx / norm * grad[:, 0] + ny / norm * grad[:, 1]) > hough.NORMAL_COS
-    r = rr[sel][aligned] * a  # semi-major of the concentric ellipse through each point (coarse px)
-    if len(r) < 10:
-        return 0.0
-    hist = np.bincount(np.round(r).astype(int))
-    hist = np.convolve(hist, np.ones(5), mode="same")
-    rad = np.arange(len(hist))
-    frac = hist / np.maximum(np.pi * rad * (1 + b / a), 1)  # support relative to the perimeter
-    return float(np.clip(frac.max() / 0.4, 0, 1))
-
-
-def _choose(sc: _Scene, cands: list[hough.Candidate], tag: str) -> tuple[hough.Candidate, dict]:
-    rows = []
-    for cd in cands:
-        ring = _ring_darkness(sc, cd.ellipse)
-        outer = _outer_contour(sc, cd.ellipse)
-        score = cd.coverage * (0.6 + 0.4 * ring) * (0.8 + 0.2 * outer)
-        rows.append({"cand": cd, "ring": ring, "outer": outer, "score": score})
-    # a contour with a closed, tyre-bordered concentric ellipse well inside it is a tyre outline
-    for r in rows:
-        e = r["cand"].ellipse
-        for o in rows:
-            eo = o["cand"].ellipse
-            ratio = eo.axes_px[0] / e.axes_px[0]
-            if (o is not r and 0.5 < ratio < 0.87 and np.linalg.norm(eo.center_px - e.center_px) < 0.08 * e.axes_px[0]
-                    and o["cand"].coverage > 0.7 and o["ring"] > 0.9):
-                r["score"] *= 0.5
-                r["tyre_outline"] = True
-                break
-    # a closed, tyre-bordered contour much larger and concentric: this one is the hub or disc;
-    # more than HUB_RATIO larger, tyre-bordered or not, and closed as well as a rim must be to
-    # be chosen at all: the hub (no tyre outline is twice its rim: even an 80-series tyre on a
-    # 14-inch rim is 1.8x; a dark rim's flange shows on less of its perimeter than 80 %)
-    for r in rows:
-        e = r["cand"].ellipse
-        for o in rows:
-            eo = o["cand"].ellipse
-            if (o is not r and not o.get("tyre_outline") and eo.axes_px[0] > 1.3 * e.axes_px[0]
-                    and np.linalg.norm(eo.center_px - e.center_px) < 0.08 * eo.axes_px[0]
-                    and ((o["cand"].coverage > 0.8 and o["ring"] > 0.8)
-                         or (o["cand"].coverage >= MIN_COVERAGE and eo.axes_px[0] > HUB_RATIO * e.axes_px[0]))):
-                r["score"] *= 0.5
-                break
-    rows.sort(key=lambda r: -r["score"])
-    if not rows or rows[0]["cand"].coverage < MIN_COVERAGE or rows[0]["score"] < MIN_SCORE:
-        best = f" (best candidate: {rows[0]['cand'].coverage:.0%} of its perimeter)" if rows else ""
-        raise RimNotFound(f"{tag}: no closed rim contour{best}",
-                          hint="check that the wheel is in view, lit, and in focus")
-    best = rows[0]
-    for r in rows[1:]:  # another wheel: a non-concentric, similarly good ellipse outside this one
-        e, eb = r["cand"].ellipse, best["cand"].ellipse
-        apart = (eb.radius_ratio(e.center_px[None])[0] > 1.0 and e.radius_ratio(eb.center_px[None])[0] > 1.0)
-        if np.linalg.norm(e.center_px - eb.center_px) > 0.5 * eb.axes_px[1] and r["score"] >= AMBIGUITY_RATIO * best["score"] \
-                and r["cand"].coverage >= MIN_COVERAGE and apart:  # two wheels never hold each other's centre
-            raise RimNotFound(f"{tag}: two wheel-like ellipses of similar score "
-                              f"({best['score']:.2f} at ({eb.center_px[0] * sc.s:.0f}, {eb.center_px[1] * sc.s:.0f}) px and "
-                              f"{r['score']:.2f} at ({e.center_px[0] * sc.s:.0f}, {e.center_px[1] * sc.s:.0f}) px)",
-                              hint="only one wheel may be in the camera's view")
-    info = {"candidates": [{"ellipse": r["cand"].ellipse.scaled(sc.s).to_dict(), "coverage": r["cand"].coverage,
-                            "ring": r["ring"], "outer": r["outer"], "score": r["score"]} for r in rows[:6]],
-            "ring": best["ring"], "outer": best["outer"]}
-    return best["cand"], info
-
-
 PASSES = (((-6.0, 6.0), "kink"), ((-3.0, 4.5), "kink"))
 PRIOR_PASSES = (((-10.0, 10.0), "peak"), ((-5.0, 5.0), "erf"), ((-3.0, 4.5), "kink"))
 TRACK_PASSES = (((-3.0, 4.5), "kink"),)  # a prior from the previous frame, the blur known
@@ -401,7 +297,7 @@ def detect_rim(image: np.ndarray, *, camera=None, prior: Ellipse | None = None, 
         r_max = 0.7 * max(hd, wd)
         cands = hough.find_candidates(sc.edges, r_min, r_max)
         clock.lap("hough")
-        best, info = _choose(sc, cands, tag)
+        best, info = choose(sc, cands, tag)
         info["path"] = "search"
         clock.lap("choose")
         fit, samples, mask, blur = _refine(grey, best.ellipse.scaled(sc.s), pmap)
