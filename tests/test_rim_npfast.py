@@ -74,19 +74,3 @@ def test_rows_is_fancy_indexing():
     assert np.array_equal(rows(rng.normal(size=(40, 5, 5)), np.arange(40) % 3 == 0).shape, (14, 5, 5))
     with pytest.raises(IndexError):
         rows(a, np.ones(299, bool))
-
-
-def test_profile_helpers_are_numpys():
-    from station.rim.npfast import row_gradient, row_max, row_means
-    rng = np.random.default_rng(11)
-    for S, lo, step in ((25, -6.0, 0.5), (16, -3.0, 0.5), (31, -7.5, 0.5), (13, -3.75, 0.625), (9, -3.3, 0.7)):
-        s = np.arange(lo, lo + S * step - step / 4, step)[:S]
-        a = rng.normal(size=(500, len(s))) * 40 + 100
-        assert np.array_equal(row_gradient(a, s), np.gradient(a, s, axis=1))
-        b = np.where(rng.random(a.shape) < 0.3, -np.inf, a)
-        assert np.array_equal(row_max(b), b.max(axis=1))
-        for k in range(1, 12):
-            assert np.array_equal(row_means(a[:, :k]), a[:, :k].mean(axis=1))
-            assert np.array_equal(row_means(a[:, -k:]), a[:, -k:].mean(axis=1))
-    a[3, 4] = np.nan
-    assert np.isnan(row_max(a)[3]) and np.isnan(a.max(axis=1)[3])

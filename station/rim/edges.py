@@ -7,12 +7,11 @@ rim); here the hysteresis thresholds come from the image's own gradient distribu
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
 
 import cv2
 import numpy as np
 
-from station.rim.npfast import finite_rows, percentiles, rows
+from station.rim.npfast import percentiles, rows
 
 
 @dataclass
@@ -34,33 +33,13 @@ class EdgeSet:
     def subset(self, idx) -> "EdgeSet":
         return EdgeSet(rows(self.points, idx), rows(self.grad, idx), self.mag[idx], self.shape)
 
-    def near_curve(self, curve_px: np.ndarray, radius_px: float, cell_px: float = 8.0) -> np.ndarray:
-        """Indices (sorted) of the edge pixels in the grid cells of ``cell_px`` that lie within
-        ``radius_px`` (+ a cell) of the dense curve points ``curve_px`` (M,2): a superset of the
-        pixels within ``radius_px`` of the curve, without a distance to every pixel."""
-        if getattr(self, "_grid", (None, None))[:2] != (cell_px, id(self.points)):
-            gw = int(self.shape[1] // cell_px) + 2
-            gh = int(self.shape[0] // cell_px) + 2
-            cu = np.clip(np.floor(self.points[:, 0] / cell_px).astype(np.int64), 0, gw - 1)
-            cv = np.clip(np.floor(self.points[:, 1] / cell_px).astype(np.int64), 0, gh - 1)
-            self._grid = (cell_px, id(self.points), gh, gw, cv * gw + cu)
-        _, _, gh, gw, cell_of_point = self._grid
-        mask = np.zeros((gh, gw), np.uint8)
-        ok = finite_rows(curve_px)
-        # (M,2) cell (column, row) of each curve point; off the grid: its border cell
-        cell = np.clip(np.floor(rows(curve_px, ok) / cell_px), 0, (gw - 1, gh - 1)).astype(np.int64)
-        mask[cell[:, 1], cell[:, 0]] = 1
-        r = int(np.ceil(radius_px / cell_px))
-        mask = cv2.dilate(mask, _square(2 * r + 1))
-        return np.flatnonzero(mask.view(bool).ravel()[cell_of_point])  # (0/1: nonzero of a bool is 2x faster)
-
-
-@lru_cache(maxsize=8)
-def _square(k: int) -> np.ndarray:
-    """(k,k) uint8 ones: a square structuring element (made once per size, read-only)."""
-    kernel = np.ones((k, k), np.uint8)
-    kernel.flags.writeable = False
-    return kernel
+    def columns(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """u, v, grad u, grad v (N,) each, contiguous (the compiled tests' input), made once."""
+        key = (id(self.points), id(self.grad))
+        if self.__dict__.get("_columns_of") != key:  # (made again if the arrays were replaced)
+            self.__dict__["_columns"] = tuple(np.ascontiguousarray(c) for c in (*self.points.T, *self.grad.T))
+            self.__dict__["_columns_of"] = key
+        return self.__dict__["_columns"]
 
 
 def canny_thresholds(mag: np.ndarray, high_percentile: float = 90.0) -> tuple[float, float]:

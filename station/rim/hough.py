@@ -35,6 +35,7 @@ import numpy as np
 
 from station.rim.edges import EdgeSet
 from station.rim.ellipse import Ellipse
+from station.rim import hough_loops
 from station.rim.ellipse_fit import ransac_ellipse
 from station.rim.npfast import median, row_norms, rows
 
@@ -73,37 +74,12 @@ def pair_midpoints(edges: EdgeSet, d_min: float, d_max: float, max_pairs: int = 
     # (N,) float32 columns in bin order: each bin's pixels are a slice, no gather per bin
     u, v = np.ascontiguousarray(rows(edges.points, order).T, dtype=np.float32)
     gu, gv = np.ascontiguousarray(rows(edges.grad, order).T, dtype=np.float32)
-    half = N_DIR_BINS // 2
-    ias, ibs = [], []
-    total = 0
-    d_min2, d_max2 = d_min * d_min, d_max * d_max
-    c2 = MIN_CHORD_COS**2
-    for b in range(half):
-        a0, a1, b0, b1 = starts[b], starts[b + 1], starts[b + half], starts[b + half + 1]
-        if a0 == a1 or b0 == b1:
-            continue
-        A, B = slice(a0, a1), slice(b0, b1)
-        du = u[None, B] - u[A, None]          # (na, nb)
-        dv = v[None, B] - v[A, None]
-        dist2 = du * du + dv * dv
-        # the partner must lie along this point's gradient (bright inside) and this point
-        # along the reverse of the partner's gradient, each within 40 degrees
-        dot_a = du * gu[A, None] + dv * gv[A, None]
-        dot_b = du * gu[None, B] + dv * gv[None, B]   # minus the dot with the reverse gradient
-        lim = c2 * dist2
-        ok = (dist2 > d_min2) & (dist2 < d_max2) & (dot_a > 0) & (dot_b < 0) \
-            & (dot_a * dot_a > lim) & (dot_b * dot_b > lim)
-        i, j = np.divmod(np.flatnonzero(ok), b1 - b0)  # np.nonzero(ok), 2-3x faster in 2-D
-        if len(i) == 0:
-            continue
-        ias.append(order[a0 + i])
-        ibs.append(order[b0 + j])
-        total += len(i)
-        if total > max_pairs:
-            break
-    if not ias:
+    f32 = np.float32
+    i, j = hough_loops.antiparallel_pairs(u, v, gu, gv, starts, N_DIR_BINS // 2, f32(d_min * d_min),
+                                          f32(d_max * d_max), f32(MIN_CHORD_COS**2), max_pairs)
+    if len(i) == 0:
         return np.empty((0, 2)), np.empty(0, np.int64), np.empty(0, np.int64)
-    ia, ib = np.concatenate(ias), np.concatenate(ibs)
+    ia, ib = order[i], order[j]
     return 0.5 * (rows(edges.points, ia) + rows(edges.points, ib)), ia, ib
 
 
@@ -187,21 +163,8 @@ def _bin_centres(n_bins: int) -> tuple[np.ndarray, np.ndarray]:
 def polarity_inliers(ellipse: Ellipse, edges: EdgeSet, tol_px: float, inward: bool = True) -> np.ndarray:
     """Indices of edge pixels within ``tol_px`` of the ellipse whose gradient agrees with its
     normal (inward = brighter inside)."""
-    a = ellipse.axes_px[0]
-    curve = ellipse.points(int(min(max(2 * np.pi * a / 4.0, 32), 2048)))  # a point every ~4 px
-    cand = edges.near_curve(curve, tol_px + 2.0)
-    d, (gx, gy, g) = ellipse.approx_distance_grad(rows(edges.points, cand))
-    near = np.flatnonzero(np.abs(d) < tol_px)
-    # the cosine between the gradient and the approx_normal of the near pixels only, written
-    # out: (nx, ny) . (gu, gv) with n = R (gx, gy) / |g| (the same products and sums as
-    # approx_normal and a two-column einsum, without the (K,2) arrays)
-    c, s = ellipse.cos_sin
-    gx, gy, m = gx[near], gy[near], np.maximum(g[near], 1e-12)
-    grad = rows(edges.grad, cand[near])
-    cosg = -((c * gx - s * gy) / m * grad[:, 0] + (s * gx + c * gy) / m * grad[:, 1])
-    if not inward:
-        cosg = np.abs(cosg)
-    return cand[near[cosg > NORMAL_COS]]
+    (cx, cy), (a, b), (c, s) = ellipse.center_px, ellipse.axes_px, ellipse.cos_sin
+    return hough_loops.polarity_inliers(*edges.columns(), cx, cy, a, b, c, s, tol_px, inward, NORMAL_COS)
 
 
 def size_peaks(edges: EdgeSet, centre: np.ndarray, M: np.ndarray, r_min: float, r_max: float,

@@ -8,10 +8,9 @@
   np.isfinite(v).all(axis=1) and (v ** 2).sum(axis=1) of (N,2) arrays, written as the two
   columns' operation they are: numpy reduces a length-2 axis 5-15x slower;
 * ``rows``: a[index] for the rows of a 2-D array, by np.take / np.compress: numpy's fancy
-  indexing of rows is 5-10x slower (0.2 ms for 3e4 rows, where np.take takes 0.02);
-* ``row_gradient`` / ``row_means`` / ``row_max``: np.gradient(a, s, axis=1), a.mean(axis=1)
-  of a few columns and a.max(axis=1) of (N,S) profiles, 2-5x faster (numpy's per-row loops
-  over short rows, np.gradient's generic slicing).
+  indexing of rows is 5-10x slower (0.2 ms for 3e4 rows, where np.take takes 0.02).
+
+(The profiles' per-row helpers became compiled loops: ``profile_loops``.)
 
 All are checked equal to numpy's, bit for bit, in tests/test_rim_npfast.py.
 """
@@ -106,36 +105,3 @@ def rows(a: np.ndarray, index: np.ndarray) -> np.ndarray:
             raise IndexError(f"boolean index of length {len(index)} for {len(a)} rows")
         return np.compress(index, a, axis=0)
     return np.take(a, index, axis=0)
-
-
-def row_gradient(a: np.ndarray, s: np.ndarray) -> np.ndarray:
-    """(N,S) ``np.gradient(a, s, axis=1)`` of rows a (N,S) sampled at s (S,), S >= 2: for
-    uniform s numpy's own formulas (central differences inside, one-sided at the ends), else
-    numpy's np.gradient."""
-    step = np.diff(s)
-    if not (step == step[0]).all():
-        return np.gradient(a, s, axis=1)
-    dx = step[0]
-    out = np.empty_like(a, dtype=np.result_type(a.dtype, np.float64))
-    out[:, 1:-1] = (a[:, 2:] - a[:, :-2]) / (2. * dx)
-    out[:, 0] = (a[:, 1] - a[:, 0]) / dx
-    out[:, -1] = (a[:, -1] - a[:, -2]) / dx
-    return out
-
-
-def row_means(a: np.ndarray) -> np.ndarray:
-    """(N,) ``a.mean(axis=1)`` of a float (N,K): for K < 8 numpy adds a row's values in order
-    (its pairwise sum starts at 8), so do the columns; else numpy's."""
-    k = a.shape[1]
-    if a.dtype != np.float64 or not 0 < k < 8:
-        return a.mean(axis=1)
-    total = a[:, 0] + a[:, 1] if k > 1 else a[:, 0].copy()
-    for j in range(2, k):
-        total += a[:, j]
-    return total / k
-
-
-def row_max(a: np.ndarray) -> np.ndarray:
-    """(N,) ``a.max(axis=1)`` of a (N,S), S >= 1, as S elementwise maxima over the columns of
-    its transpose (a maximum does not depend on the order; NaN propagates as in numpy)."""
-    return np.max(np.ascontiguousarray(a.T), axis=0)

@@ -21,8 +21,9 @@ import numpy as np
 from scipy.special import erf
 
 from station.bounded_cache import BoundedCache
+from station.rim import profile_loops
 from station.rim.ellipse import Ellipse
-from station.rim.npfast import finite_rows, median, row_gradient, row_max, row_means, row_norms, rows
+from station.rim.npfast import finite_rows, median, row_norms, rows
 from station.rim.preprocess import PixelMap
 
 SQRT2 = np.sqrt(2.0)
@@ -115,18 +116,7 @@ def initial_steps(prof: np.ndarray, s: np.ndarray, polarity: float = -1.0) -> np
     """Step parameters (N,5) (m, k, h, s0, w) of each profile (N,S) without any fit: s0 at the
     strongest derivative of the expected sign (parabolic peak), levels from the window's ends,
     w = 1 px (fit_steps' start, and all the kink model needs of it)."""
-    n, S = prof.shape
-    d = row_gradient(prof, s) * polarity
-    j = np.clip(np.argmax(d, axis=1), 1, S - 2)
-    r = np.arange(n)
-    y0, y1, y2 = d[r, j - 1], d[r, j], d[r, j + 1]
-    den = y0 - 2 * y1 + y2
-    off = np.where(np.abs(den) > 1e-12, 0.5 * (y0 - y2) / np.where(den == 0, 1, den), 0.0)
-    step = s[1] - s[0]
-    s0 = s[j] + np.clip(off, -1, 1) * step
-    q = max(2, S // 5)
-    lo, hi = row_means(prof[:, :q]), row_means(prof[:, -q:])
-    return np.stack([(lo + hi) / 2, np.zeros(n), (hi - lo) / 2, s0, np.full(n, 1.0)], axis=1)
+    return profile_loops.initial_steps(np.ascontiguousarray(prof), np.asarray(s, float), float(polarity))
 
 
 def _kink_basis(x: np.ndarray, sigma: float, curvature: bool | None = None) -> np.ndarray:
@@ -164,19 +154,11 @@ def fit_kinks(prof: np.ndarray, s: np.ndarray, sigma: float, polarity: float = -
     G = len(grid)
     Q, H = _kink_projector(s, grid, sigma, curvature)                # (S,G*nb), (S,G)
     nb = Q.shape[1] // G
-    proj = (prof @ Q).reshape(n, G, nb)                              # (N,G,nb) one BLAS call
     ss = np.einsum("ns,ns->n", prof, prof)
-    res = ss[:, None] - np.einsum("ngk,ngk->ng", proj, proj)         # (N,G) residual sum of squares
-    h_all = prof @ H                                                 # (N,G) jump coefficient at each s0
-    np.copyto(res, np.inf, where=_against(h_all, polarity))
-    g = np.argmin(res, axis=1)
-    r = np.arange(n)
-    ok = np.isfinite(res[r, g])
-    g = np.clip(g, 1, G - 2)
-    y0, y1, y2 = res[r, g - 1], res[r, g], res[r, g + 1]
-    s0 = grid[g] + _parabola(y0, y1, y2) * grid_step  # (it takes y1 where a neighbour is inf)
+    found = profile_loops.grid_minima(prof @ Q, prof @ H, ss, 1, G, nb, polarity)  # (N,G*nb): one BLAS call
+    s0, h, rms, ok = _located(grid, S, *(a[:, 0] for a in found))
     if not refine:  # the grid's best residual only (for the blur estimate)
-        return s0, h_all[r, g], np.sqrt(np.maximum(res[r, g], 0) / S), ok
+        return s0, h, rms, ok
     # one refinement with per-profile bases at s0 - d, s0, s0 + d and a parabola
     step = 0.05
     cand = s0[:, None] + np.array([-step, 0.0, step])[None, :]          # (N,3)
@@ -189,6 +171,46 @@ def fit_kinks(prof: np.ndarray, s: np.ndarray, sigma: float, polarity: float = -
     rms = np.sqrt(np.maximum(rr[:, 1], 0) / S)
     ok &= (s0 <= s[-1] - margin) & (s0 >= s[0] + margin) & (h * polarity > 0) & np.isfinite(s0)
     return s0, h, rms, ok
+
+
+def _located(grid: np.ndarray, n_samples: int, g, off, res, h, ok):
+    """(s0, h, rms, ok) (N,) of profiles of ``n_samples`` samples from ``profile_loops``'
+    grid minima: position g on ``grid`` moved by the parabola's offset, residual res."""
+    return grid[g] + off * (grid[1] - grid[0]), h, np.sqrt(np.maximum(res, 0) / n_samples), ok
+
+
+def fit_kinks_straight_and_curved(prof: np.ndarray, s: np.ndarray, sigma: float, grid_step: float = 0.125,
+                                  margin: float = 1.0, polarity: float = -1.0):
+    """``fit_kinks(..., refine=False)`` of the straight model and of the curved one
+    (``curvature=True``) from one product: the curved model's orthonormal basis at each s0
+    begins with an orthonormal basis of the straight one's (QR keeps the span of the leading
+    columns), so one projection gives both residuals. Returns (straight, curved), each
+    (s0, h, rms, ok) (N,)."""
+    grid = np.arange(s[0] + margin, s[-1] - margin + 1e-9, grid_step)
+    Q, H_straight, H_curved = _kink_pair_projector(s, grid, sigma)   # (S,G*nb), (S,G), (S,G)
+    ss = np.einsum("ns,ns->n", prof, prof)
+    straight, curved = profile_loops.grid_minima_nested(prof @ Q, prof @ H_straight, prof @ H_curved, ss,
+                                                        len(grid), 4, polarity)
+    return _located(grid, len(s), *straight), _located(grid, len(s), *curved)
+
+
+def _kink_pair_projector(s: np.ndarray, grid: np.ndarray, sigma: float):
+    """The curved model's orthonormal bases at every grid s0, stacked (S, G*nb), and the (S,G)
+    maps from a profile to the straight and to the curved model's jump h at every s0 (cached
+    as ``_kink_projector``)."""
+    sigma = round(float(sigma), 6)
+    key = ("straight and curved", s.tobytes(), grid.tobytes(), sigma, TYRE_CURVATURE)
+
+    def make():
+        B = _kink_basis(s[None, :] - grid[:, None], sigma, True)     # (G,S,nb), straight first
+        Q, R = np.linalg.qr(B)                                       # (G,S,nb), (G,nb,nb)
+        # h = R^-1 Q^T prof, row 1: the straight model's from the leading 4 x 4 block of R
+        H_straight = np.einsum("gsk,gk->sg", Q[:, :, :4], np.linalg.inv(R[:, :4, :4])[:, 1, :])
+        H_curved = np.einsum("gsk,gk->sg", Q, np.linalg.inv(R)[:, 1, :])
+        return (np.ascontiguousarray(Q.transpose(1, 0, 2).reshape(len(s), -1)),
+                np.ascontiguousarray(H_straight), np.ascontiguousarray(H_curved))
+
+    return _PROJECTORS.get(key, make)
 
 
 _PROJECTORS = BoundedCache(64)   # per (window, grid, blur): every camera's blur differs a little
@@ -213,16 +235,6 @@ def _kink_projector(s: np.ndarray, grid: np.ndarray, sigma: float, curvature: bo
         return np.ascontiguousarray(Q.transpose(1, 0, 2).reshape(len(s), -1)), np.ascontiguousarray(H)
 
     return _PROJECTORS.get(key, make)
-
-
-def _against(h: np.ndarray, polarity: float) -> np.ndarray:
-    """``h * polarity <= 0``: jumps h against the expected polarity; for polarity +-1 (always,
-    here) by one comparison instead of a product and a comparison."""
-    if polarity == -1.0:
-        return h >= 0
-    if polarity == 1.0:
-        return h <= 0
-    return h * polarity <= 0
 
 
 def _parabola(y0, y1, y2):
@@ -275,11 +287,9 @@ def _blur_rms(prof: np.ndarray, s: np.ndarray, polarity: float, grid_step: float
                 np.ascontiguousarray(np.concatenate([h for _, h in parts], axis=1)))
 
     Q, H = _BLUR_STACKS.get(key, make)                               # (S, B*G*nb), (S, B*G)
-    proj = (prof @ Q).reshape(n, B, G, -1)
-    res = np.einsum("ns,ns->n", prof, prof)[:, None, None] - np.einsum("nbgk,nbgk->nbg", proj, proj)
-    np.copyto(res, np.inf, where=_against((prof @ H).reshape(n, B, G), polarity))
-    g = np.clip(np.argmin(res, axis=2), 1, G - 2)                    # (N,B), as fit_kinks clips it
-    best = np.take_along_axis(res, g[:, :, None], axis=2)[:, :, 0]
+    nb = Q.shape[1] // (B * G)
+    ss = np.einsum("ns,ns->n", prof, prof)
+    _, _, best, _, _ = profile_loops.grid_minima(prof @ Q, prof @ H, ss, B, G, nb, polarity)  # (N,B) each
     return np.sqrt(np.maximum(best, 0) / S)
 
 
@@ -340,11 +350,12 @@ CURVED_LIP_F = 10.0    # F(1, S - 6) the curvature term must reach: its 99 % poi
 CURVED_ARC_DEG = 10.0  # and on the majority of each arc this wide
 
 
-def _curved_where_needed(prof: np.ndarray, s: np.ndarray, sigma: float, s0, h, rms, ok):
+def _curved_where_needed(prof: np.ndarray, s: np.ndarray, sigma: float, s0, h, rms, ok, curved=None):
     """Per profile (N,S) in order round the rim, the step-and-kink model with the metal side's
     curvature (``METAL_CURVATURE``'s term) where it fits significantly better, the straight
     one elsewhere; (s0, h, rms, ok) (N,) are the straight model's, returned with the curved
-    model's values where it is taken.
+    model's values where it is taken; ``curved`` the curved model's (s0, h, rms, ok) where
+    they were found already (``fit_kinks_straight_and_curved``).
 
     A lip shaded as rounded across the window (a narrow lip, 4-8 mm, is 2-4 px wide in an
     oblique view; a dark rim's lip lit from above) makes the profile rise to the lip's top and
@@ -358,7 +369,7 @@ def _curved_where_needed(prof: np.ndarray, s: np.ndarray, sigma: float, s0, h, r
     arc (the seed-8 station's camber 0.030 -> 0.082 deg without the arc majority, 0.033 with
     it). Measured in docs/rim-detection.md."""
     S = len(s)
-    s0c, hc, rmsc, okc = fit_kinks(prof, s, sigma, grid_step=0.125, refine=False, curvature=True)
+    s0c, hc, rmsc, okc = curved or fit_kinks(prof, s, sigma, grid_step=0.125, refine=False, curvature=True)
     rss, rssc = rms ** 2 * S, rmsc ** 2 * S
     with np.errstate(divide="ignore", invalid="ignore"):
         f = (rss - rssc) / (rssc / max(S - 6, 1))
@@ -376,19 +387,8 @@ def _tyre_side_flat(prof: np.ndarray, s: np.ndarray, s0: np.ndarray, h: np.ndarr
     """(N,) bool: beyond the step the profile does not climb back by more than ``max_rise`` of
     the jump. Where the lit tyre bead is brighter than a lip shaded dark at its edge, the only
     bright-inside feature along the normal is the lip's shading ramp, not the flange edge."""
-    x = s[None, :] - s0[:, None]
-    near = (x > 1.5 * sigma) & (x < 1.5 * sigma + 1.01)
-    far = x > 1.5 * sigma
-    # low (N,): the mean of the near samples, else of the row filled with its last sample,
-    # summed as np.nanmean sums them (the same values in the same order) without its overhead
-    # (prof is finite: to_grey refuses non-finite images)
-    n_near = near.sum(axis=1)
-    near_any = n_near > 0
-    filled = np.where(near_any[:, None], np.where(near, prof, 0.0), prof[:, -1:])   # (N,S)
-    low = filled.sum(axis=1) / np.where(near_any, n_near, len(s))
-    top = row_max(np.where(far, prof, -np.inf))
-    top = np.where(np.isfinite(top), top, low)
-    return (top - low) < max_rise * np.abs(h)
+    return profile_loops.tyre_side_flat(np.ascontiguousarray(prof), np.asarray(s, float), s0, h, float(sigma),
+                                        float(max_rise))
 
 
 def edge_points(grey: np.ndarray, ellipse: Ellipse, pmap: PixelMap | None = None, n: int | None = None,
@@ -435,9 +435,11 @@ def edge_points(grey: np.ndarray, ellipse: Ellipse, pmap: PixelMap | None = None
                 p = initial_steps(prof, s)
                 sel = _blur_profiles(p, _step_found(p, s, -1.0))
                 sigma = _estimate_blur_any(rows(prof, sel), s, p[:, 3][sel], blur_hint)
-            s0, hh, r, conv = fit_kinks(prof, s, sigma, grid_step=0.125, refine=False)  # parabola on a fine grid: < 0.003 px
-            if CURVED_LIP_F is not None and not METAL_CURVATURE:
-                s0, hh, r, conv = _curved_where_needed(prof, s, sigma, s0, hh, r, conv)
+            if CURVED_LIP_F is not None and not METAL_CURVATURE:  # parabola on a fine grid: < 0.003 px
+                straight, curved = fit_kinks_straight_and_curved(prof, s, sigma, grid_step=0.125)
+                s0, hh, r, conv = _curved_where_needed(prof, s, sigma, *straight, curved=curved)
+            else:
+                s0, hh, r, conv = fit_kinks(prof, s, sigma, grid_step=0.125, refine=False)
             conv &= _tyre_side_flat(prof, s, s0, hh, sigma)
             p = np.zeros((len(idx), 5))
             p[:, 3], p[:, 2], p[:, 4] = s0, hh / 2, sigma
