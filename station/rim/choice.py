@@ -12,9 +12,9 @@ from __future__ import annotations
 import numpy as np
 
 from station.errors import RimNotFound
-from station.rim import hough
+from station.rim import hough, hough_loops
 from station.rim.ellipse import Ellipse
-from station.rim.npfast import percentile, rows
+from station.rim.npfast import percentile
 
 MIN_COVERAGE = 0.5         # below: "no closed rim contour" (choosing the candidate)
 MIN_SCORE = 0.35
@@ -46,21 +46,9 @@ def ring_darkness(sc, e: Ellipse, n_angles: int = 96) -> float:
 
 def outer_contour(sc, e: Ellipse) -> float:
     """Evidence (0..1) of a concentric contour 1.15-2.0 times larger (the tyre outline), any polarity."""
-    E = sc.edges
-    x, y = e.local_xy(E.points)                      # (N,) each, in the ellipse's frame
-    a, b = e.axes_px
-    rr = np.sqrt((x / a) ** 2 + (y / b) ** 2)        # e.radius_ratio
-    sel = np.flatnonzero((rr > 1.15) & (rr < 2.0))
-    if len(sel) < 10:
-        return 0.0
-    nx, ny = x[sel] / a**2, y[sel] / b**2            # normal of the concentric ellipse, local frame
-    c, s = e.cos_sin
-    nx, ny = c * nx - s * ny, s * nx + c * ny        # in pixels, then unit length
-    norm = np.sqrt(nx * nx + ny * ny)
-    grad = rows(E.grad, sel)
-    aligned = np.abs(nx / norm * grad[:, 0] + ny / norm * grad[:, 1]) > hough.NORMAL_COS
-    r = rr[sel][aligned] * a  # semi-major of the concentric ellipse through each point (coarse px)
-    if len(r) < 10:
+    (cx, cy), (a, b), (c, s) = e.center_px, e.axes_px, e.cos_sin
+    n_between, r = hough_loops.concentric_radii(*sc.edges.columns(), cx, cy, a, b, c, s, 1.15, 2.0, hough.NORMAL_COS)
+    if n_between < 10 or len(r) < 10:  # r: semi-major of the concentric ellipse through each point (coarse px)
         return 0.0
     hist = np.bincount(np.round(r).astype(int))
     hist = np.convolve(hist, np.ones(5), mode="same")

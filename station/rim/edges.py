@@ -42,14 +42,23 @@ class EdgeSet:
         return self.__dict__["_columns"]
 
 
+def _magnitude(dx: np.ndarray, dy: np.ndarray) -> np.ndarray:
+    """Gradient magnitude of int16 Sobel responses (any shape), float64: exact squares, then a
+    correctly rounded root. cv2.magnitude's result moved by an ulp with the arrays' place in
+    memory, and with it the edges' gradients, so the same image gave another rim after other
+    images had been processed."""
+    return np.sqrt(dx.astype(np.int32) ** 2 + dy.astype(np.int32) ** 2)
+
+
 def canny_thresholds(mag: np.ndarray, high_percentile: float = 90.0) -> tuple[float, float]:
-    """(low, high) hysteresis thresholds from the gradient magnitude image.
+    """(low, high) hysteresis thresholds from the gradient magnitude of every second pixel of
+    every second row (``mag``).
 
     high: the ``high_percentile`` of the magnitude, but at least 4 x the median (a robust
     noise level: most of an image is flat), so a flat noisy image yields few edges;
     low = 0.4 high.
     """
-    noise, p_hi = (float(v) for v in percentiles(mag[::2, ::2], [50.0, high_percentile]))
+    noise, p_hi = (float(v) for v in percentiles(mag, [50.0, high_percentile]))
     high = max(p_hi, 4.0 * noise, 8.0)
     return 0.4 * high, high
 
@@ -61,19 +70,16 @@ def detect_edges(grey_u8: np.ndarray, blur_sigma: float = 1.0, max_points: int =
     img = cv2.GaussianBlur(grey_u8, (0, 0), blur_sigma) if blur_sigma > 0 else grey_u8
     dx = cv2.Sobel(img, cv2.CV_16S, 1, 0, ksize=3)
     dy = cv2.Sobel(img, cv2.CV_16S, 0, 1, ksize=3)
-    # exact squares, then a correctly rounded root: cv2.magnitude's result moved by an ulp with
-    # the arrays' place in memory, and with it the edges' gradients, so the same image gave
-    # another rim after other images had been processed
-    mag = np.sqrt(dx.astype(np.int32) ** 2 + dy.astype(np.int32) ** 2)
-    low, high = canny_thresholds(mag, high_percentile)
+    low, high = canny_thresholds(_magnitude(dx[::2, ::2], dy[::2, ::2]), high_percentile)
     edges = cv2.Canny(dx, dy, low, high, L2gradient=True)
     # np.nonzero(edges) and the gathers at (v, u), by flat indices: 2-D nonzero and 2-D
     # fancy indexing take numpy's slow paths (0.4 ms against 0.15 here)
     flat = np.flatnonzero(edges != 0)  # (nonzero of a bool image: 2x faster than of uint8)
     v, u = np.divmod(flat, edges.shape[1])
-    gx = dx.ravel()[flat].astype(np.float64)
-    gy = dy.ravel()[flat].astype(np.float64)
-    m = mag.ravel()[flat].astype(np.float64)
+    gx = dx.ravel()[flat]
+    gy = dy.ravel()[flat]
+    m = _magnitude(gx, gy)  # (the magnitude of the edge pixels only)
+    gx, gy = gx.astype(np.float64), gy.astype(np.float64)
     if len(m) > max_points:
         keep = np.argpartition(-m, max_points)[:max_points]
         u, v, gx, gy, m = u[keep], v[keep], gx[keep], gy[keep], m[keep]

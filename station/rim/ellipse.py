@@ -19,6 +19,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from station.rim import fit_loops
 from station.rim.npfast import row_norms
 
 
@@ -225,23 +226,12 @@ class Ellipse:
     def feet(self, pts: np.ndarray, iterations: int = 4, t0: np.ndarray | None = None) -> "Feet":
         """:meth:`distance` with what it computed at the feet on the way (:class:`Feet`), for a
         fit's Jacobian at the same feet (no second cos / sin of t)."""
-        x, y = self.local_xy(pts)
-        a, b = self.axes_px
-        t = np.arctan2(a * y, b * x) if t0 is None else t0
-        for _ in range(iterations):
-            ct, st = np.cos(t), np.sin(t)
-            # f(t) = (p - e(t)) . e'(t) = 0, f' = -|e'|^2 - (p - e) . e(t)
-            ex, ey = a * ct, b * st
-            dx, dy = -a * st, b * ct
-            rx, ry = x - ex, y - ey
-            f = rx * dx + ry * dy
-            df = -(dx * dx + dy * dy) - rx * ex - ry * ey
-            t = t - f / df
-        ct, st = np.cos(t), np.sin(t)
-        rx, ry = x - a * ct, y - b * st
-        nx, ny = b * ct, a * st
-        nn = np.hypot(nx, ny)
-        return Feet((rx * nx + ry * ny) / nn, t, ct, st, nx / nn, ny / nn)
+        pts = np.asarray(pts, float)
+        d, t, ct, st, nx, ny = (np.empty(len(pts)) for _ in range(6))
+        t0 = t if t0 is None else np.ascontiguousarray(t0, dtype=float)  # (unread without a start)
+        fit_loops.feet(np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1]), self.params, t0,
+                       iterations, t0 is not t, d, t, ct, st, nx, ny)
+        return Feet(d, t, ct, st, nx, ny)
 
     def to_dict(self) -> dict:
         return {"center_px": [float(x) for x in self.center_px],

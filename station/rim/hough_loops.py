@@ -85,3 +85,28 @@ def polarity_inliers(px, py, gu, gv, cx, cy, a, b, c, s, tol, inward, normal_cos
             out[k] = i
             k += 1
     return out[:k]
+
+
+@njit(cache=True, nogil=True)
+def concentric_radii(px, py, gu, gv, cx, cy, a, b, c, s, lo, hi, normal_cos):
+    """Of the pixels (px, py) (N,) between the concentric similar ellipses ``lo`` and ``hi``
+    times the ellipse (centre (cx, cy), semi-axes a, b, cos / sin of its angle c, s): how many
+    there are, and the semi-major axis (K,) of the concentric ellipse through each whose unit
+    gradient (gu, gv) lies along that ellipse's normal, either way (cosine above
+    ``normal_cos``) - ``choice.outer_contour``'s support of a tyre outline."""
+    radii = np.empty(px.size)
+    n_between, k = 0, 0
+    for i in range(px.size):
+        du, dv = px[i] - cx, py[i] - cy
+        x, y = du * c + dv * s, -du * s + dv * c
+        rr = np.sqrt((x / a) ** 2 + (y / b) ** 2)
+        if not (rr > lo and rr < hi):
+            continue
+        n_between += 1
+        nx, ny = x / a ** 2, y / b ** 2
+        nx, ny = c * nx - s * ny, s * nx + c * ny
+        norm = np.sqrt(nx * nx + ny * ny)
+        if abs(nx / norm * gu[i] + ny / norm * gv[i]) > normal_cos:
+            radii[k] = rr * a
+            k += 1
+    return n_between, radii[:k]
