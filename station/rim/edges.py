@@ -34,7 +34,8 @@ class EdgeSet:
         return EdgeSet(rows(self.points, idx), rows(self.grad, idx), self.mag[idx], self.shape)
 
     def columns(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """u, v, grad u, grad v (N,) each, contiguous (the compiled tests' input), made once."""
+        """u, v, grad u, grad v (N,) each, contiguous (the compiled tests' input), made once per
+        points and grad arrays: replace them (as ``subset`` does), never change them in place."""
         key = (id(self.points), id(self.grad))
         if self.__dict__.get("_columns_of") != key:  # (made again if the arrays were replaced)
             self.__dict__["_columns"] = tuple(np.ascontiguousarray(c) for c in (*self.points.T, *self.grad.T))

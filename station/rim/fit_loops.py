@@ -6,7 +6,7 @@ points, Jacobian, normal equations, twelve times over ~1000 points) and the cons
 minimal conics and their support cost a few microseconds of call overhead per operation. Here
 each is one compiled loop over the points. They compute what ``ellipse_fit``'s numpy forms
 computed, in the same order of steps; sums may differ in the last bits (another summation
-order), never in meaning (tests/test_rim_fit_loops.py compares them).
+order), never in meaning (tests/test_rim_loops.py compares them).
 
 Ellipse parameters p (5,) are (cx, cy, a, b, theta) as in ``station.rim.ellipse``.
 """
