@@ -117,7 +117,8 @@ def ransac_ellipse(pts: np.ndarray, threshold_px: float, iterations: int = 160,
     Two concentric edges (the flange edge on one arc, the lip's inner edge on another) make a
     least-squares fit a compromise that matches neither; the consensus of minimal samples
     picks one curve. The hypotheses are drawn here (the same draws for the same seed) and
-    scored in one compiled loop (``fit_loops.consensus``), ``batch`` at a time; it stops when, at the best support fraction w found so far, the samples drawn contain an
+    scored in one compiled loop (``fit_loops.consensus``), ``batch`` at a time; it stops
+    when, at the best support fraction w found so far, the samples drawn contain an
     all-inlier one with probability ``confidence`` (1 - (1 - w^5)^k: one batch of 32 samples
     for w >= 0.76, two for w >= 0.67, five for w >= 0.56). None if no sample gives an ellipse."""
     pts = np.asarray(pts, float)

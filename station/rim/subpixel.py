@@ -149,7 +149,7 @@ def fit_kinks(prof: np.ndarray, s: np.ndarray, sigma: float, polarity: float = -
 
     Returns s0 (N,), h (N,), residual rms (N,), ok (N,) bool.
     """
-    n, S = prof.shape
+    S = prof.shape[1]
     grid = np.arange(s[0] + margin, s[-1] - margin + 1e-9, grid_step)
     G = len(grid)
     Q, H = _kink_projector(s, grid, sigma, curvature)                # (S,G*nb), (S,G)
@@ -276,7 +276,7 @@ def _blur_rms(prof: np.ndarray, s: np.ndarray, polarity: float, grid_step: float
     the step-and-kink model at its best edge position on the grid, as ``fit_kinks(...,
     refine=False)`` gives it, for all candidate blurs by one product with their stacked
     projectors (cached)."""
-    n, S = prof.shape
+    S = prof.shape[1]
     grid = np.arange(s[0] + margin, s[-1] - margin + 1e-9, grid_step)
     G, B = len(grid), len(BLUR_GRID_PX)
     key = (s.tobytes(), grid.tobytes(), METAL_CURVATURE, TYRE_CURVATURE)
