@@ -96,8 +96,11 @@ def concentric_radii(px, py, gu, gv, cx, cy, a, b, c, s, lo, hi, normal_cos):
     ``normal_cos``) - ``choice.outer_contour``'s support of a tyre outline."""
     radii = np.empty(px.size)
     n_between, k = 0, 0
+    near, far = max(b * lo - 1.0, 0.0) ** 2, (a * hi + 1.0) ** 2  # (a bound that needs no root)
     for i in range(px.size):
         du, dv = px[i] - cx, py[i] - cy
+        if not near < du * du + dv * dv < far:  # rr = lo lies at b lo .. a lo from the centre
+            continue
         x, y = du * c + dv * s, -du * s + dv * c
         rr = np.sqrt((x / a) ** 2 + (y / b) ** 2)
         if not (rr > lo and rr < hi):
