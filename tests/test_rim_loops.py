@@ -197,8 +197,13 @@ def _pair_midpoints_ref(edges, d_min, d_max, max_pairs=3_000_000):
 
 def _polarity_ref(e, edges, tol, inward=True):
     """polarity_inliers by brute force: every pixel's approximate distance and gradient cosine."""
-    d, grad = e.approx_distance_grad(edges.points)
-    cosg = -(e.approx_normal(*grad) * edges.grad).sum(axis=1)
+    x, y = e.local_xy(edges.points)               # the removed Ellipse.approx_distance_grad
+    a, b = e.axes_px
+    gx, gy = x / (a * a), y / (b * b)
+    r, g = np.sqrt(x * gx + y * gy), np.maximum(np.hypot(gx, gy), 1e-12)
+    d = (r - 1.0) * r / g
+    c, s = e.cos_sin
+    cosg = -((c * gx - s * gy) / g * edges.grad[:, 0] + (s * gx + c * gy) / g * edges.grad[:, 1])
     return np.flatnonzero((np.abs(d) < tol) & ((cosg if inward else np.abs(cosg)) > hough.NORMAL_COS))
 
 

@@ -188,31 +188,6 @@ class Ellipse:
         a, b = self.axes_px
         return np.sqrt((le[:, 0] / a) ** 2 + (le[:, 1] / b) ** 2)
 
-    def approx_distance(self, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """First-order signed distance (positive outside) (N,) and outward unit normal (N,2)
-        of the concentric similar ellipse through each point: (r - 1) / |grad r| with r the
-        radius ratio. Within a few px of an ellipse of semi-axes >> 1 px it differs from the
-        orthogonal distance by O(d^2 / a); no iterations (for inlier tests on many points)."""
-        d, grad = self.approx_distance_grad(pts)
-        return d, self.approx_normal(*grad)
-
-    def approx_distance_grad(self, pts: np.ndarray):
-        """:meth:`approx_distance`'s distance d (N,) and what its normal is made of, (gx, gy,
-        |g|) (N,) each: the normal of only the points that pass a distance test costs less
-        (:meth:`approx_normal` of a subset of them)."""
-        x, y = self.local_xy(pts)
-        a, b = self.axes_px
-        gx, gy = x / (a * a), y / (b * b)
-        r = np.sqrt(x * gx + y * gy)
-        g = np.hypot(gx, gy)
-        d = (r - 1.0) * r / np.maximum(g, 1e-12)  # grad r = (gx, gy) / r
-        return d, (gx, gy, g)
-
-    def approx_normal(self, gx: np.ndarray, gy: np.ndarray, g: np.ndarray) -> np.ndarray:
-        """(N,2) outward unit normals from :meth:`approx_distance_grad`'s (gx, gy, |g|)."""
-        c, s = self.cos_sin
-        return np.stack([c * gx - s * gy, s * gx + c * gy], axis=1) / np.maximum(g, 1e-12)[:, None]
-
     def distance(self, pts: np.ndarray, iterations: int = 4, t0: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Signed orthogonal distance (positive outside) and foot parameter t, both (N,).
 

@@ -34,9 +34,9 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
+from station.rim import hough_loops
 from station.rim.edges import EdgeSet
 from station.rim.ellipse import Ellipse
-from station.rim import hough_loops
 from station.rim.ellipse_fit import ransac_ellipse
 from station.rim.npfast import median, row_norms, rows
 

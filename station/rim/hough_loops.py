@@ -57,9 +57,12 @@ def antiparallel_pairs(u, v, gu, gv, starts, half, d_min2, d_max2, c2, max_pairs
 @njit(cache=True, nogil=True)
 def polarity_inliers(px, py, gu, gv, cx, cy, a, b, c, s, tol, inward, normal_cos):
     """Indices (ascending) of the pixels (px, py) (N,) within ``tol`` of the ellipse (centre
-    (cx, cy), semi-axes a, b, cos / sin of its angle c, s) by ``Ellipse.approx_distance``,
-    whose unit gradient (gu, gv) (N,) meets the ellipse's outward normal at a cosine below
-    -``normal_cos`` (brighter inside; with ``inward`` False, either way)."""
+    (cx, cy), semi-axes a, b, cos / sin of its angle c, s) whose unit gradient (gu, gv) (N,)
+    meets the ellipse's outward normal at a cosine below -``normal_cos`` (brighter inside;
+    with ``inward`` False, either way). Distance and normal are first-order, of the concentric
+    similar ellipse through the pixel: d = (r - 1) / |grad r| with r the radius ratio
+    sqrt(x^2/a^2 + y^2/b^2); within a few px of an ellipse of semi-axes >> 1 px it differs from
+    the orthogonal distance by O(d^2 / a), and needs no iterations."""
     out = np.empty(px.size, np.int64)
     k = 0
     # the approximate distance |d| = |r - 1| r / |grad r| >= |r - 1| b with r between rho / a
