@@ -126,6 +126,80 @@ def test_kink_fit_is_unbiased_where_the_lip_is_shaded_as_a_ramp():
     assert (p[ok2, 3] - s0[ok2]).mean() < -0.1
 
 
+def _kink_edge_image(theta, offset_px, sigma, metal_slope=-25.0, jump=-120.0, size=48, width=None):
+    """(size, width or size) float32 image of the blurred step-and-kink edge (the model of
+    fit_kinks) at pixel centres: bright, shaded metal up to a straight edge with outward
+    normal at angle ``theta`` through the image centre moved ``offset_px`` along it; and that
+    normal (2,)."""
+    from scipy.stats import norm
+    width = width or size
+    n = np.array([np.cos(theta), np.sin(theta)])
+    yy, xx = np.mgrid[0:size, 0:width].astype(float)
+    x = (xx - width / 2) * n[0] + (yy - size / 2) * n[1] - offset_px   # px past the edge
+    Phi, phi = norm.cdf(x / sigma), norm.pdf(x / sigma)
+    return (150 + jump * Phi + metal_slope * (x - x * Phi - sigma * phi)).astype(np.float32), n
+
+
+def _edge_profiles_setup(rng, theta, offset, n=40, size=48, half_length=8.0, width=None):
+    """Profile origins (n,2) along the straight kink edge of ``_kink_edge_image`` of that
+    size (jittered +/-0.5 px across it), their unit normals (n,2) and the edge's distance
+    from each, along the normal (n,)."""
+    n_vec = np.array([np.cos(theta), np.sin(theta)])
+    t = np.array([-n_vec[1], n_vec[0]])
+    along = rng.uniform(-0.5, 0.5, (n, 1)) * n_vec + np.linspace(-half_length, half_length, n)[:, None] * t
+    centre = np.array([(width or size) / 2, size / 2])
+    return centre + offset * n_vec + along, np.repeat(n_vec[None, :], n, 0), -(along @ n_vec)
+
+
+def test_profiles_sampled_without_interpolation_blur_put_a_shaded_edge_where_it_is():
+    """Bilinear interpolation blurs a profile by up to 1/4 px^2 more, by how far its samples
+    fall between pixels: against a kink model at the image's blur, a lip shaded as a ramp
+    then moves the edge outward by ~k sigma dsigma / h (0.06 px here), differently round a
+    rim. Lanczos-sampled profiles reproduce the blurred image and put it where it is."""
+    from station.rim.subpixel import fit_kinks, sample_profiles
+    rng = np.random.default_rng(1)
+    sigma, s = 0.8, np.arange(-3, 4.51, 0.5)
+    errors = {cv2.INTER_LANCZOS4: [], cv2.INTER_LINEAR: []}
+    for theta in np.radians([0, 10, 30, 45, 60, 80]):
+        for offset in (0.0, 0.25, 0.5, 0.75):
+            img, _ = _kink_edge_image(theta, offset, sigma)
+            base, normals, edge = _edge_profiles_setup(rng, theta, offset)
+            for interp, errs in errors.items():
+                s0, _, _, ok = fit_kinks(sample_profiles(img, base, normals, s, interp), s, sigma,
+                                         grid_step=0.125, refine=False)
+                errs.append(s0[ok] - edge[ok])
+    lanczos, linear = (np.concatenate(errors[k]) for k in (cv2.INTER_LANCZOS4, cv2.INTER_LINEAR))
+    assert len(lanczos) > 0.98 * 6 * 4 * 40
+    assert abs(lanczos.mean()) < 0.01 and np.abs(lanczos).max() < 0.06
+    assert linear.mean() > 0.03  # what repositioned's sampling avoids
+
+
+@pytest.mark.parametrize("noise", [0.0, 5.0])
+def test_repositioned_moves_points_onto_the_edge_at_the_blur_of_its_own_profiles(noise):
+    """The passes' points (here 0.06 px outside, as bilinear profiles put a shaded edge, with
+    0.05 px of scatter) are found again on the edge, at the blur the Lanczos profiles have,
+    estimated from arc averages aligned on the anchors, also at a noise of 5 grey levels."""
+    from station.rim.subpixel import repositioned
+    rng = np.random.default_rng(2)
+    sigma = 0.8
+    errs, blurs = [], []
+    for theta in np.radians([89.0, 90.0, 91.2]):
+        # an edge as long as a rim, a profile every 1.5 px as the final pass takes them
+        img, _ = _kink_edge_image(theta, 0.3, sigma, size=64, width=1600)
+        img = img + rng.normal(0, noise, img.shape).astype(np.float32)
+        anchors, normals, edge = _edge_profiles_setup(rng, theta, 0.3, n=1000, size=64, half_length=750.0,
+                                                      width=1600)
+        on_edge = anchors + edge[:, None] * normals                       # the true edge's points
+        passes = on_edge + (0.06 + rng.normal(0, 0.05, (len(edge), 1))) * normals
+        moved, ok, blur = repositioned(img, passes, on_edge, normals)
+        assert ok.mean() > 0.95
+        errs.append(((moved - on_edge) @ normals[0])[ok])
+        blurs.append(blur)
+    e = np.concatenate(errs)
+    assert abs(e.mean()) < (0.01 if noise == 0 else 0.02)
+    assert np.array(blurs) == pytest.approx(sigma, rel=0.02 if noise == 0 else 0.04)
+
+
 def test_a_lip_rounded_across_the_window_takes_the_curved_model_and_an_ordinary_one_does_not():
     """A narrow lip shaded as rounded: the profile rises to the lip's top 1.5 px inside the
     edge and falls to it. The straight metal side puts the edge 0.35 px inside; the curved

@@ -31,9 +31,9 @@ from station.rim import hough
 from station.rim.choice import choose
 from station.rim.ellipse import Ellipse
 from station.rim.ellipse_fit import fit_direct, fit_geometric, ransac_ellipse
-from station.rim.npfast import finite_rows, median, percentiles, rows
+from station.rim.npfast import finite_rows, median, percentiles, row_norms, rows
 from station.rim.preprocess import PixelMap, detection_scale, downscale, equalize, to_grey
-from station.rim.subpixel import edge_points, window_scale
+from station.rim.subpixel import WIDE_BLUR_PX, edge_points, repositioned, window_scale
 from station.rim.white_edge import white_share
 from station.wheel_arcs import sector_medians
 
@@ -308,8 +308,45 @@ def detect_rim(image: np.ndarray, *, camera=None, prior: Ellipse | None = None, 
         if camera is None and sc.s // WORKING_SCALE_STEP >= 2 and untangled is None:
             info["blur_px"] = blur
             return _finer_of(grey, best.ellipse, sc.s, (fit, samples, mask), info, clock, camera_id)
+    fit, samples, mask = _repositioned(grey, fit, samples, mask, pmap, blur)
+    clock.lap("refine")
     info["blur_px"] = blur
     return _with_white_share(_result(fit, samples, mask, info, clock, camera, pmap, camera_id), grey)
+
+
+REPOSITION = True  # locate the final points again in Lanczos-sampled profiles (subpixel.repositioned)
+
+
+def _repositioned(grey: np.ndarray, fit, samples, mask, pmap: PixelMap, blur: float | None):
+    """The final fit, its samples and inlier mask with the inliers located again by
+    :func:`subpixel.repositioned` along the fit's normals, and the ellipse fitted to them
+    (from the fit). Soft edges (blur > WIDE_BLUR_PX) keep their points: there the bilinear
+    interpolation's own blur is a small share of the edge's, and the soft-focus decisions
+    stay as they were measured. (A large photograph without a camera model, refined at two
+    scales by ``_finer_of``, keeps its points too.)"""
+    if not REPOSITION or fit is None or blur is None or blur > WIDE_BLUR_PX:
+        return fit, samples, mask
+    idx = np.nonzero(mask)[0]
+    pts = rows(samples.points_px, idx)
+    ideal = pmap.undistort(pts)
+    _, t = fit.ellipse.distance(ideal)
+    feet, n_ideal = fit.ellipse.point_at(t), fit.ellipse.normal_at(t)
+    if pmap.identity:
+        anchors, nrm = feet, n_ideal
+    else:
+        anchors = pmap.distort(feet)
+        nrm = pmap.distort(ideal + n_ideal) - pmap.distort(ideal)
+        nrm /= row_norms(nrm)[:, None]
+    moved, _, _ = repositioned(grey, pts, anchors, nrm)
+    try:
+        refit = fit_geometric(pmap.undistort(moved), init=fit.ellipse, iterations=12)
+    except (ValueError, np.linalg.LinAlgError):
+        return fit, samples, mask
+    points_px = samples.points_px.copy()
+    points_px[idx] = moved
+    kept = mask.copy()
+    kept[idx[~refit.inliers]] = False
+    return refit, replace(samples, points_px=points_px, ok=kept), kept
 
 
 def _with_white_share(det: RimDetection, grey: np.ndarray) -> RimDetection:
