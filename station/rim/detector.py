@@ -315,35 +315,44 @@ def detect_rim(image: np.ndarray, *, camera=None, prior: Ellipse | None = None, 
 
 
 REPOSITION = True  # locate the final points again in Lanczos-sampled profiles (subpixel.repositioned)
+REFIT_ITERATIONS = 4
 
 
 def _repositioned(grey: np.ndarray, fit, samples, mask, pmap: PixelMap, blur: float | None):
     """The final fit, its samples and inlier mask with the inliers located again by
-    :func:`subpixel.repositioned` along the fit's normals, and the ellipse fitted to them
-    (from the fit). Soft edges (blur > WIDE_BLUR_PX) keep their points: there the bilinear
-    interpolation's own blur is a small share of the edge's, and the soft-focus decisions
-    stay as they were measured. (A large photograph without a camera model, refined at two
-    scales by ``_finer_of``, keeps its points too.)"""
+    :func:`subpixel.repositioned` along the fit's normals (where an inlier's edge is not
+    found again it stays), and the ellipse fitted to them (from the fit). Soft edges (blur >
+    WIDE_BLUR_PX) keep their points: there the bilinear interpolation's own blur is a small
+    share of the edge's, and the soft-focus decisions stay as they were measured. (A large
+    photograph without a camera model, refined at two scales by ``_finer_of``, keeps its
+    points too.)"""
     if not REPOSITION or fit is None or blur is None or blur > WIDE_BLUR_PX:
         return fit, samples, mask
     idx = np.nonzero(mask)[0]
-    pts = rows(samples.points_px, idx)
-    ideal = pmap.undistort(pts)
-    _, t = fit.ellipse.distance(ideal)
-    feet, n_ideal = fit.ellipse.point_at(t), fit.ellipse.normal_at(t)
+    # the points' feet on the fit: those of their profiles' bases (on the ellipse the pass
+    # searched along, a fraction of a pixel from the fit; no undistortion of every point)
+    bases = samples.along.point_at(samples.t[idx]) if samples.along is not None else pmap.undistort(
+        rows(samples.points_px, idx))
+    _, t = fit.ellipse.distance(bases)
+    feet, n_ideal = fit.ellipse.point_at(t), fit.ellipse.normal_at(t)       # (M,2) ideal pixels
     if pmap.identity:
-        anchors, nrm = feet, n_ideal
+        anchors, nrm, scale = feet, n_ideal, np.ones(len(idx))
     else:
         anchors = pmap.distort(feet)
-        nrm = pmap.distort(ideal + n_ideal) - pmap.distort(ideal)
-        nrm /= row_norms(nrm)[:, None]
-    moved, _, _ = repositioned(grey, pts, anchors, nrm)
+        nrm = pmap.distort(feet + n_ideal) - anchors
+        scale = row_norms(nrm)                       # image px per ideal px along the normal
+        nrm /= scale[:, None]
+    d, found, _ = repositioned(grey, anchors, nrm)
+    points_px = samples.points_px.copy()
+    points_px[idx[found]] = anchors[found] + d[found, None] * nrm[found]
+    ideal = np.empty((len(idx), 2))
+    ideal[found] = feet[found] + (d[found] / scale[found])[:, None] * n_ideal[found]   # (|d| <= 1 px)
+    if not found.all():
+        ideal[~found] = pmap.undistort(rows(samples.points_px, idx[~found]))
     try:
-        refit = fit_geometric(pmap.undistort(moved), init=fit.ellipse, iterations=12)
+        refit = fit_geometric(ideal, init=fit.ellipse, iterations=REFIT_ITERATIONS)
     except (ValueError, np.linalg.LinAlgError):
         return fit, samples, mask
-    points_px = samples.points_px.copy()
-    points_px[idx] = moved
     kept = mask.copy()
     kept[idx[~refit.inliers]] = False
     return refit, replace(samples, points_px=points_px, ok=kept), kept

@@ -40,7 +40,8 @@ class EdgeSamples:
 
     points_px: (N,2) distorted image pixels; t: (N,) ellipse parameter of each sample;
     contrast: (N,) |h| step height (grey levels); width: (N,) blur w (px);
-    rms: (N,) profile fit residual (grey levels); ok: (N,) bool, profile accepted.
+    rms: (N,) profile fit residual (grey levels); ok: (N,) bool, profile accepted;
+    along: the ellipse (ideal pixels) the profiles were taken along (t is on it), or None.
     """
 
     points_px: np.ndarray
@@ -49,6 +50,7 @@ class EdgeSamples:
     width: np.ndarray
     rms: np.ndarray
     ok: np.ndarray
+    along: Ellipse | None = None
 
 
 def sample_profiles(grey: np.ndarray, base_px: np.ndarray, normal_px: np.ndarray, s: np.ndarray,
@@ -256,7 +258,7 @@ BLUR_GRID_PX = np.geomspace(0.4, 2.8, 13)  # blur candidates, 17.6 % apart (cach
 BLUR_PROFILES = 200                          # profiles spread round the rim that estimate it
 
 
-def estimate_blur(prof: np.ndarray, s: np.ndarray, polarity: float = -1.0) -> float:
+def estimate_blur(prof: np.ndarray, s: np.ndarray, polarity: float = -1.0, grid_step: float = 0.25) -> float:
     """The image's effective edge blur sigma (px): the median, over profiles (N,S), of each
     profile's own best blur for the step-and-kink model.
 
@@ -264,8 +266,10 @@ def estimate_blur(prof: np.ndarray, s: np.ndarray, polarity: float = -1.0) -> fl
     looks like a broader step, never a sharper one; round a rim many profiles are clean, so
     the median of the per-profile values is the PSF, where a least-squares blur over all of
     them is pulled toward the contaminated ones (they have the most contrast). Per profile:
-    the least residual over ``BLUR_GRID_PX``, then a parabola in log sigma."""
-    rms = _blur_rms(prof, s, polarity)                                               # (N,G)
+    the least residual over ``BLUR_GRID_PX``, then a parabola in log sigma, each at the best
+    edge position on a grid of ``grid_step`` px (an edge between grid points fits best as a
+    broader step: a coarse grid reads the blur high by where the edge falls on it)."""
+    rms = _blur_rms(prof, s, polarity, grid_step)                                    # (N,G)
     G, r = len(BLUR_GRID_PX), np.arange(len(prof))
     k = np.clip(np.argmin(rms, axis=1), 1, G - 2)
     at = k + _parabola(rms[r, k - 1], rms[r, k], rms[r, k + 1])
@@ -459,20 +463,21 @@ def edge_points(grey: np.ndarray, ellipse: Ellipse, pmap: PixelMap | None = None
         w_med = median(width[ok])
         ok &= (contrast > 0.2 * c_med) & (contrast > 4 * r_med) & (rms < 3.0 * r_med + 1e-6) \
             & (width < 2.5 * w_med + 0.3) & (width > 0.25)
-    return EdgeSamples(pts, t, contrast, width, rms, ok), sigma
+    return EdgeSamples(pts, t, contrast, width, rms, ok, ellipse), sigma
 
 
-REPOSITION_REACH_PX = 0.5  # how far ``repositioned`` searches around each point (px)
+REPOSITION_REACH_PX = 1.0  # how far from the fitted ellipse ``repositioned`` searches (px)
 REPOSITION_ARCS = 36       # arcs whose averaged profiles give ``repositioned`` its blur
+STACK_GRID_PX = 0.125      # their edge positions' grid in the blur estimate (finer than the passes')
 
 
-def repositioned(grey: np.ndarray, points_px: np.ndarray, anchors_px: np.ndarray, normals_px: np.ndarray,
+def repositioned(grey: np.ndarray, anchors_px: np.ndarray, normals_px: np.ndarray,
                  window_px: tuple[float, float] = (-3.0, 4.5), step_px: float = 0.5):
-    """The edge points (N,2) (in order round the rim) found by the passes, located again in
-    profiles sampled with the Lanczos kernel (``POSITION_INTERPOLATION``) along unit normals
-    (N,2) through them, searched within ``REPOSITION_REACH_PX``; ``anchors_px`` (N,2): the
-    points' feet on the fitted ellipse. Returns ((N,2) points, the ones not found again
-    unmoved; (N,) bool found again; the blur used, px).
+    """The rim edge located again in profiles sampled with the Lanczos kernel
+    (``POSITION_INTERPOLATION``) through ``anchors_px`` (N,2), the passes' points' feet on
+    the fitted ellipse in order round the rim, along unit normals (N,2), searched within
+    ``REPOSITION_REACH_PX`` of the anchors. Returns ((N,) offsets of the edge from the anchors
+    along the normals, px; (N,) bool found (not at the search's end); the blur used, px).
 
     Bilinear interpolation blurs a sample by f(1 - f) px^2 more along each axis, f its
     fraction between pixels: by up to 1/4 px^2, and by a different amount from profile to
@@ -483,39 +488,37 @@ def repositioned(grey: np.ndarray, points_px: np.ndarray, anchors_px: np.ndarray
     reproduces an image blurred over about a pixel without adding blur of its own.
 
     The model is the passes' (the curved lip where ``_curved_where_needed`` says so), at the
-    blur of these profiles: ``estimate_blur`` of the profiles through the anchors averaged
-    over each of ``REPOSITION_ARCS`` arcs. Averaged, the noise falls by the square root of
-    their number; aligned on the ellipse, not on each point (whose position came from the
-    same noise), the average is not sharpened by the alignment. On the simulated station's
-    rims the median of each profile's own best blur, as the passes take it, comes out 1-2 %
-    low at a noise of 2 grey levels and 10 % low at 5; the arcs' averages 1 % and 2 % low
-    (docs/accuracy.md, stop 24); a blur 10 % too small made the toe error 5x larger.
+    blur of these profiles: ``estimate_blur`` of the profiles averaged over each of
+    ``REPOSITION_ARCS`` arcs. Averaged, the noise falls by the square root of their number;
+    aligned on the ellipse, not on each point (whose position came from the same noise), the
+    average is not sharpened by the alignment. On the simulated station's rims the median of
+    each profile's own best blur, as the passes take it, comes out 1-2 % low at a noise of 2
+    grey levels and 10 % low at 5; the arcs' averages 1 % and 2 % low (docs/accuracy.md,
+    stop 24); a blur 10 % too small made the toe error 5x larger.
 
     Only the positions move: which points, and which contour, the passes chose with bilinear
     profiles as they were measured (sampled with Lanczos, the passes changed decisions on
     borderline harsh-light cameras)."""
-    pts = np.asarray(points_px, float)
-    if len(pts) < 8:
-        return pts.copy(), np.zeros(len(pts), bool), float("nan")
+    n = len(anchors_px)
+    if n < 8:
+        return np.zeros(n), np.zeros(n, bool), float("nan")
     s = np.arange(window_px[0], window_px[1] + step_px / 2, step_px)
     grid = np.arange(-REPOSITION_REACH_PX, REPOSITION_REACH_PX + 1e-9, 0.125)
-    through_anchors = sample_profiles(grey, anchors_px, normals_px, s, POSITION_INTERPOLATION)
-    n_arcs = int(min(REPOSITION_ARCS, len(pts) // 8))
-    stacks = np.stack([arc.mean(axis=0) for arc in np.array_split(through_anchors, n_arcs)])
-    sigma = estimate_blur(*_centred(stacks, s, np.zeros(n_arcs)))
-    prof = sample_profiles(grey, pts, normals_px, s, POSITION_INTERPOLATION)
+    prof = sample_profiles(grey, anchors_px, normals_px, s, POSITION_INTERPOLATION)
+    n_arcs = int(min(REPOSITION_ARCS, n // 8))
+    starts = (np.arange(n_arcs) * n) // n_arcs                           # arcs of (almost) equal count
+    stacks = np.add.reduceat(prof, starts, axis=0) / np.diff(np.append(starts, n))[:, None]
+    # each average cut round its own edge (the anchors' curve may run a little off it)
+    sigma = estimate_blur(*_centred(stacks, s, initial_steps(stacks, s)[:, 3]), grid_step=STACK_GRID_PX)
     Q, H_straight, H_curved = _kink_pair_projector(s, grid, sigma)
     ss = np.einsum("ns,ns->n", prof, prof)
     straight, curved = profile_loops.grid_minima_nested(prof @ Q, prof @ H_straight, prof @ H_curved, ss,
                                                         len(grid), 4, -1.0)
-    # an edge at either end of the search is not the point's edge found again
+    # an edge at either end of the search is not found
     straight, curved = (_located(grid, len(s), g, off, res, h, ok & (g > 0) & (g < len(grid) - 1))
                         for g, off, res, h, ok in (straight, curved))
     if CURVED_LIP_F is not None and not METAL_CURVATURE:  # the passes' choice of model
         d, _, _, ok = _curved_where_needed(prof, s, sigma, *straight, curved=curved)
     else:
         d, _, _, ok = curved if METAL_CURVATURE else straight
-    ok &= np.isfinite(d)
-    out = pts.copy()
-    out[ok] += d[ok, None] * normals_px[ok]
-    return out, ok, sigma
+    return d, ok & np.isfinite(d), sigma
