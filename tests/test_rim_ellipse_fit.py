@@ -258,3 +258,23 @@ def test_blur_estimate_ignores_profiles_with_a_highlight_up_to_the_edge():
     assert estimate_blur(prof, s) == pytest.approx(0.85, abs=0.08)
     total = [np.sum(fit_kinks(prof, s, sg, refine=False)[2] ** 2) for sg in BLUR_GRID_PX]
     assert BLUR_GRID_PX[int(np.argmin(total))] > 1.0
+
+
+def test_repositioned_with_too_few_points_finds_nothing_and_moves_nothing():
+    from station.rim.subpixel import repositioned
+    img, n = _kink_edge_image(0.3, 0.0, 0.8)
+    anchors = np.full((5, 2), 24.0)
+    d, found, blur = repositioned(img, anchors, np.repeat(n[None, :], 5, 0))
+    assert not found.any() and np.all(d == 0) and np.isnan(blur)
+
+
+def test_a_soft_image_keeps_the_passes_points():
+    """Above WIDE_BLUR_PX the bilinear samples' own blur is a small share of the edge's: the
+    detector's final points are the passes' (and the soft-focus decisions as measured)."""
+    from types import SimpleNamespace
+
+    from station.rim import detector
+    from station.rim.subpixel import WIDE_BLUR_PX
+    fit, samples, mask = SimpleNamespace(), SimpleNamespace(), np.ones(3, bool)
+    out = detector._repositioned(np.zeros((8, 8), np.float32), fit, samples, mask, None, WIDE_BLUR_PX + 0.1)
+    assert out[0] is fit and out[1] is samples and out[2] is mask
