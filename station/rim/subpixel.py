@@ -191,11 +191,26 @@ def fit_kinks_straight_and_curved(prof: np.ndarray, s: np.ndarray, sigma: float,
     columns), so one projection gives both residuals. Returns (straight, curved), each
     (s0, h, rms, ok) (N,)."""
     grid = np.arange(s[0] + margin, s[-1] - margin + 1e-9, grid_step)
+    straight, curved = _kink_minima(prof, s, sigma, grid, polarity)
+    return _located(grid, len(s), *straight), _located(grid, len(s), *curved)
+
+
+def _kink_minima(prof: np.ndarray, s: np.ndarray, sigma: float, grid: np.ndarray, polarity: float):
+    """Each profile's (N,S) best position on ``grid`` under the straight and the curved kink
+    model, from one product: ``profile_loops.grid_minima_nested``'s (g, offset, res, h,
+    finite) (N,) each, straight first."""
     Q, H_straight, H_curved = _kink_pair_projector(s, grid, sigma)   # (S,G*nb), (S,G), (S,G)
     ss = np.einsum("ns,ns->n", prof, prof)
-    straight, curved = profile_loops.grid_minima_nested(prof @ Q, prof @ H_straight, prof @ H_curved, ss,
-                                                        len(grid), 4, polarity)
-    return _located(grid, len(s), *straight), _located(grid, len(s), *curved)
+    return profile_loops.grid_minima_nested(prof @ Q, prof @ H_straight, prof @ H_curved, ss, len(grid), 4, polarity)
+
+
+def _model_edges(prof: np.ndarray, s: np.ndarray, sigma: float, straight, curved):
+    """The edges (s0, h, rms, ok) (N,) of the model the module's switches ask for, from both
+    models' (s0, h, rms, ok): the curved lip where ``_curved_where_needed`` takes it (the
+    default), or one model everywhere."""
+    if CURVED_LIP_F is not None and not METAL_CURVATURE:
+        return _curved_where_needed(prof, s, sigma, *straight, curved=curved)
+    return curved if METAL_CURVATURE else straight
 
 
 def _kink_pair_projector(s: np.ndarray, grid: np.ndarray, sigma: float):
@@ -441,11 +456,8 @@ def edge_points(grey: np.ndarray, ellipse: Ellipse, pmap: PixelMap | None = None
                 p = initial_steps(prof, s)
                 sel = _blur_profiles(p, _step_found(p, s, -1.0))
                 sigma = _estimate_blur_any(rows(prof, sel), s, p[:, 3][sel], blur_hint)
-            if CURVED_LIP_F is not None and not METAL_CURVATURE:  # parabola on a fine grid: < 0.003 px
-                straight, curved = fit_kinks_straight_and_curved(prof, s, sigma, grid_step=0.125)
-                s0, hh, r, conv = _curved_where_needed(prof, s, sigma, *straight, curved=curved)
-            else:
-                s0, hh, r, conv = fit_kinks(prof, s, sigma, grid_step=0.125, refine=False)
+            # parabola on a fine grid: < 0.003 px
+            s0, hh, r, conv = _model_edges(prof, s, sigma, *fit_kinks_straight_and_curved(prof, s, sigma, grid_step=0.125))
             conv &= _tyre_side_flat(prof, s, s0, hh, sigma)
             p = np.zeros((len(idx), 5))
             p[:, 3], p[:, 2], p[:, 4] = s0, hh / 2, sigma
@@ -510,15 +522,8 @@ def repositioned(grey: np.ndarray, anchors_px: np.ndarray, normals_px: np.ndarra
     stacks = np.add.reduceat(prof, starts, axis=0) / np.diff(np.append(starts, n))[:, None]
     # each average cut round its own edge (the anchors' curve may run a little off it)
     sigma = estimate_blur(*_centred(stacks, s, initial_steps(stacks, s)[:, 3]), grid_step=STACK_GRID_PX)
-    Q, H_straight, H_curved = _kink_pair_projector(s, grid, sigma)
-    ss = np.einsum("ns,ns->n", prof, prof)
-    straight, curved = profile_loops.grid_minima_nested(prof @ Q, prof @ H_straight, prof @ H_curved, ss,
-                                                        len(grid), 4, -1.0)
     # an edge at either end of the search is not found
     straight, curved = (_located(grid, len(s), g, off, res, h, ok & (g > 0) & (g < len(grid) - 1))
-                        for g, off, res, h, ok in (straight, curved))
-    if CURVED_LIP_F is not None and not METAL_CURVATURE:  # the passes' choice of model
-        d, _, _, ok = _curved_where_needed(prof, s, sigma, *straight, curved=curved)
-    else:
-        d, _, _, ok = curved if METAL_CURVATURE else straight
+                        for g, off, res, h, ok in _kink_minima(prof, s, sigma, grid, -1.0))
+    d, _, _, ok = _model_edges(prof, s, sigma, straight, curved)   # the passes' choice of model
     return d, ok & np.isfinite(d), sigma
