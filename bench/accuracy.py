@@ -228,7 +228,8 @@ def print_table(scenario: str, rows: dict, n: int) -> None:
     for (src, m), r in rows.items():
         w = r["warnings"]
         print(f"\nwarnings, {src}/{m}, of {4 * len(r['err'])} wheels: uncertain {w['uncertain']}, "
-              f"drift {w['drift']} (false: no camera moved), unchecked {w['unchecked']}, runner-up {w['runner_up']}")
+              f"drift {w['drift']} (false: no camera moved), unchecked {w['unchecked']}, runner-up {w['runner_up']}, "
+              f"rim size {w['rim_size']}")
     print_reliability(rows)
     print_repeatability(rows)
     times = [t for r in rows.values() for t in r["time"]]

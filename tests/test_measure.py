@@ -197,28 +197,40 @@ def test_cameras_that_found_different_rims_fail_the_wheel(sim):
 
 
 
+def _rl_circle_scaled(monkeypatch, factor: float) -> dict:
+    """``measure.measure_wheel`` patched so that RL's circle comes out ``factor`` times its
+    radius, its points and axis as they were (a pair on another contour, or with part of its
+    edge off the flange). Returns {"RL": the observation as measured}, filled as cycles run."""
+    import dataclasses
+
+    from station import measure
+
+    real, measured = measure.measure_wheel, {}
+
+    def scaled(*args):
+        out = real(*args)
+        if out.wheel == "RL":
+            measured["RL"] = out.observation
+            circle = out.observation.circle
+            out = dataclasses.replace(out, observation=dataclasses.replace(
+                out.observation, circle=dataclasses.replace(circle, radius_m=factor * circle.radius_m)))
+        return out
+
+    monkeypatch.setattr(measure, "measure_wheel", scaled)
+    return measured
+
+
 def test_an_axle_whose_rims_differ_in_size_fails_naming_the_odd_wheel(sim, monkeypatch):
     """Both cameras of a pair on the tyre's outline fit one 3-D circle as well as the rim do
     (station seed 8, vehicle 5008 RL: radius 339 mm against 241, every other toe 0.25 deg off
     through the car frame): the rims of an axle are the same size; when no pairing of the
     wheel's candidates has its partner's size, the cycle fails there."""
-    import dataclasses
-
     from station import measure
 
     cfg, world, scene, images = sim
-    real = measure.measure_wheel
-
-    def rl_on_the_tyre(*args):
-        out = real(*args)
-        if out.wheel == "RL":
-            obs = out.observation
-            obs = dataclasses.replace(obs, circle=dataclasses.replace(obs.circle, radius_m=1.3 * obs.circle.radius_m))
-            out = dataclasses.replace(out, observation=obs)
-        return out
-
-    monkeypatch.setattr(measure, "measure_wheel", rl_on_the_tyre)
+    _rl_circle_scaled(monkeypatch, 1.3)
     monkeypatch.setattr(measure, "resolve_pair", lambda *a, **k: None)  # no candidate pairing of that size
+    monkeypatch.setattr(measure, "_carried_pair", lambda *a, **k: None)  # nor a rim carried across
     result = measure_frames(images, world.cameras, cfg)
     assert not result["valid"] and not result["wheels"]
     assert result["failure"]["wheel"] == "RL" and "RR's" in result["failure"]["message"]
@@ -229,33 +241,42 @@ def test_the_odd_wheel_of_an_axle_is_tried_again_at_its_partners_size(sim, monke
     """Before refusing, the odd wheel's runner-up candidates are paired again, asked for a rim
     of its axle partner's size (5008 RL: cam6's second candidate, 0.4 mm off); the cycle is then
     valid and says what was taken."""
-    import dataclasses
-
     from station import measure
 
     cfg, world, scene, images = sim
-    real_wheel, good, asked = measure.measure_wheel, {}, []
-
-    def rl_on_the_tyre(*args):
-        out = real_wheel(*args)
-        if out.wheel == "RL":
-            good["RL"] = out.observation
-            obs = dataclasses.replace(out.observation, circle=dataclasses.replace(
-                out.observation.circle, radius_m=1.3 * out.observation.circle.radius_m))
-            out = dataclasses.replace(out, observation=obs)
-        return out
+    good, asked = _rl_circle_scaled(monkeypatch, 1.3), []
 
     def candidates_at_the_size(wheel, cams, detections, images, cameras, config, cov=None, radius_m=None):
         asked.append((wheel, radius_m))
         return good[wheel], f"{wheel} ({cams[0]}, {cams[1]}): the first choices were not the same rim; cam6 took its candidate 2"
 
-    monkeypatch.setattr(measure, "measure_wheel", rl_on_the_tyre)
     monkeypatch.setattr(measure, "resolve_pair", candidates_at_the_size)
     result = measure_frames(images, world.cameras, cfg)
     assert result["valid"], result["failure"]
     assert asked and asked[0][0] == "RL" and asked[0][1] == pytest.approx(good["RL"].circle.radius_m, rel=0.05)
     assert any("not the size of RR's" in w for w in result["warnings"])
     assert {"kind": "runner_up", "wheel": "RL"} in result["warning_flags"]
+
+
+def test_the_odd_wheel_is_found_again_from_one_cameras_rim_carried_to_the_other(sim, monkeypatch):
+    """When no pairing of the odd wheel's candidates has its partner's size (dark rims 6013 RR:
+    one camera's search ended inside the flange, none of its candidates was the flange), one
+    camera's rim, at the partner's size and across the wheel's axis, says where the rim must
+    be in the other camera, which is searched again from there (station/rim_transfer.py)."""
+    from station import measure
+
+    cfg, world, scene, images = sim
+    plain = measure_frames(images, world.cameras, cfg)
+    _rl_circle_scaled(monkeypatch, 1.3)
+    monkeypatch.setattr(measure, "resolve_pair", lambda *a, **k: None)
+    result = measure_frames(images, world.cameras, cfg)
+    assert result["valid"], result["failure"]
+    assert any(w.startswith("RL (cam5, cam6)") and "searched again where" in w for w in result["warnings"])
+    assert {"kind": "runner_up", "wheel": "RL"} in result["warning_flags"]
+    rl, rl_plain = result["wheels"]["RL"], plain["wheels"]["RL"]
+    assert rl["rim_radius_m"] == pytest.approx(rl_plain["rim_radius_m"], rel=0.002)
+    for angle in ("toe_deg", "camber_deg"):
+        assert rl[angle] == pytest.approx(rl_plain[angle], abs=0.05)
 
 
 def test_axle_rim_mismatch_tolerates_what_a_measurement_varies_by():
@@ -269,6 +290,30 @@ def test_axle_rim_mismatch_tolerates_what_a_measurement_varies_by():
     assert axle_rim_mismatch(obs(FL=0.2410, FR=0.2420, RL=0.2550, RR=0.2545)) is None  # 0.4 %; staggered axles
     wheel, why = axle_rim_mismatch(obs(FL=0.2410, FR=0.2411, RL=0.2050, RR=0.2409))   # the lip's inner edge: 15 %
     assert wheel == "RL" and "205 mm" in why
+    # dark rims, vehicle 6013 RR: a ring inside the barrel, 4.7 % small and 38 mm deeper than the
+    # flange; its axis was right, but through the car frame every toe came out 0.4 deg off
+    wheel, why = axle_rim_mismatch(obs(FL=0.2284, FR=0.2284, RL=0.2285, RR=0.2177))
+    assert wheel == "RR" and "218 mm" in why
+    assert axle_rim_mismatch(obs(FL=0.2537, FR=0.2553, RL=0.2536, RR=0.2537)) is None  # 0.63 %: dark rims' worst
+
+
+def test_a_rim_larger_than_its_axle_partners_is_warned_of_and_nothing_else_changes(sim, monkeypatch):
+    """A rim 0.2-1.5 % larger than its axle partner's had part of its edge found on the tyre
+    (station/rim_size.py): the result names the wheel and what to check, with the flag
+    ``rim_size``, and every value is the same as without it. Here RL's circle is made 0.5 %
+    larger than its points say."""
+    cfg, world, scene, images = sim
+    plain = measure_frames(images, world.cameras, cfg)
+    _rl_circle_scaled(monkeypatch, 1.005)
+    result = measure_frames(images, world.cameras, cfg)
+    assert result["valid"], result["failure"]
+    assert {"kind": "rim_size", "wheel": "RL"} in result["warning_flags"]
+    assert any(w.startswith("RL (cam5, cam6): its rim came out") and "larger in radius than RR's (0.50%)" in w
+               for w in result["warnings"])
+    assert not any(f["kind"] == "rim_size" for f in plain["warning_flags"])
+    for w in ("FL", "FR", "RR"):
+        assert result["wheels"][w]["toe_deg"] == plain["wheels"][w]["toe_deg"]
+    assert result["wheels"]["RL"]["camber_deg"] == plain["wheels"]["RL"]["camber_deg"]
 
 
 def test_result_json_to_an_unwritable_place_is_a_storage_error_and_leaves_no_file(tmp_path):

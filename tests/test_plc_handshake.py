@@ -173,6 +173,9 @@ def test_warning_bits_name_the_kind_and_the_wheel():
                                {"kind": "small_rim", "wheel": "FR", "camera": "cam2"}]
     assert result_warning_bits(result) == 0
     assert result_station_warning_bits(result) == (1 << rm.ANY_WARNING_BIT) | (1 << 1) | (1 << 3)
+    result["warning_flags"] = [{"kind": "rim_size", "wheel": "FL"}]   # a rim another size than its partner's
+    assert result_warning_bits(result) == 0
+    assert result_station_warning_bits(result) == (1 << rm.ANY_WARNING_BIT) | (1 << 4)
     result["warnings"], result["warning_flags"] = [], []
     assert result_station_warning_bits(result) == 0
 

@@ -42,15 +42,17 @@ COMMANDS = {0: "none", 1: "measure", 2: "calibration_check", 3: "reset_fault", 4
 COMMAND_CODES = {name: code for code, name in COMMANDS.items()}
 STATES = {0: "idle", 1: "busy", 2: "done", 3: "fault"}
 STATE_CODES = {name: code for code, name in STATES.items()}
-MAP_VERSION = 3  # 2: warning_bits (113) added; 3: station_warning_bits (114), and bit 15 of
-                 # warning_bits is RR's runner-up alone (it also meant "any warning" in 2)
+MAP_VERSION = 4  # 2: warning_bits (113) added; 3: station_warning_bits (114), and bit 15 of
+                 # warning_bits is RR's runner-up alone (it also meant "any warning" in 2);
+                 # 4: bit 4 of station_warning_bits (a rim another size than its axle partner's)
 # bits of warning_bits: (first bit, kind of the result's warning_flags); bit first + i for wheel i
 # of FL, FR, RL, RR
 WARNING_KINDS = ((0, "uncertain"), (4, "drift"), (8, "unchecked"), (12, "runner_up"))
 WARNING_WHEELS = ("FL", "FR", "RL", "RR")
-# bits of station_warning_bits: any warning at all, and the kinds of the cameras' own warnings
+# bits of station_warning_bits: any warning at all, the kinds of the cameras' own warnings, and
+# a wheel whose rim came out another size than its axle partner's (the texts name them)
 ANY_WARNING_BIT = 0
-CAMERA_WARNING_KINDS = ((1, "exposure"), (2, "focus"), (3, "small_rim"))
+STATION_WARNING_KINDS = ((1, "exposure"), (2, "focus"), (3, "small_rim"), (4, "rim_size"))
 
 
 @dataclass(frozen=True)
@@ -113,7 +115,8 @@ STATION_FIELDS = [
     Field("station_warning_bits", 114, "bits", 1, "warnings of the last valid result: bit 0 any warning "
           "at all; bits 1-3 a camera's own: 1 its rim edge reaches the sensor's white (shorten the "
           "exposure), 2 its rim edge is blurred (refocus), 3 its rim is too small in the image (the "
-          "texts name the camera)"),
+          "texts name the camera); 4 a wheel's rim came out another size than its axle partner's (its "
+          "angles may be off: the texts name the wheel)"),
     *_angle_fields(),
     Field("result_job_id", 160, "ascii", 16, "job id of the cycle the result belongs to"),
     Field("fault_reason", 176, "ascii", 32, "readable reason of the fault, up to 64 characters"),

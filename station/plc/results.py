@@ -76,9 +76,9 @@ def result_warning_bits(result: dict) -> int:
 
 def result_station_warning_bits(result: dict) -> int:
     """station_warning_bits: ANY_WARNING_BIT for any warning (text or flag), and the bit of each
-    kind of camera warning (register_map.CAMERA_WARNING_KINDS) among the ``warning_flags``."""
+    kind of register_map.STATION_WARNING_KINDS among the ``warning_flags``."""
     kinds = {flag.get("kind") for flag in result.get("warning_flags") or [] if isinstance(flag, dict)}
-    bits = sum(1 << bit for bit, kind in rm.CAMERA_WARNING_KINDS if kind in kinds)
+    bits = sum(1 << bit for bit, kind in rm.STATION_WARNING_KINDS if kind in kinds)
     if bits or kinds or result.get("warnings"):
         bits |= 1 << rm.ANY_WARNING_BIT
     return bits

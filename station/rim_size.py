@@ -1,0 +1,44 @@
+"""The rims of an axle are one size: a rim measured larger or smaller than its axle partner's.
+
+The two rims of an axle are the same size, and on every benchmark set a well-measured pair gives
+its rim's radius to 0.05 % (0.1 mm at sigma 2). A rim that comes out larger or smaller than its
+partner's by more than ``RIM_SIZE_WARNING`` (but within ``measure.AXLE_RIM_TOLERANCE``, beyond
+which it is another contour and the cycle is refused) had part of its edge found off the flange:
+on a lit tyre bead or a tyre brighter than the lip (larger), or where the flange is hidden or
+shaded (smaller). The circle's radius and its tilt are tied (a circle tilted toward a camera 13
+deg off its axis looks narrower), so such a wheel's angles are off by tenths of a degree: on
+the simulated sets every wheel 0.25 % or more off its partner was 0.3-0.7 deg off in toe or
+camber, several of them stating +/-0.1 or less (docs/accuracy.md, stop 25).
+
+This only warns; it changes no value. Holding such a wheel's radius at its partner's in the
+fit corrected the simulated ones (whose rims are exactly equal), but the same tie makes it
+unsafe on real cars: held 0.1 % off its true size (0.25 mm, within what two rims of one
+nominal size may differ by), exact rim points gave an axis 0.3 deg off; 0.2 %, 0.75 deg.
+"""
+from __future__ import annotations
+
+RIM_SIZE_WARNING = 0.002  # relative radius difference between the rims of an axle that warns
+
+
+def size_mismatches(radius_m: dict[str, float], partner: dict[str, str]) -> list[tuple[str, str]]:
+    """[(wheel, warning text)] for each axle whose two rims' radii (m, per wheel) differ by more
+    than ``RIM_SIZE_WARNING``; the wheel named is the one farther from the median of all the
+    rims measured (the odd one when the other axle agrees), the text says by how much and what
+    to check. ``partner``: wheel -> the other wheel of its axle."""
+    out = []
+    rims = sorted(radius_m.values())
+    median = 0.5 * (rims[(len(rims) - 1) // 2] + rims[len(rims) // 2]) if rims else 0.0
+    for wheel in radius_m:
+        other = partner.get(wheel)
+        if other not in radius_m or wheel > other:  # each axle once
+            continue
+        a, b = radius_m[wheel], radius_m[other]
+        if abs(a - b) <= RIM_SIZE_WARNING * 0.5 * (a + b):
+            continue
+        odd, even = (wheel, other) if abs(a - median) >= abs(b - median) else (other, wheel)
+        d = radius_m[odd] - radius_m[even]
+        out.append((odd, f"its rim came out {abs(d) * 1000:.1f} mm {'larger' if d > 0 else 'smaller'} in radius "
+                         f"than {even}'s ({abs(d) / radius_m[even]:.2%}): the rims of an axle are one size, so part "
+                         f"of its edge was likely found {'on the tyre' if d > 0 else 'inside the flange'}, and its "
+                         "toe and camber may be off by tenths of a degree; look at its images (station review)"))
+    return out
