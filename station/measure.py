@@ -451,6 +451,21 @@ def axle_rim_mismatch(observations: dict) -> tuple[str, str] | None:
     return None
 
 
+def unseen_axis_variance(o: WheelObservation, config: StationConfig) -> float:
+    """The variance (rad^2) added across a wheel's axis for what no single cycle's residuals
+    show: ``measurement.uncertainty_floor_deg`` squared, plus (``uncertainty_noise_gain`` k)
+    (k q / a)^2, q the circle's reprojection RMS (px) and a the rim's mean semi-axis in its two
+    views (px). Decisions that a noisier capture takes the other way (which arcs, which edge
+    model) move whole arcs, and the noisier its edges the more of them: at 1.3 Mpx a constant
+    floor stated sigma-2 toe 1.5 times its error and sigma-5 camber 0.65 times; scaled by the
+    edges' noise, both within 0.77-1.49 on every set (docs/accuracy.md, stop 25)."""
+    m = config.measurement
+    q = o.circle.reprojection_rms_px
+    a = float(np.mean([np.sqrt(np.prod(d.ellipse.axes_px)) for d in o.detections]))
+    noise = m.uncertainty_noise_gain * q / a if np.isfinite(q) and a > 0 else 0.0
+    return float(np.radians(m.uncertainty_floor_deg) ** 2 + noise ** 2)
+
+
 def _fill_angles(result: dict, fits: dict[str, WheelFit], observations: dict, config: StationConfig) -> None:
     centers = {w: f.center_station for w, f in fits.items()}
     axes = {w: f.axis_station for w, f in fits.items()}
@@ -459,9 +474,8 @@ def _fill_angles(result: dict, fits: dict[str, WheelFit], observations: dict, co
     # the floor: an error no single cycle's residuals show (a decision between arcs that a
     # new capture may take the other way, an edge bias the circle absorbs completely), in
     # quadrature on both directions across each axis (docs/measurement.md)
-    floor2 = np.radians(config.measurement.uncertainty_floor_deg) ** 2
-    cov_a = {w: _finite_cov(f.cov_axis, 1e-8) + floor2 * (np.eye(3) - np.outer(f.axis_station, f.axis_station))
-             for w, f in fits.items()}
+    cov_a = {w: _finite_cov(f.cov_axis, 1e-8) + unseen_axis_variance(observations[w], config) *
+             (np.eye(3) - np.outer(f.axis_station, f.axis_station)) for w, f in fits.items()}
     cov = alignment.angle_covariance(centers, axes, cov_c, cov_a)
     std = dict(zip(alignment.ANGLE_NAMES, np.sqrt(np.clip(np.diag(cov), 0, None))))
     limit = config.measurement.epipolar_limit_px

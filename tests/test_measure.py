@@ -396,8 +396,9 @@ def test_the_calibrations_covariance_adds_to_the_stated_uncertainty(sim):
 @pytest.mark.slow
 def test_the_uncertainty_floor_adds_in_quadrature_and_moves_no_value(sim, monkeypatch):
     cfg, world, _, images = sim
-    floor = cfg.measurement.uncertainty_floor_deg
-    assert floor > 0
+    floor = 0.012
+    monkeypatch.setattr(cfg.measurement, "uncertainty_noise_gain", 0.0)
+    monkeypatch.setattr(cfg.measurement, "uncertainty_floor_deg", floor)
     with_floor = measure_frames(images, world.cameras, cfg)
     monkeypatch.setattr(cfg.measurement, "uncertainty_floor_deg", 0.0)
     without = measure_frames(images, world.cameras, cfg)
@@ -409,6 +410,43 @@ def test_the_uncertainty_floor_adds_in_quadrature_and_moves_no_value(sim, monkey
     # two wheels' floors in a total toe
     assert with_floor["axles"]["front"]["total_toe_std_deg"] ** 2 == pytest.approx(
         without["axles"]["front"]["total_toe_std_deg"] ** 2 + 2 * floor ** 2, rel=0.1)
+
+
+@pytest.mark.slow
+def test_the_unseen_error_grows_with_each_wheels_edge_noise(sim, monkeypatch):
+    """``uncertainty_noise_gain`` k adds (k q / a) rad in quadrature, q the wheel's circle
+    reprojection RMS and a its rim's semi-axis (px): a wheel with noisier edges states more,
+    and no value moves (station.measure.unseen_axis_variance)."""
+    from station.measure import unseen_axis_variance
+
+    cfg, world, _, images = sim
+    monkeypatch.setattr(cfg.measurement, "uncertainty_floor_deg", 0.0)
+
+    def without_and_with_gain(frames):
+        monkeypatch.setattr(cfg.measurement, "uncertainty_noise_gain", 0.0)
+        plain = measure_frames(frames, world.cameras, cfg)
+        monkeypatch.setattr(cfg.measurement, "uncertainty_noise_gain", 0.45)
+        return plain, measure_frames(frames, world.cameras, cfg)
+
+    rng = np.random.default_rng(5)
+    noisy = dict(images, **{c: np.clip(images[c] + rng.normal(0, 6, images[c].shape), 0, 255).astype(images[c].dtype)
+                            for c in ("cam5", "cam6")})  # RL's pair
+    results = {}
+    for name, frames in (("clean", images), ("noisy", noisy)):
+        plain, gained = results[name] = without_and_with_gain(frames)
+        for w in ("FL", "FR", "RL", "RR"):
+            o = gained["_observations"][w]
+            q = o.circle.reprojection_rms_px
+            a = np.mean([np.sqrt(np.prod(d.ellipse.axes_px)) for d in o.detections])
+            term = np.degrees(0.45 * q / a)
+            assert unseen_axis_variance(o, cfg) == pytest.approx(np.radians(term) ** 2)
+            g, p = gained["wheels"][w], plain["wheels"][w]
+            assert g["toe_deg"] == p["toe_deg"] and g["camber_deg"] == p["camber_deg"]
+            for k in ("toe_std_deg", "camber_std_deg"):
+                assert g[k] == pytest.approx(np.hypot(p[k], term), rel=0.05)
+    q_rl = {name: r[1]["_observations"]["RL"].circle.reprojection_rms_px for name, r in results.items()}
+    assert q_rl["noisy"] > 1.5 * q_rl["clean"]
+    assert results["noisy"][1]["wheels"]["RL"]["toe_std_deg"] > results["clean"][1]["wheels"]["RL"]["toe_std_deg"]
 
 
 def test_a_camera_out_of_focus_warns_and_is_named(sim):
