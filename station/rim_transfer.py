@@ -37,7 +37,10 @@ def carried_rim(ellipse_ideal: Ellipse, cam_from: CameraModel, axis_station: np.
     """(PRIOR_POINTS,3) station points of the circle of ``radius_m`` in a plane of normal
     ``axis_station`` (3,) cut from the cone of ``ellipse_ideal`` (the rim in ``cam_from``'s
     ideal pixels); None where the plane does not cut the cone in front of the camera."""
-    n = np.asarray(axis_station, float) / np.linalg.norm(axis_station)
+    n = np.asarray(axis_station, float)
+    if not (np.all(np.isfinite(n)) and np.linalg.norm(n) > 0 and radius_m > 0):
+        return None
+    n = n / np.linalg.norm(n)
     xy = _ideal_to_normalised(cam_from, ellipse_ideal.points(PRIOR_POINTS))
     d = np.concatenate([xy, np.ones((len(xy), 1))], axis=1) @ cam_from.R_cam_station   # (N,3) rays, station
     o = cam_from.center_station
@@ -70,6 +73,12 @@ def carried_prior(ellipse_ideal: Ellipse, cam_from: CameraModel, cam_to: CameraM
     if not np.all(P[:, 2] > 0):
         return None
     try:
-        return fit_direct(_normalised_to_ideal(cam_to, P[:, :2] / P[:, 2:]))
+        prior = fit_direct(_normalised_to_ideal(cam_to, P[:, :2] / P[:, 2:]))
     except (ValueError, np.linalg.LinAlgError):
         return None
+    # a prior the search can start from: finite and no larger than a few images
+    size = max(cam_to.width, cam_to.height)
+    if not (np.all(np.isfinite(prior.center_px)) and np.all(np.isfinite(prior.axes_px))
+            and 0 < max(prior.axes_px) < 4 * size):
+        return None
+    return prior

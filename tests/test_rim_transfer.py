@@ -62,9 +62,11 @@ def test_an_axis_or_a_size_a_little_off_still_lands_within_two_pixels():
         assert np.abs(prior.axes_px - truth.axes_px).max() < 2.0
 
 
-def test_a_plane_seen_edge_on_carries_nothing():
+def test_a_plane_seen_edge_on_or_no_axis_carries_nothing():
     a, b = _cams()
     X = _circle(np.array([1.0, 0.0, 0.0]))
     view = CENTRE - a.center_station
     edge_on = np.cross(view, [0, 0, 1.0])   # the plane contains the camera's line of sight
     assert carried_prior(_ideal_ellipse(a, X), a, b, edge_on, RADIUS) is None
+    assert carried_prior(_ideal_ellipse(a, X), a, b, np.zeros(3), RADIUS) is None         # no axis at all
+    assert carried_prior(_ideal_ellipse(a, X), a, b, np.array([np.nan, 0, 0]), RADIUS) is None
