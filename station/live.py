@@ -29,7 +29,8 @@ from station.errors import MeasurementError, StationError
 from station.cycle import open_capture
 from station.wheel_workers import WheelWorkers, default_workers
 from station.camera_response import linear_images
-from station.measure import WEIGHT_BY_CONTRAST, WheelObservation, check_same_rim, measure_frames
+from station.measure import measure_frames
+from station.wheel_pair import WEIGHT_BY_CONTRAST, WheelObservation, check_same_rim
 from station.other_contour import on_circle
 from station.wheel3d import WheelFit, reconstruct_paper, refine_circle
 from station.wheel_arcs import not_grazing

@@ -2,9 +2,9 @@
 
 The two rims of an axle are the same size, and on every benchmark set a well-measured pair gives
 its rim's radius to 0.05 % (0.1 mm at sigma 2). A rim that comes out larger or smaller than its
-partner's by more than ``RIM_SIZE_WARNING`` (but within ``measure.AXLE_RIM_TOLERANCE``, beyond
-which it is another contour and the cycle is refused) had part of its edge found off the flange:
-on a lit tyre bead or a tyre brighter than the lip (larger), or where the flange is hidden or
+partner's by more than ``RIM_SIZE_WARNING`` (but within ``AXLE_RIM_TOLERANCE``, beyond which
+it is another contour, paired again or refused: station/axle_rims.py) had part of its edge
+found off the flange: on a lit tyre bead or a tyre brighter than the lip (larger), or where the flange is hidden or
 shaded (smaller). The circle's radius and its tilt are tied (a circle tilted toward a camera 13
 deg off its axis looks narrower), so such a wheel's angles are off by tenths of a degree: on
 the simulated sets every wheel 0.25 % or more off its partner was 0.3-0.7 deg off in toe or
@@ -17,6 +17,10 @@ nominal size may differ by), exact rim points gave an axis 0.3 deg off; 0.2 %, 0
 """
 from __future__ import annotations
 
+AXLE_RIM_TOLERANCE = 0.015  # the two rims of an axle agree in radius to 0.7 % on every benchmark set (dark
+                            # rims; 0.05 % at sigma 2); another contour differs by 2-6 % (a lip's inner edge,
+                            # a ring inside the barrel) to 30 % and more (the tyre)
+AXLE_PARTNER = {"FL": "FR", "FR": "FL", "RL": "RR", "RR": "RL"}
 RIM_SIZE_WARNING = 0.002  # relative radius difference between the rims of an axle that warns
 
 

@@ -93,12 +93,12 @@ def test_a_rim_seen_on_part_of_its_perimeter_is_measured_and_its_unchecked_pair_
     nothing is extrapolated: the same residual is a camera moved since calibration (drift)."""
     from dataclasses import replace
 
-    import station.measure as measure
+    import station.wheel_pair as wheel_pair
     from station.errors import MeasurementError
 
     cfg, world, scene, images = sim
-    fit = measure.refine_circle
-    detect = measure.detect_one
+    fit = wheel_pair.refine_circle
+    detect = wheel_pair.detect_one
     missed = {"tangent_gap_deg": (0.3, 40.0)}  # cam6 saw no rim within 40 deg of a tangent point
     residual = {"epipolar_rms_px": 9.0}
 
@@ -110,8 +110,8 @@ def test_a_rim_seen_on_part_of_its_perimeter_is_measured_and_its_unchecked_pair_
         d = detect(image, camera, cam_id)
         return replace(d, coverage=0.6) if cam_id == "cam6" else d
 
-    monkeypatch.setattr(measure, "refine_circle", extrapolated)
-    monkeypatch.setattr(measure, "detect_one", partly_seen)
+    monkeypatch.setattr(wheel_pair, "refine_circle", extrapolated)
+    monkeypatch.setattr(wheel_pair, "detect_one", partly_seen)
     result = measure_frames(images, world.cameras, cfg)
     assert result["valid"], result["failure"]
     note = [w for w in result["warnings"] if w.startswith("pair RL")]
@@ -121,7 +121,7 @@ def test_a_rim_seen_on_part_of_its_perimeter_is_measured_and_its_unchecked_pair_
     missed.clear()  # both saw the tangent points: however much of the rim cam6 sees, the residual is a moved camera
     seen_part = measure_frames(images, world.cameras, cfg)
     assert not seen_part["valid"] and "did not find the same rim" in seen_part["failure"]["message"]
-    monkeypatch.setattr(measure, "detect_one", detect)
+    monkeypatch.setattr(wheel_pair, "detect_one", detect)
     seen = measure_frames(images, world.cameras, cfg)
     assert not seen["valid"] and "a camera may have moved" in seen["failure"]["hint"]
     residual["epipolar_rms_px"] = 3.0  # under the mismatch limit: measured, and the drift named
@@ -131,7 +131,7 @@ def test_a_rim_seen_on_part_of_its_perimeter_is_measured_and_its_unchecked_pair_
     o = result["_observations"]["RL"]
     wrong = replace(o, circle=replace(o.circle, view_median_px=(o.circle.view_median_px[0], 3.0)))
     with pytest.raises(MeasurementError, match="did not find the same rim"):
-        measure.check_same_rim(wrong, cfg)
+        wheel_pair.check_same_rim(wrong, cfg)
 
 
 @pytest.mark.slow
@@ -142,10 +142,10 @@ def test_a_pair_that_did_not_see_the_rim_where_the_epipolar_planes_touch_it_is_u
     camera moved. Seen there, the same residual is drift."""
     from dataclasses import replace
 
-    import station.measure as measure
+    import station.wheel_pair as wheel_pair
 
     cfg, world, scene, images = sim
-    fit = measure.refine_circle
+    fit = wheel_pair.refine_circle
     gap = {"cam6": 40.0}
 
     def partial(pl, pr, cl, cr, init, **kw):
@@ -155,7 +155,7 @@ def test_a_pair_that_did_not_see_the_rim_where_the_epipolar_planes_touch_it_is_u
         assert max(c.tangent_gap_deg) < 15, "the simulated rim is seen all round"
         return replace(c, epipolar_rms_px=2.0, tangent_gap_deg=(c.tangent_gap_deg[0], gap["cam6"]))
 
-    monkeypatch.setattr(measure, "refine_circle", partial)
+    monkeypatch.setattr(wheel_pair, "refine_circle", partial)
     result = measure_frames(images, world.cameras, cfg)
     assert result["valid"], result["failure"]
     assert {"kind": "unchecked", "wheel": "RL"} in result["warning_flags"]
@@ -225,12 +225,12 @@ def test_an_axle_whose_rims_differ_in_size_fails_naming_the_odd_wheel(sim, monke
     (station seed 8, vehicle 5008 RL: radius 339 mm against 241, every other toe 0.25 deg off
     through the car frame): the rims of an axle are the same size; when no pairing of the
     wheel's candidates has its partner's size, the cycle fails there."""
-    from station import measure
+    from station import axle_rims
 
     cfg, world, scene, images = sim
     _rl_circle_scaled(monkeypatch, 1.3)
-    monkeypatch.setattr(measure, "resolve_pair", lambda *a, **k: None)  # no candidate pairing of that size
-    monkeypatch.setattr(measure, "_carried_pair", lambda *a, **k: None)  # nor a rim carried across
+    monkeypatch.setattr(axle_rims, "resolve_pair", lambda *a, **k: None)  # no candidate pairing of that size
+    monkeypatch.setattr(axle_rims, "_carried_pair", lambda *a, **k: None)  # nor a rim carried across
     result = measure_frames(images, world.cameras, cfg)
     assert not result["valid"] and not result["wheels"]
     assert result["failure"]["wheel"] == "RL" and "RR's" in result["failure"]["message"]
@@ -241,7 +241,7 @@ def test_the_odd_wheel_of_an_axle_is_tried_again_at_its_partners_size(sim, monke
     """Before refusing, the odd wheel's runner-up candidates are paired again, asked for a rim
     of its axle partner's size (5008 RL: cam6's second candidate, 0.4 mm off); the cycle is then
     valid and says what was taken."""
-    from station import measure
+    from station import axle_rims
 
     cfg, world, scene, images = sim
     good, asked = _rl_circle_scaled(monkeypatch, 1.3), []
@@ -250,7 +250,7 @@ def test_the_odd_wheel_of_an_axle_is_tried_again_at_its_partners_size(sim, monke
         asked.append((wheel, radius_m))
         return good[wheel], f"{wheel} ({cams[0]}, {cams[1]}): the first choices were not the same rim; cam6 took its candidate 2"
 
-    monkeypatch.setattr(measure, "resolve_pair", candidates_at_the_size)
+    monkeypatch.setattr(axle_rims, "resolve_pair", candidates_at_the_size)
     result = measure_frames(images, world.cameras, cfg)
     assert result["valid"], result["failure"]
     assert asked and asked[0][0] == "RL" and asked[0][1] == pytest.approx(good["RL"].circle.radius_m, rel=0.05)
@@ -263,12 +263,12 @@ def test_the_odd_wheel_is_found_again_from_one_cameras_rim_carried_to_the_other(
     one camera's search ended inside the flange, none of its candidates was the flange), one
     camera's rim, at the partner's size and across the wheel's axis, says where the rim must
     be in the other camera, which is searched again from there (station/rim_transfer.py)."""
-    from station import measure
+    from station import axle_rims
 
     cfg, world, scene, images = sim
     plain = measure_frames(images, world.cameras, cfg)
     _rl_circle_scaled(monkeypatch, 1.3)
-    monkeypatch.setattr(measure, "resolve_pair", lambda *a, **k: None)
+    monkeypatch.setattr(axle_rims, "resolve_pair", lambda *a, **k: None)
     result = measure_frames(images, world.cameras, cfg)
     assert result["valid"], result["failure"]
     assert any(w.startswith("RL (cam5, cam6)") and "searched again where" in w for w in result["warnings"])
@@ -282,7 +282,7 @@ def test_the_odd_wheel_is_found_again_from_one_cameras_rim_carried_to_the_other(
 def test_axle_rim_mismatch_tolerates_what_a_measurement_varies_by():
     from types import SimpleNamespace
 
-    from station.measure import axle_rim_mismatch
+    from station.axle_rims import axle_rim_mismatch
 
     def obs(**radius):
         return {w: SimpleNamespace(circle=SimpleNamespace(radius_m=r)) for w, r in radius.items()}
@@ -336,7 +336,7 @@ def test_a_pair_whose_first_choices_differ_takes_the_candidates_that_are_one_rim
     combination that is one 3-D rim wins."""
     import dataclasses
 
-    from station.measure import resolve_pair
+    from station.wheel_pair import resolve_pair
     from station.rim import detect_rim
 
     cfg, world, _, images = sim
@@ -363,7 +363,7 @@ def test_a_circle_the_size_of_a_hub_is_not_a_rim(sim):
     import dataclasses
 
     from station.errors import MeasurementError
-    from station.measure import check_same_rim, reconstruct_wheel
+    from station.wheel_pair import check_same_rim, reconstruct_wheel
     from station.rim import detect_rim
 
     cfg, world, _, images = sim
@@ -480,13 +480,13 @@ def test_a_camera_whose_rim_reaches_the_white_warns_and_is_named(sim):
 def test_a_circle_fit_that_ran_off_its_points_starts_again_from_the_image_ellipses(sim, monkeypatch):
     import dataclasses
 
-    import station.measure as measure
+    import station.wheel_pair as wheel_pair
     from station.rim import detect_rim
 
     cfg, world, scene, images = sim
     dets = {c: detect_rim(images[c], camera=world.cameras[c], camera_id=c) for c in ("cam1", "cam2")}
-    good = measure.reconstruct_wheel("FR", ("cam1", "cam2"), dets, world.cameras).circle
-    real, starts = measure.refine_circle, []
+    good = wheel_pair.reconstruct_wheel("FR", ("cam1", "cam2"), dets, world.cameras).circle
+    real, starts = wheel_pair.refine_circle, []
 
     def first_runs_off(*args, **kwargs):
         starts.append(args[4])
@@ -496,8 +496,8 @@ def test_a_circle_fit_that_ran_off_its_points_starts_again_from_the_image_ellips
                                       view_median_px=(13.5, 10.9))
         return fit
 
-    monkeypatch.setattr(measure, "refine_circle", first_runs_off)
-    obs = measure.reconstruct_wheel("FR", ("cam1", "cam2"), dets, world.cameras)
+    monkeypatch.setattr(wheel_pair, "refine_circle", first_runs_off)
+    obs = wheel_pair.reconstruct_wheel("FR", ("cam1", "cam2"), dets, world.cameras)
     assert len(starts) == 2 and starts[1].radius_m == pytest.approx(good.radius_m, rel=0.05)
     assert np.linalg.norm(starts[1].center_station - good.center_station) < 0.05
     assert np.linalg.norm(obs.circle.center_station - good.center_station) < 1e-6

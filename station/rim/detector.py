@@ -31,7 +31,7 @@ from station.rim import hough
 from station.rim.choice import choose
 from station.rim.ellipse import Ellipse
 from station.rim.ellipse_fit import fit_direct, fit_geometric, ransac_ellipse
-from station.rim.npfast import finite_rows, median, percentiles, row_norms, rows
+from station.rim.npfast import finite_rows, median, percentiles, rows
 from station.rim.preprocess import PixelMap, detection_scale, downscale, equalize, to_grey
 from station.rim.subpixel import WIDE_BLUR_PX, edge_points, repositioned, window_scale
 from station.rim.white_edge import white_share
@@ -335,13 +335,7 @@ def _repositioned(grey: np.ndarray, fit, samples, mask, pmap: PixelMap, blur: fl
         rows(samples.points_px, idx))
     _, t = fit.ellipse.distance(bases)
     feet, n_ideal = fit.ellipse.point_at(t), fit.ellipse.normal_at(t)       # (M,2) ideal pixels
-    if pmap.identity:
-        anchors, nrm, scale = feet, n_ideal, np.ones(len(idx))
-    else:
-        anchors = pmap.distort(feet)
-        nrm = pmap.distort(feet + n_ideal) - anchors
-        scale = row_norms(nrm)                       # image px per ideal px along the normal
-        nrm /= scale[:, None]
+    anchors, nrm, scale = pmap.along_normals(feet, n_ideal)
     d, found, _ = repositioned(grey, anchors, nrm)
     points_px = samples.points_px.copy()
     points_px[idx[found]] = anchors[found] + d[found, None] * nrm[found]

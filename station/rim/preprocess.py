@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 
 from station.errors import ImageError
+from station.rim.npfast import row_norms
 
 # eq. 36 weights in OpenCV's B, G, R channel order
 EQ36_BGR = np.array([[0.114, 0.587, 0.299]], dtype=np.float32)
@@ -110,6 +111,16 @@ class PixelMap:
         uv_ideal = np.asarray(uv_ideal, float)
         xy = np.stack([(uv_ideal[:, 0] - K[0, 2]) / K[0, 0], (uv_ideal[:, 1] - K[1, 2]) / K[1, 1]], axis=1)
         return self.camera.normalized_to_pixels(xy)
+
+    def along_normals(self, p_ideal: np.ndarray, n_ideal: np.ndarray):
+        """Points (N,2) and unit normals (N,2) given in ideal pixels, in image pixels: (points,
+        unit normals, (N,) image px per ideal px along each normal)."""
+        if self.identity:
+            return np.asarray(p_ideal, float), np.asarray(n_ideal, float), np.ones(len(p_ideal))
+        base = self.distort(p_ideal)
+        nrm = self.distort(p_ideal + n_ideal) - base
+        scale = row_norms(nrm)
+        return base, nrm / scale[:, None], scale
 
     def normalized(self, uv: np.ndarray) -> np.ndarray:
         """(N,2) distorted pixels -> (N,2) undistorted normalised coordinates (needs a camera)."""

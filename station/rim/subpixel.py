@@ -23,7 +23,7 @@ from scipy.special import erf
 from station.bounded_cache import BoundedCache
 from station.rim import profile_loops
 from station.rim.ellipse import Ellipse
-from station.rim.npfast import finite_rows, median, row_norms, rows
+from station.rim.npfast import finite_rows, median, rows
 from station.rim.preprocess import PixelMap
 
 SQRT2 = np.sqrt(2.0)
@@ -430,13 +430,7 @@ def edge_points(grey: np.ndarray, ellipse: Ellipse, pmap: PixelMap | None = None
     t = (np.arange(n) + 0.5) * (2 * np.pi / n)
     p_ideal = ellipse.point_at(t)
     n_ideal = ellipse.normal_at(t)
-    base = pmap.distort(p_ideal)
-    if pmap.identity:
-        nrm = n_ideal
-    else:
-        tip = pmap.distort(p_ideal + n_ideal)
-        nrm = tip - base
-        nrm /= row_norms(nrm)[:, None]
+    base, nrm, _ = pmap.along_normals(p_ideal, n_ideal)
     s = np.arange(window_px[0], window_px[1] + step_px / 2, step_px)
     h, w = grey.shape
     inside = finite_rows(base)

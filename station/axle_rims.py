@@ -1,0 +1,125 @@
+"""The rims of an axle are one size: a wheel measured at another size than its axle partner
+took another contour; it is paired again at the partner's size, or the cycle is refused.
+(A rim a little off its partner's size is only warned of: station/rim_size.py.)
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from station.config import StationConfig
+from station.errors import MeasurementError, StationError
+from station.rim_size import AXLE_PARTNER, AXLE_RIM_TOLERANCE
+from station.wheel_pair import WheelObservation, check_same_rim, reconstruct_wheel, resolve_pair
+
+
+def _rescued_to_size(wheel: str, observations: dict, outcomes: list, images: dict, cameras: dict,
+                     config: StationConfig, calibration_cov: dict | None) -> tuple[WheelObservation, str] | None:
+    """The odd wheel of :func:`axle_rim_mismatch` from its cameras' first choices and runner-up
+    candidates, the combination that is one rim of its axle partner's size (with a warning
+    naming what was taken); failing that, one camera's rim carried to the other
+    (:func:`_carried_pair`); or None."""
+    outcome = next(o for o in outcomes if o.wheel == wheel)
+    cams = outcome.cams
+    partner = AXLE_PARTNER[wheel]
+    radius_m = observations[partner].circle.radius_m
+    found = resolve_pair(wheel, cams, outcome.first_choices, {c: images[c] for c in cams},
+                         {c: cameras[c] for c in cams}, config, (calibration_cov or {}).get(wheel), radius_m=radius_m)
+    if found is None:
+        found = _carried_pair(wheel, cams, [outcome.first_choices, dict(zip(cams, observations[wheel].detections))],
+                              images, cameras, config, (calibration_cov or {}).get(wheel),
+                              observations[wheel].circle.axis_station, radius_m)
+    if found is None:
+        return None
+    obs, note = found
+    return obs, note.replace("the first choices were not the same rim",
+                             f"the first choices' rim was not the size of {partner}'s")
+
+
+def _carried_pair(wheel: str, cams: tuple[str, str], detection_sets: list[dict], images: dict, cameras: dict,
+                  config: StationConfig, calibration_cov: np.ndarray | None, axis_station: np.ndarray,
+                  radius_m: float) -> tuple[WheelObservation, str] | None:
+    """A pair made of one camera's detection and the rim searched again in the other camera
+    from where that detection, at ``radius_m`` and in a plane across ``axis_station``, must
+    appear there (station/rim_transfer.py): the best such pair (by the weaker score) that is one
+    3-D rim of that size, with a warning saying what was done; None if there is none. Tried from
+    each camera's detection in ``detection_sets`` (the first choices, the pairing taken).
+    Dark rims, vehicle 6013 RR: cam8's search ended between the flange and the lip's inner edge,
+    none of its candidates was the flange; carried from cam7's first choice, its rim is found
+    0.1 px from the true one and the wheel's centre 0.2 mm off."""
+    from station.rim.detector import refine_candidate
+    from station.rim_transfer import carried_prior
+
+    best, tried = None, set()
+    for detections in detection_sets:
+        for src, dst in (cams, cams[::-1]):
+            det = detections[src]
+            if isinstance(det, StationError) or (src, id(det)) in tried:
+                continue
+            tried.add((src, id(det)))
+            prior = carried_prior(det.ellipse, cameras[src], cameras[dst], axis_station, radius_m)
+            if prior is None:
+                continue
+            try:
+                found = refine_candidate(images[dst], prior, camera=cameras[dst], camera_id=dst)
+                o = reconstruct_wheel(wheel, cams, {src: det, dst: found}, cameras, calibration_cov,
+                                      config.measurement.uncertainty_limit_deg)
+                check_same_rim(o, config, allow_unchecked=False)
+            except StationError:
+                continue
+            if abs(o.circle.radius_m - radius_m) > AXLE_RIM_TOLERANCE * radius_m:
+                continue
+            score = min(det.score, found.score)
+            if best is None or score > best[0]:
+                best = (score, o, src, dst)
+    if best is None:
+        return None
+    _, o, src, dst = best
+    return o, (f"{wheel} ({cams[0]}, {cams[1]}): the first choices were not the same rim; {dst}'s rim was searched "
+               f"again where {src}'s rim, at its axle partner's size, must appear")
+
+
+def settle_axles(result: dict, observations: dict, outcomes: list, images: dict, cameras: dict,
+                 config: StationConfig, calibration_cov: dict | None) -> dict | None:
+    """Where :func:`axle_rim_mismatch` finds an odd wheel, pair it again at its partner's size
+    (``observations`` and the result's warnings updated); the cycle's failure if that fails."""
+    mismatch = axle_rim_mismatch(observations)
+    if mismatch is None:
+        return None
+    wheel, text = mismatch
+    rescued = _rescued_to_size(wheel, observations, outcomes, images, cameras, config, calibration_cov)
+    if rescued is not None:
+        observations[wheel], note = rescued
+        stale = next(o.note for o in outcomes if o.wheel == wheel)  # (a runner-up pairing of the wheel's own)
+        result["warnings"] = [w for w in result["warnings"] if w != stale] + [note]
+        if {"kind": "runner_up", "wheel": wheel} not in result["warning_flags"]:
+            result["warning_flags"].append({"kind": "runner_up", "wheel": wheel})
+        mismatch = axle_rim_mismatch(observations)
+        if mismatch is None:
+            return None
+        wheel, text = mismatch
+    cams = observations[wheel].cams
+    return {"code": MeasurementError.code, "wheel": wheel, "camera": f"{cams[0]}+{cams[1]}",
+            "message": f"{wheel} ({cams[0]}, {cams[1]}): {text}",
+            "hint": f"look at both cameras' images of {wheel} (station review); if another wheel is fitted "
+                    "there (a spare), fit the matching one before aligning"}
+
+
+def axle_rim_mismatch(observations: dict) -> tuple[str, str] | None:
+    """(wheel, why) when the two rims of an axle differ in radius by more than
+    AXLE_RIM_TOLERANCE: the rims of an axle are the same size, so one pair measured another
+    contour (both its cameras on the tyre's outline, say, which a 3-D circle fits as well as
+    the rim) or another wheel is fitted. The wheel named is the one farther from the median
+    radius of the four. None when they agree."""
+    radius = {w: o.circle.radius_m for w, o in observations.items()}
+    median = float(np.median(list(radius.values())))
+    for left, right in (("FL", "FR"), ("RL", "RR")):
+        if left not in radius or right not in radius:
+            continue
+        r_l, r_r = radius[left], radius[right]
+        if abs(r_l - r_r) > AXLE_RIM_TOLERANCE * 0.5 * (r_l + r_r):
+            wheel, other = (left, right) if abs(r_l - median) >= abs(r_r - median) else (right, left)
+            return wheel, (f"the rim found is {radius[wheel] * 1000:.0f} mm in radius, {other}'s "
+                           f"{radius[other] * 1000:.0f} mm: the rims of an axle are the same size, so this "
+                           "pair measured another contour (the tyre, the hub) or another wheel is fitted")
+    return None
