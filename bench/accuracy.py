@@ -34,6 +34,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from bench import outside_envelope  # noqa: E402
 from simulators import image_cache  # noqa: E402
 from station.config import WHEELS, load_config  # noqa: E402
+from station.frame_average import mean_image  # noqa: E402
 from station.measure import add_truth, measure_frames  # noqa: E402
 
 SCENARIOS = {
@@ -78,25 +79,33 @@ def _stated(result: dict) -> dict[str, float]:
     return out
 
 
-def _images(world, scene, scenario: str, seed: int, cache: Path | None, capture: int = 0) -> dict:
-    """The eight rendered images of one vehicle; with ``cache``, rendered once and kept there
+def _images(world, scene, scenario: str, seed: int, cache: Path | None, capture: int = 0, frames: int = 1) -> dict:
+    """The eight images of one vehicle; with ``cache``, rendered once and kept there
     (``<scenario>-<seed>.npz``) so that a change of the measurement can be re-measured on the
     very same images in minutes instead of re-rendering them. ``capture`` k > 0: the same
-    scene captured again, with the k-th fresh draw of sensor noise (``-r<k>`` in the cache)."""
+    scene captured again, with the k-th fresh draw of sensor noise (``-r<k>`` in the cache).
+    ``frames`` N > 1: each camera's image is the mean of N frames, as the station's
+    ``capture.frames_averaged`` keeps it (station/frame_average.py; ``-f<N>`` in the cache);
+    the first is the single frame's, the others have fresh sensor noise."""
     name = f"{outside_envelope.images_of(scenario)}-{seed}" + (f"-r{capture}" if capture else "")
+    name += f"-f{frames}" if frames > 1 else ""
     path = cache / f"{name}.npz" if cache is not None else None
     images = image_cache.load(path, world) if path is not None else None  # None: another station's, or none
     if images is not None:
         return images
     rng = np.random.default_rng(10_000 + seed) if capture == 0 else np.random.default_rng([10_000 + seed, capture])
-    images = outside_envelope.encode(scenario, world.render_all(rng))
+    bursts = [outside_envelope.encode(scenario, world.render_all(rng))]
+    bursts += [outside_envelope.encode(scenario, world.render_all(np.random.default_rng([10_000 + seed, capture, k])))
+               for k in range(1, frames)]  # world.clean_image renders the scene once for all of them
+    images = bursts[0] if frames == 1 else {c: mean_image([b[c] for b in bursts]) for c in bursts[0]}
     if path is not None:
         image_cache.save(path, images, world)
     return images
 
 
 def run(config, cameras_by_source: dict, n: int, scenario: str, seed0: int, methods,
-        covariance_by_source: dict | None = None, cache: Path | None = None, repeat: int = 0) -> dict:
+        covariance_by_source: dict | None = None, cache: Path | None = None, repeat: int = 0,
+        frames: int = 1) -> dict:
     """Per (calibration, method): errors, stated std, failures, times, warnings; with
     ``repeat`` k, the first calibration and method also measure every vehicle k more times on
     fresh captures of the same scene ("captures": per vehicle, the errors of each capture)."""
@@ -115,7 +124,7 @@ def run(config, cameras_by_source: dict, n: int, scenario: str, seed0: int, meth
             over["rim_albedo"] = float(np.random.default_rng([seed, 1]).uniform(*albedo))
         scene = outside_envelope.scene_for(world, scenario, seed, config.nominal_vehicle, **over)
         world.set_scene(scene)
-        images = _images(world, scene, scenario, seed, cache)
+        images = _images(world, scene, scenario, seed, cache, frames=frames)
         truth = world.truth(scene)
         for src, cams in cameras_by_source.items():
             for m in methods:
@@ -139,17 +148,19 @@ def run(config, cameras_by_source: dict, n: int, scenario: str, seed0: int, meth
                 rows[(src, m)]["std"].append(_stated(res))
                 if repeat and (src, m) == first:
                     rows[first]["captures"].append([errs] + _recaptured(world, scene, scenario, seed, cache, repeat,
-                                                                        cams, config, m, covariance_by_source, src))
+                                                                        cams, config, m, covariance_by_source, src,
+                                                                        frames))
         print(f"  {scenario}: vehicle {i + 1}/{n} done", file=sys.stderr, flush=True)
     return rows
 
 
-def _recaptured(world, scene, scenario, seed, cache, repeat, cams, config, method, covariances, src) -> list[dict]:
+def _recaptured(world, scene, scenario, seed, cache, repeat, cams, config, method, covariances, src,
+                frames: int = 1) -> list[dict]:
     """The errors of ``repeat`` more captures of the same scene (fresh sensor noise), the
     failed ones left out."""
     out = []
     for k in range(1, repeat + 1):
-        res = measure_frames(_images(world, scene, scenario, seed, cache, capture=k), cams, config, method=method,
+        res = measure_frames(_images(world, scene, scenario, seed, cache, capture=k, frames=frames), cams, config, method=method,
                              calibration_cov=(covariances or {}).get(src))
         if res["valid"]:
             add_truth(res, world.truth(scene))
@@ -246,6 +257,8 @@ def main() -> int:
     ap.add_argument("--methods", default="circle,paper")
     ap.add_argument("--repeat", type=int, default=0,
                     help="measure every vehicle this many more times on fresh captures (new sensor noise): repeatability")
+    ap.add_argument("--frames", type=int, default=None,
+                    help="frames averaged per camera and cycle (default: the configuration's capture.frames_averaged)")
     ap.add_argument("--cache", type=Path, default=None,
                     help="keep the rendered images here and reuse them on later runs (same seeds, same images)")
     args = ap.parse_args()
@@ -270,10 +283,12 @@ def main() -> int:
                   "share of the stated uncertainty is left out; recalibrate to include it", file=sys.stderr)
     methods = args.methods.split(",")
     scenarios = [s for s in SCENARIOS if s not in outside_envelope.KINDS] if args.scenario == "all" else [args.scenario]
-    print(f"# Accuracy benchmark: {args.n} vehicles per scenario, seeds from {args.seed}")
+    frames = config.capture.frames_averaged if args.frames is None else args.frames
+    print(f"# Accuracy benchmark: {args.n} vehicles per scenario, seeds from {args.seed}, "
+          f"{frames} frame(s) averaged per camera")
     for sc in scenarios:
         srcs = sources if sc == "sigma2" else {k: v for k, v in sources.items() if k == "file"} or sources
-        rows = run(config, srcs, args.n, sc, args.seed, methods, covariances, args.cache, args.repeat)
+        rows = run(config, srcs, args.n, sc, args.seed, methods, covariances, args.cache, args.repeat, frames)
         print_table(sc, rows, args.n)
     return 0
 

@@ -25,6 +25,9 @@ TRIGGER_MODES = ("free-run", "software", "hardware")
 # the driver: the station measures grey levels only).
 PIXEL_FORMATS = ("Mono8", "Mono16", "BayerRG8", "BayerGR8", "BayerGB8", "BayerBG8")
 FRAME_DTYPE = {"Mono16": np.uint16}  # every other format gives uint8
+# Frame.metadata key: the image is the mean of this many exposures (station/frame_average.py),
+# kept as (H, W) uint16 whatever the pixel format (a replayed burst comes back so)
+AVERAGED_FRAMES_KEY = "averaged_frames"
 
 
 @dataclass(frozen=True)
@@ -67,6 +70,7 @@ class Camera(ABC):
     """Base class. Subclasses implement the ``_`` methods; users call the public ones."""
 
     scheme = ""
+    exposes = True  # each frame is a new exposure (False: a replay of saved frames, never averaged again)
 
     def __init__(self, camera_id: str, uri: str, settings: CameraSettings | None = None,
                  context: dict | None = None):
@@ -234,6 +238,8 @@ class Camera(ABC):
         if not isinstance(img, np.ndarray) or img.dtype not in (np.uint8, np.uint16):
             raise FrameError(f"{self.camera_id}: frame is not an 8/16-bit image ({self.uri})")
         want = np.dtype(FRAME_DTYPE.get(s.pixel_format, np.uint8))
+        if frame.metadata.get(AVERAGED_FRAMES_KEY, 1) > 1:
+            want = np.dtype(np.uint16)
         if img.ndim != 2 or img.dtype != want:
             raise FrameError(f"{self.camera_id}: frame is {img.dtype} with shape {img.shape}, but "
                              f"{s.pixel_format} gives (H, W) {want} ({self.uri})",

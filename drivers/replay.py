@@ -37,6 +37,7 @@ def parse_replay_uri(uri: str) -> tuple[Path, dict[str, str]]:
 
 class ReplayCamera(Camera):
     scheme = "replay"
+    exposes = False  # the saved frames, as they were kept (a kept burst is already averaged)
 
     def __init__(self, camera_id: str, uri: str, settings: CameraSettings | None = None,
                  context: dict | None = None):

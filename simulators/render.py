@@ -266,6 +266,29 @@ def vignetting(camera: CameraModel, strength: float) -> np.ndarray:
     return (1.0 - strength * r2).astype(np.float32)
 
 
+def render_clean(camera: CameraModel, scene: Scene, lighting: Lighting | None = None,
+                 blur_sigma: float = 0.75, supersample: int = 34, body: bool = True) -> np.ndarray:
+    """The (H,W) float32 grey levels ``camera`` receives of ``scene`` before the sensor's read
+    noise and quantisation: radiance x exposure x vignetting, blurred by the lens's PSF.
+    A still scene gives the same clean image to every frame (:func:`sensor_frame`)."""
+    lighting = lighting or Lighting()
+    radiance, _ = render_radiance(camera, scene, lighting, supersample, body)
+    image = radiance * (255.0 * lighting.gain) * vignetting(camera, lighting.vignetting)
+    if blur_sigma > 0:
+        image = cv2.GaussianBlur(image, (0, 0), blur_sigma, borderType=cv2.BORDER_REFLECT)
+    return image
+
+
+def sensor_frame(clean: np.ndarray, rng: np.random.Generator | None = None, noise_sigma: float = 2.0) -> np.ndarray:
+    """One (H,W) uint8 exposure of the clean image (H,W) float32: Gaussian read noise of
+    ``noise_sigma`` grey levels from ``rng`` (default: a fixed seed), clipped and quantised."""
+    image = clean
+    if noise_sigma > 0:
+        rng = rng if rng is not None else np.random.default_rng(0)
+        image = image + rng.standard_normal(image.shape, dtype=np.float32) * np.float32(noise_sigma)
+    return np.clip(np.rint(image), 0, 255).astype(np.uint8)
+
+
 def render(camera: CameraModel, scene: Scene, lighting: Lighting | None = None,
            rng: np.random.Generator | None = None, noise_sigma: float = 2.0,
            blur_sigma: float = 0.75, supersample: int = 34, body: bool = True) -> np.ndarray:
@@ -276,12 +299,4 @@ def render(camera: CameraModel, scene: Scene, lighting: Lighting | None = None,
     supersample: samples per edge pixel near measured features. body: draw the vehicle's body
     (with wheel arches) and its floor shadow, not just its four wheels.
     """
-    lighting = lighting or Lighting()
-    radiance, _ = render_radiance(camera, scene, lighting, supersample, body)
-    image = radiance * (255.0 * lighting.gain) * vignetting(camera, lighting.vignetting)
-    if blur_sigma > 0:
-        image = cv2.GaussianBlur(image, (0, 0), blur_sigma, borderType=cv2.BORDER_REFLECT)
-    if noise_sigma > 0:
-        rng = rng if rng is not None else np.random.default_rng(0)
-        image = image + rng.standard_normal(image.shape, dtype=np.float32) * np.float32(noise_sigma)
-    return np.clip(np.rint(image), 0, 255).astype(np.uint8)
+    return sensor_frame(render_clean(camera, scene, lighting, blur_sigma, supersample, body), rng, noise_sigma)

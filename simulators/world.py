@@ -16,7 +16,7 @@ from dataclasses import asdict, fields, replace
 import numpy as np
 
 from calibration.camera_model import CameraModel, look_at, rodrigues_to_matrix
-from simulators.render import render
+from simulators.render import render_clean, sensor_frame
 from simulators.scene import Lighting, Scene
 from simulators.vehicle import Vehicle, WheelGeometry, random_vehicle
 
@@ -59,6 +59,9 @@ class SimWorld:
         if unknown:
             raise ValueError(f"gain_override names unknown cameras: {', '.join(sorted(unknown))}")
         self.scene = Scene()
+        # camera id -> (scene, camera model, blur, lighting, clean image): the latest still
+        # scene's clean image, so that a burst of frames renders it once (render_clean)
+        self._clean: dict[str, tuple] = {}
 
     @classmethod
     def from_config(cls, config, noise_sigma: float | None = None,
@@ -160,8 +163,20 @@ class SimWorld:
         scene = scene or self.scene
         if rng is None:
             rng = np.random.default_rng([self.config.simulation.station_seed, list(self.cameras).index(cam_id)])
-        return render(self.cameras[cam_id], scene, self.lighting_for(cam_id, scene), rng,
-                      self.noise_sigma, self.blur_sigma[cam_id], supersample=self.supersample, body=self.body)
+        return sensor_frame(self.clean_image(cam_id, scene), rng, self.noise_sigma)
+
+    def clean_image(self, cam_id: str, scene: Scene | None = None) -> np.ndarray:
+        """(H,W) float32: what camera ``cam_id`` receives of the scene before read noise and
+        quantisation. Rendered once per still scene and camera (a burst of frames of a car on
+        the lift differs only in its sensor noise); the same as ``render`` computed it inline."""
+        scene = scene or self.scene
+        cam, blur, lighting = self.cameras[cam_id], self.blur_sigma[cam_id], self.lighting_for(cam_id, scene)
+        kept = self._clean.get(cam_id)
+        if kept is not None and kept[0] is scene and kept[1] is cam and kept[2] == blur and kept[3] == lighting:
+            return kept[4]
+        clean = render_clean(cam, scene, lighting, blur, supersample=self.supersample, body=self.body)
+        self._clean[cam_id] = (scene, cam, blur, lighting, clean)
+        return clean
 
     def render_all(self, rng: np.random.Generator | None = None, scene: Scene | None = None) -> dict[str, np.ndarray]:
         """{camera id: image} for every camera; one child noise stream per camera."""

@@ -11,6 +11,8 @@ concurrently within ONE deadline. Timestamps are checked (no frame older than th
 none after the deadline, no repeated frame, optional skew limit). A missing, late or broken
 camera fails the cycle with one error naming every such camera; the frames that did arrive
 ride on the error (``e.frames``) so ``capture_and_save`` can keep them: nothing is lost.
+With ``capture.frames_averaged`` N > 1 a cycle takes N such sets and keeps each camera's mean
+(``capture_averaged``, station/frame_average.py).
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from drivers.base import Camera, CameraSettings, Frame
 from drivers.frame_store import save_cycle
 from drivers.registry import create_camera, uri_address
 from station.errors import CameraMissing, CameraTimeout, DriverError, FrameError, StationError
+from station.frame_average import averaged_frames
 
 log = logging.getLogger("station.capture")
 
@@ -265,6 +268,16 @@ def capture_cycle(cameras: dict[str, Camera], timeout_s: float, trigger_board=No
     return {cid: frames[cid] for cid in cameras}
 
 
+def capture_averaged(cameras: dict[str, Camera], timeout_s: float, trigger_board=None,
+                     max_skew_s: float | None = None, frames: int = 1) -> dict[str, Frame]:
+    """``frames`` synchronised sets (capture_cycle, each with its own deadline), averaged per
+    camera (station/frame_average.py): {camera id: Frame}. One set when ``frames`` is 1 or a
+    camera replays saved frames (``Camera.exposes`` False): a kept burst is already averaged."""
+    if frames <= 1 or not all(c.exposes for c in cameras.values()):
+        return capture_cycle(cameras, timeout_s, trigger_board, max_skew_s)
+    return averaged_frames([capture_cycle(cameras, timeout_s, trigger_board, max_skew_s) for _ in range(frames)])
+
+
 # --- saving ----------------------------------------------------------------------------------
 def new_cycle_id() -> str:
     """A sortable, unique id: UTC time to the millisecond + a process counter."""
@@ -285,14 +298,14 @@ def save_capture(frames: dict[str, Frame], directory, *, cycle_id: str | None = 
 
 def capture_and_save(cameras: dict[str, Camera], timeout_s: float, out_dir, *, trigger_board=None,
                      max_skew_s: float | None = None, truth: dict | None = None,
-                     extra: dict | None = None) -> tuple[dict[str, Frame], Path]:
-    """capture_cycle, then save; a failed cycle's partial frames are saved too, then it raises.
+                     extra: dict | None = None, frames_averaged: int = 1) -> tuple[dict[str, Frame], Path]:
+    """capture_averaged, then save; a failed cycle's partial frames are saved too, then it raises.
 
     The error then has ``saved_to`` (the directory) besides ``frames`` and ``failures``.
     """
     out_dir = Path(out_dir)
     try:
-        frames = capture_cycle(cameras, timeout_s, trigger_board, max_skew_s)
+        frames = capture_averaged(cameras, timeout_s, trigger_board, max_skew_s, frames_averaged)
     except StationError as e:
         partial = getattr(e, "frames", {})
         if partial:
@@ -309,8 +322,9 @@ def capture_station_cycle(cameras: dict[str, Camera], config, *, trigger_board=N
     deadline from ``context``) and, if ``capture.keep_captures``, save under
     ``<data_dir>/captures/<cycle id>`` (a failed cycle's partial set too). (frames, path or None)."""
     timeout = max(config.capture.timeout_s, (context or {}).get("capture_timeout_s", 0.0))
+    n = config.capture.frames_averaged
     if not config.capture.keep_captures:
-        return capture_cycle(cameras, timeout, trigger_board), None
+        return capture_averaged(cameras, timeout, trigger_board, frames=n), None
     cycle_id = new_cycle_id()
     return capture_and_save(cameras, timeout, config.data_path("captures", cycle_id), trigger_board=trigger_board,
-                            truth=truth, extra={"station": config.name, **(extra or {})})
+                            truth=truth, extra={"station": config.name, **(extra or {})}, frames_averaged=n)

@@ -231,6 +231,7 @@ SCHEMA = {
     "capture": Field(_section({
         "timeout_s": Field(_number(0.01, 600), default=3.0),
         "keep_captures": Field(_bool, default=True),
+        "frames_averaged": Field(_number(1, 64, integer=True), default=1),
     }), default={}),
     "trigger_board": Field(_section({
         "port": Field(_string(nullable=True), default=None),

@@ -86,13 +86,16 @@ class Station:
         truth_fn = self.context.get("truth")
         truth = truth_fn() if truth_fn else None
         captures_dir = cfg.data_path("captures", cycle_id)
-        self.progress(f"cycle {cycle_id}: capturing {len(self.cameras)} cameras")
+        n = cfg.capture.frames_averaged
+        self.progress(f"cycle {cycle_id}: capturing {len(self.cameras)} cameras"
+                      + (f", {n} frames each (averaged)" if n > 1 else ""))
         try:
             if cfg.capture.keep_captures:
                 frames, _ = capture.capture_and_save(self.cameras, self.timeout_s, captures_dir, truth=truth,
-                                                     trigger_board=self.trigger_board, extra={"job_id": job_id})
+                                                     trigger_board=self.trigger_board, extra={"job_id": job_id},
+                                                     frames_averaged=n)
             else:
-                frames = capture.capture_cycle(self.cameras, self.timeout_s, self.trigger_board)
+                frames = capture.capture_averaged(self.cameras, self.timeout_s, self.trigger_board, frames=n)
         except StationError as e:
             saved = getattr(e, "saved_to", None)
             result = self._base(cycle_id, job_id, vehicle_spec)

@@ -194,7 +194,14 @@ def test_station_capture_and_cameras_commands(tmp_path, capsys):
     assert main(["--config", str(config.path), "capture", "--out", str(out), "--timeout", "60"]) == 0
     meta = json.loads((out / "cycle.json").read_text())
     assert meta["complete"] and set(meta["cameras"]) == set(IDS) and (out / "truth.json").exists()
+    assert "captured 8 frames (each the mean of 8) in" in capsys.readouterr().out  # capture.frames_averaged
+    assert meta["cameras"]["cam1"]["averaged_frames"] == 8 and meta["cameras"]["cam1"]["dtype"] == "uint16"
+    raw = tmp_path / "raw"
+    assert main(["--config", str(config.path), "capture", "--out", str(raw), "--frames", "1"]) == 0
     assert "captured 8 frames in" in capsys.readouterr().out
+    assert json.loads((raw / "cycle.json").read_text())["cameras"]["cam1"]["dtype"] == "uint8"
+    assert main(["--config", str(config.path), "capture", "--out", str(tmp_path / "x"), "--frames", "0"]) == 2
+    assert "expected 1 to 64 frames" in capsys.readouterr().err and not (tmp_path / "x").exists()
     # the same --out again: refused, nothing overwritten
     assert main(["--config", str(config.path), "capture", "--out", str(out)]) == 2
     assert "already exists" in capsys.readouterr().err

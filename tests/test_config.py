@@ -68,8 +68,9 @@ def test_cli_reports_config_errors_without_traceback(tmp_path):
 
 def test_the_5mp_station_is_the_default_station_with_twice_the_resolution_and_focal_length():
     """config/station-5mp.yaml must not drift from config/station.yaml: same mounts, lenses,
-    limits and vehicle; only the sensor (2560x2048), the focal lengths, the data dir and the
-    unseen-error terms of the stated uncertainty (each station's own maximum likelihood) differ."""
+    limits and vehicle; only the sensor (2560x2048), the focal lengths, the data dir, the
+    unseen-error terms of the stated uncertainty (each station's own maximum likelihood) and
+    the frames averaged per cycle (each station's figures were measured so) differ."""
     base = yaml.safe_load(DEFAULT_CONFIG.read_text())
     big = yaml.safe_load((DEFAULT_CONFIG.parent / "station-5mp.yaml").read_text())
     assert big["camera_defaults"]["resolution"] == [2 * v for v in base["camera_defaults"]["resolution"]]
@@ -80,6 +81,7 @@ def test_the_5mp_station_is_the_default_station_with_twice_the_resolution_and_fo
     assert big["data_dir"] != base["data_dir"]  # its own calibration and history
     for key in ("uncertainty_floor_deg", "uncertainty_noise_gain"):
         big["measurement"].pop(key, None), base["measurement"].pop(key, None)
+    big["capture"].pop("frames_averaged", None), base["capture"].pop("frames_averaged", None)  # measured so
     for key in ("name", "data_dir"):
         big.pop(key), base.pop(key)
     assert big == base

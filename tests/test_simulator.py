@@ -322,3 +322,37 @@ def test_closed_box_shows_only_its_front_faces():
     _, label = render_radiance(cam, Scene(quads=tuple(quads)), FLAT)
     seen = {k for k in range(6) if np.any(label == 1000 + k)}
     assert seen == {k for k in range(6) if facing[k]}
+
+
+def test_a_burst_of_frames_renders_the_still_scene_once(monkeypatch):
+    """Frames of one still scene differ only in their read noise: SimWorld renders the clean
+    image once per camera and scene, and a frame is exactly what ``render`` gave before."""
+    import simulators.world as world_mod
+    from simulators.render import render_clean, sensor_frame
+
+    config = load_config(None)
+    world = SimWorld.from_config(config)
+    cam = small_camera()
+    world.cameras = {"cam1": cam}
+    world.blur_sigma = {"cam1": 0.8}
+    calls = []
+
+    def counted(*a, **k):
+        calls.append(1)
+        return render_clean(*a, **k)
+
+    monkeypatch.setattr(world_mod, "render_clean", counted)
+    scene = Scene(quads=(white_square_quad((0.0, 0.0, 0.0), 0.2),))
+    world.set_scene(scene)
+    a = world.render("cam1", np.random.default_rng(1))
+    b = world.render("cam1", np.random.default_rng(2))
+    assert len(calls) == 1 and not np.array_equal(a, b)
+    direct = render(cam, scene, world.lighting_for("cam1"), np.random.default_rng(1), world.noise_sigma, 0.8,
+                    supersample=world.supersample, body=world.body)
+    assert np.array_equal(a, direct)
+    assert np.array_equal(sensor_frame(world.clean_image("cam1"), np.random.default_rng(1), world.noise_sigma), a)
+    world.set_scene(Scene(quads=(white_square_quad((0.05, 0.0, 0.0), 0.2),)))  # the car moved
+    world.render("cam1", np.random.default_rng(1))
+    world.blur_sigma["cam1"] = 1.5                                          # the lens was refocused
+    world.render("cam1", np.random.default_rng(1))
+    assert len(calls) == 3

@@ -11,6 +11,8 @@ def add_arguments(parser):
     parser.add_argument("--seed", type=int, default=None,
                         help="simulated station only: the random vehicle on the lift (default: none)")
     parser.add_argument("--timeout", type=float, default=None, help="capture deadline in s (default: capture.timeout_s)")
+    parser.add_argument("--frames", type=int, default=None, metavar="N",
+                        help="frames per camera, kept as their mean (default: capture.frames_averaged; 1: one raw frame)")
 
 
 def run(args) -> int:
@@ -24,6 +26,9 @@ def run(args) -> int:
     from station.errors import StationError
 
     config = load_config(args.config)
+    n_frames = config.capture.frames_averaged if args.frames is None else args.frames
+    if not 1 <= n_frames <= 64:
+        raise StationError(f"--frames {n_frames}: expected 1 to 64 frames per camera", hint="e.g. --frames 8")
     cycle_id = new_cycle_id()
     out = Path(args.out) if args.out else config.data_path("captures", cycle_id)
     if out.exists():
@@ -40,7 +45,7 @@ def run(args) -> int:
         t0 = time.monotonic()
         try:
             frames, path = capture_and_save(cameras, timeout, out, trigger_board=board, truth=truth,
-                                            extra={"station": config.name})
+                                            extra={"station": config.name}, frames_averaged=n_frames)
         except StationError as e:
             if getattr(e, "saved_to", None):
                 print(f"partial set ({len(e.frames)} of {len(cameras)} frames) kept in {e.saved_to}")
@@ -51,6 +56,7 @@ def run(args) -> int:
         close_cameras(cameras)
         context.get("close", lambda: None)()
     stamps = [f.timestamp_ns for f in frames.values()]
-    print(f"captured {len(frames)} frames in {time.monotonic() - t0:.2f} s, frame timestamps within "
+    burst = f" (each the mean of {n_frames})" if n_frames > 1 else ""
+    print(f"captured {len(frames)} frames{burst} in {time.monotonic() - t0:.2f} s, frame timestamps within "
           f"{(max(stamps) - min(stamps)) / 1e6:.1f} ms -> {path}")
     return 0
