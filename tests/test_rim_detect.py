@@ -299,3 +299,40 @@ def test_the_edges_of_an_image_do_not_depend_on_where_it_sits_in_memory():
         e = detect_edges(img.copy())
         seen.add(hashlib.md5(e.points.tobytes() + e.grad.tobytes() + e.mag.tobytes()).hexdigest())
     assert len(seen) == 1
+
+
+def test_the_read_noise_is_estimated_from_the_image_itself():
+    from station.rim.preprocess import noise_grey, to_grey
+    for sigma in (0.7, 2.0, 5.0):
+        img, truth = render_wheel(WheelSpec(noise_sigma=sigma), seed=2)
+        box = truth.point_at(np.linspace(0, 2 * np.pi, 64))
+        # edges, spokes and glare are a minority of the box: within 15 % (plus the 8-bit steps)
+        assert noise_grey(to_grey(img), box) == pytest.approx(np.hypot(sigma, 0.29), rel=0.15)
+
+
+def test_a_quiet_image_reaches_less_into_the_tyre(monkeypatch):
+    """Where the read noise is under QUIET_NOISE_SHARE of the edge step (here a step of 155
+    grey levels) the final profiles take the shorter window (the tyre's bead band stays out
+    of the kink model); a noisier image keeps the longer one."""
+    from station.rim import detector
+    windows = []
+    real = detector.repositioned
+
+    def spy(grey, anchors, normals, window_px=(-3.0, 4.5), step_px=0.5):
+        windows.append(window_px)
+        return real(grey, anchors, normals, window_px, step_px)
+
+    monkeypatch.setattr(detector, "repositioned", spy)
+    for sigma, quiet in ((0.7, True), (4.0, False)):
+        img, truth = render_wheel(WheelSpec(noise_sigma=sigma), seed=4)
+        det = detect_rim(img, camera=_camera_of(img))
+        assert windows[-1] == (detector.QUIET_WINDOW_PX if quiet else detector.REPOSITION_WINDOW_PX)
+        assert det.details["quiet_window"] == quiet
+        assert det.details["noise_grey"] == pytest.approx(np.hypot(sigma, 0.29), rel=0.15)
+        assert _errors(det, truth)[0] < 0.05
+
+
+def _camera_of(img):
+    h, w = img.shape[:2]
+    K = np.array([[1800.0, 0, w / 2], [0, 1800.0, h / 2], [0, 0, 1]])
+    return CameraModel("cam1", w, h, K, np.zeros(5), np.eye(3), np.zeros(3))

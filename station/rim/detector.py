@@ -32,7 +32,7 @@ from station.rim.choice import choose
 from station.rim.ellipse import Ellipse
 from station.rim.ellipse_fit import fit_direct, fit_geometric, ransac_ellipse
 from station.rim.npfast import finite_rows, median, percentiles, rows
-from station.rim.preprocess import PixelMap, detection_scale, downscale, equalize, to_grey
+from station.rim.preprocess import PixelMap, detection_scale, downscale, equalize, noise_grey, to_grey
 from station.rim.subpixel import WIDE_BLUR_PX, edge_points, repositioned, window_scale
 from station.rim.white_edge import white_share
 from station.wheel_arcs import sector_medians
@@ -308,7 +308,7 @@ def detect_rim(image: np.ndarray, *, camera=None, prior: Ellipse | None = None, 
         if camera is None and sc.s // WORKING_SCALE_STEP >= 2 and untangled is None:
             info["blur_px"] = blur
             return _finer_of(grey, best.ellipse, sc.s, (fit, samples, mask), info, clock, camera_id)
-    fit, samples, mask = _repositioned(grey, fit, samples, mask, pmap, blur)
+    fit, samples, mask = _repositioned(grey, fit, samples, mask, pmap, blur, info)
     clock.lap("refine")
     info["blur_px"] = blur
     return _with_white_share(_result(fit, samples, mask, info, clock, camera, pmap, camera_id), grey)
@@ -316,9 +316,20 @@ def detect_rim(image: np.ndarray, *, camera=None, prior: Ellipse | None = None, 
 
 REPOSITION = True  # locate the final points again in Lanczos-sampled profiles (subpixel.repositioned)
 REFIT_ITERATIONS = 4
+# The final profiles' window (px, - metal / + tyre side). On the tyre side the bead wall is a
+# band of its own shade 1-5 px out: a window reaching into it bends the kink model's tyre line
+# and moves the edge (the larger part of the camber error at 1.3 Mpx), a shorter one has fewer
+# samples to hold that line against the noise. Where the image is quiet (an average of a few
+# frames: station/frame_average.py) the shorter reach wins; in a single frame's noise the
+# longer one (docs/accuracy.md, stops 24 and 26).
+REPOSITION_WINDOW_PX = (-3.0, 4.5)
+QUIET_WINDOW_PX = (-3.0, 3.0)
+QUIET_NOISE_SHARE = 0.015  # read noise (preprocess.noise_grey) over the inliers' median edge step under
+                           # which it applies: 8 frames of 2 grey levels on the simulator's rims 0.010
+                           # (a single frame 0.025, 8 frames of dark rims 0.021)
 
 
-def _repositioned(grey: np.ndarray, fit, samples, mask, pmap: PixelMap, blur: float | None):
+def _repositioned(grey: np.ndarray, fit, samples, mask, pmap: PixelMap, blur: float | None, info: dict | None = None):
     """The final fit, its samples and inlier mask with the inliers located again by
     :func:`subpixel.repositioned` along the fit's normals (where an inlier's edge is not
     found again it stays), and the ellipse fitted to them (from the fit). Soft edges (blur >
@@ -336,7 +347,11 @@ def _repositioned(grey: np.ndarray, fit, samples, mask, pmap: PixelMap, blur: fl
     _, t = fit.ellipse.distance(bases)
     feet, n_ideal = fit.ellipse.point_at(t), fit.ellipse.normal_at(t)       # (M,2) ideal pixels
     anchors, nrm, scale = pmap.along_normals(feet, n_ideal)
-    d, found, _ = repositioned(grey, anchors, nrm)
+    noise, step = noise_grey(grey, anchors), float(np.median(samples.contrast[idx]))
+    quiet = noise < QUIET_NOISE_SHARE * step
+    if info is not None:
+        info["noise_grey"], info["quiet_window"] = round(noise, 3), bool(quiet)
+    d, found, _ = repositioned(grey, anchors, nrm, QUIET_WINDOW_PX if quiet else REPOSITION_WINDOW_PX)
     points_px = samples.points_px.copy()
     points_px[idx[found]] = anchors[found] + d[found, None] * nrm[found]
     ideal = np.empty((len(idx), 2))

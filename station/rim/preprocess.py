@@ -4,6 +4,7 @@
 * :func:`equalize` - the paper's global histogram equalisation, or CLAHE (the default: local
   equalisation copes with the uneven workshop lighting a global one cannot);
 * :func:`detection_scale` / :func:`downscale` - the coarse image the Hough search runs on;
+* :func:`noise_grey` - the image's read noise, estimated from the image itself;
 * :class:`PixelMap` - lens-distortion correction. The paper resamples the whole image; we
   correct the *points* instead (exact, and no resampling blur of the edges we measure): edge
   points are moved to ideal pinhole pixels, where the rim is an exact ellipse, and profiles are
@@ -58,6 +59,34 @@ def to_grey(image: np.ndarray, camera_id: str = "") -> np.ndarray:
     if scale != 1.0:
         grey = grey * np.float32(scale)
     return np.ascontiguousarray(grey, dtype=np.float32)
+
+
+# Immerkaer's mask: the difference of two Laplacians, blind to any plane and to most of a
+# smooth shading; on white noise of std s its response has std 6 s (the mask's norm)
+_NOISE_MASK = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
+NOISE_MARGIN_PX = 8  # the box round the given points grown by this
+NOISE_STRIDE = 3     # the median over every 3rd row and column (10^4-10^5 values are plenty)
+
+
+def noise_grey(grey: np.ndarray, points_px: np.ndarray | None = None) -> float:
+    """Read noise (grey levels, std) of (H,W) float32 ``grey``, within the box round
+    ``points_px`` (N,2) if given: the median absolute response to Immerkaer's mask over 6 and
+    0.6745 (the normal's median absolute deviation). Edges and texture are the few pixels
+    where the response is large, so the median stays with the flat ones; what they add makes
+    the estimate err high."""
+    h, w = grey.shape
+    if points_px is not None and len(points_px):
+        lo = np.floor(points_px.min(axis=0)).astype(int) - NOISE_MARGIN_PX
+        hi = np.ceil(points_px.max(axis=0)).astype(int) + NOISE_MARGIN_PX
+        x0, y0 = max(int(lo[0]), 0), max(int(lo[1]), 0)
+        x1, y1 = min(int(hi[0]), w), min(int(hi[1]), h)
+        if x1 - x0 >= 3 and y1 - y0 >= 3:
+            grey = grey[y0:y1, x0:x1]
+    response = cv2.filter2D(grey, cv2.CV_32F, _NOISE_MASK, borderType=cv2.BORDER_REPLICATE)
+    sample = np.abs(response[1:-1:NOISE_STRIDE, 1:-1:NOISE_STRIDE]).ravel()  # every 9th: the median's cost
+    if sample.size == 0:
+        return float("nan")
+    return float(np.partition(sample, sample.size // 2)[sample.size // 2] / (6.0 * 0.6745))
 
 
 def equalize(grey_u8: np.ndarray, method: str = "clahe") -> np.ndarray:
