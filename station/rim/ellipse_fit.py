@@ -89,9 +89,10 @@ def _jacobian(e: Ellipse, feet) -> np.ndarray:
 
 def fit_geometric(pts: np.ndarray, init: Ellipse | None = None, iterations: int = 12,
                   huber_k: float = 1.5, reject_sigma: float = 3.5,
-                  corr: float | None = None) -> GeometricFit:
+                  corr: float | None = None, reject_floor_px: float = 0.0) -> GeometricFit:
     """Robust orthogonal-distance ellipse fit of pts (N,2) (N >= 6), from ``init`` or the
-    direct fit. Raises ValueError if it cannot fit."""
+    direct fit. The inliers it returns are the points within ``reject_sigma`` robust sigmas
+    of the fit, or within ``reject_floor_px`` if that is more. Raises ValueError if it cannot fit."""
     pts = np.asarray(pts, float)
     if len(pts) < 6:
         raise ValueError("too few points for a geometric ellipse fit")
@@ -100,7 +101,7 @@ def fit_geometric(pts: np.ndarray, init: Ellipse | None = None, iterations: int 
     p, d, t, ct, st, nx, ny, inl, it = fit_loops.geometric_lm(x, y, e.params, iterations, huber_k, reject_sigma)
     e, feet = Ellipse.from_params(p), Feet(d, t, ct, st, nx, ny)
     sig = 1.4826 * median(np.abs(d[inl])) + 1e-9
-    inl = np.abs(d) < reject_sigma * sig
+    inl = np.abs(d) < max(reject_sigma * sig, reject_floor_px)
     J = rows(_jacobian(e, feet), inl)
     rms = float(np.sqrt(np.mean(d[inl] ** 2))) if inl.any() else float("inf")
     dof = max(int(inl.sum()) - 5, 1)
