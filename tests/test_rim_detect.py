@@ -336,3 +336,40 @@ def _camera_of(img):
     h, w = img.shape[:2]
     K = np.array([[1800.0, 0, w / 2], [0, 1800.0, h / 2], [0, 0, 1]])
     return CameraModel("cam1", w, h, K, np.zeros(5), np.eye(3), np.zeros(3))
+
+
+def test_a_rim_edge_held_on_too_little_is_refined_once_more_with_a_tolerant_misfit_test(monkeypatch):
+    """When the profiles' misfit test (3x the median misfit) leaves too little of the rim - in
+    a quiet image, where glare-bent profiles fail it - the search refines once more with the
+    test as tolerant as in one frame's noise (RESCUE_MISFIT_GREY) instead of refusing."""
+    from station.rim import detector
+    real = detector.edge_points
+    floors = []
+
+    def strict_loses_most(*a, misfit_floor=0.0, **k):
+        samples, blur = real(*a, misfit_floor=misfit_floor, **k)
+        floors.append(misfit_floor)
+        if misfit_floor == 0.0:  # the strict test: keep a quarter of the rim only
+            keep = np.zeros_like(samples.ok)
+            keep[: len(keep) // 4] = True
+            samples.ok &= keep
+        return samples, blur
+
+    monkeypatch.setattr(detector, "edge_points", strict_loses_most)
+    img, truth = render_wheel(WheelSpec(noise_sigma=0.7), seed=5)
+    det = detect_rim(img)
+    assert det.details.get("misfit_rescue") and detector.RESCUE_MISFIT_GREY in floors
+    assert det.coverage > 0.9 and _errors(det, truth)[0] < 0.05
+    monkeypatch.setattr(detector, "RESCUE_MISFIT_GREY", 0.0)
+    with pytest.raises(RimNotFound, match="no closed rim contour"):
+        detect_rim(img)
+
+
+def test_the_misfit_floor_only_lets_more_profiles_through():
+    from station.rim.subpixel import edge_points
+    img, truth = render_wheel(WheelSpec(noise_sigma=0.5), seed=6)
+    from station.rim.preprocess import to_grey
+    grey = to_grey(img)
+    strict, _ = edge_points(grey, truth, window_px=(-3.0, 4.5))
+    tolerant, _ = edge_points(grey, truth, window_px=(-3.0, 4.5), misfit_floor=2.0)
+    assert np.all(tolerant.ok[strict.ok]) and tolerant.ok.sum() >= strict.ok.sum()

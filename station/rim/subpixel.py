@@ -415,7 +415,7 @@ def _tyre_side_flat(prof: np.ndarray, s: np.ndarray, s0: np.ndarray, h: np.ndarr
 def edge_points(grey: np.ndarray, ellipse: Ellipse, pmap: PixelMap | None = None, n: int | None = None,
                 window_px: tuple[float, float] = (-4.0, 4.0), step_px: float = 0.5, spacing_px: float = 1.5,
                 method: str = "kink", sigma: float | None = None,
-                blur_hint: float | None = None) -> tuple[EdgeSamples, float | None]:
+                blur_hint: float | None = None, misfit_floor: float = 0.0) -> tuple[EdgeSamples, float | None]:
     """Sub-pixel rim points along ``ellipse`` (in ideal pinhole pixels when ``pmap`` has a
     camera, else image pixels), searched in ``window_px`` (inside, outside) along the normals.
 
@@ -467,7 +467,7 @@ def edge_points(grey: np.ndarray, ellipse: Ellipse, pmap: PixelMap | None = None
         c_med = median(contrast[ok])
         r_med = median(rms[ok])
         w_med = median(width[ok])
-        ok &= (contrast > 0.2 * c_med) & (contrast > 4 * r_med) & (rms < 3.0 * r_med + 1e-6) \
+        ok &= (contrast > 0.2 * c_med) & (contrast > 4 * r_med) & (rms < 3.0 * max(r_med, misfit_floor) + 1e-6) \
             & (width < 2.5 * w_med + 0.3) & (width > 0.25)
     return EdgeSamples(pts, t, contrast, width, rms, ok, ellipse), sigma
 
