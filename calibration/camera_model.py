@@ -147,18 +147,24 @@ class CameraModel:
         """(N,3) station -> (N,3) camera frame."""
         return np.asarray(points_station, float) @ self.R_cam_station.T + self.t_cam_station
 
+    def apply_K(self, xy: np.ndarray) -> np.ndarray:
+        """(N,2) coordinates on the z = 1 plane -> (N,2) pixels through K alone (no distortion:
+        undistorted normalised coordinates give ideal pinhole pixels)."""
+        K = self.K
+        return np.stack([K[0, 0] * xy[:, 0] + K[0, 2], K[1, 1] * xy[:, 1] + K[1, 2]], axis=1)
+
+    def unapply_K(self, uv: np.ndarray) -> np.ndarray:
+        """(N,2) pixels -> (N,2) coordinates on the z = 1 plane through K alone (the inverse of apply_K)."""
+        K = self.K
+        return np.stack([(uv[:, 0] - K[0, 2]) / K[0, 0], (uv[:, 1] - K[1, 2]) / K[1, 1]], axis=1)
+
     def normalized_to_pixels(self, xy: np.ndarray) -> np.ndarray:
         """(N,2) undistorted normalised -> (N,2) pixels (distortion applied)."""
-        xy_d = distort_normalized(np.asarray(xy, float), self.dist)
-        K = self.K
-        return np.stack([K[0, 0] * xy_d[:, 0] + K[0, 2], K[1, 1] * xy_d[:, 1] + K[1, 2]], axis=1)
+        return self.apply_K(distort_normalized(np.asarray(xy, float), self.dist))
 
     def pixels_to_normalized(self, uv: np.ndarray) -> np.ndarray:
         """(N,2) pixels -> (N,2) undistorted normalised coordinates (exact inverse)."""
-        uv = np.asarray(uv, float).reshape(-1, 2)
-        K = self.K
-        xy_d = np.stack([(uv[:, 0] - K[0, 2]) / K[0, 0], (uv[:, 1] - K[1, 2]) / K[1, 1]], axis=1)
-        return undistort_normalized(xy_d, self.dist)
+        return undistort_normalized(self.unapply_K(np.asarray(uv, float).reshape(-1, 2)), self.dist)
 
     def project_cam(self, points_cam: np.ndarray) -> np.ndarray:
         """(N,3) camera-frame points -> (N,2) pixels. Points behind the camera give NaN."""

@@ -9,7 +9,7 @@ import numpy as np
 
 from station.config import StationConfig
 from station.errors import MeasurementError, StationError
-from station.rim_size import AXLE_PARTNER, AXLE_RIM_TOLERANCE
+from station.rim_size import AXLE_PARTNER, AXLE_RIM_TOLERANCE, odd_rims
 from station.wheel_pair import WheelObservation, check_same_rim, reconstruct_wheel, resolve_pair
 
 
@@ -110,16 +110,12 @@ def axle_rim_mismatch(observations: dict) -> tuple[str, str] | None:
     AXLE_RIM_TOLERANCE: the rims of an axle are the same size, so one pair measured another
     contour (both its cameras on the tyre's outline, say, which a 3-D circle fits as well as
     the rim) or another wheel is fitted. The wheel named is the one farther from the median
-    radius of the four. None when they agree."""
+    radius of the four (station.rim_size.odd_rims). None when they agree."""
     radius = {w: o.circle.radius_m for w, o in observations.items()}
-    median = float(np.median(list(radius.values())))
-    for left, right in (("FL", "FR"), ("RL", "RR")):
-        if left not in radius or right not in radius:
-            continue
-        r_l, r_r = radius[left], radius[right]
-        if abs(r_l - r_r) > AXLE_RIM_TOLERANCE * 0.5 * (r_l + r_r):
-            wheel, other = (left, right) if abs(r_l - median) >= abs(r_r - median) else (right, left)
-            return wheel, (f"the rim found is {radius[wheel] * 1000:.0f} mm in radius, {other}'s "
-                           f"{radius[other] * 1000:.0f} mm: the rims of an axle are the same size, so this "
-                           "pair measured another contour (the tyre, the hub) or another wheel is fitted")
-    return None
+    odd = odd_rims(radius, AXLE_PARTNER, AXLE_RIM_TOLERANCE)
+    if not odd:
+        return None
+    wheel, other = odd[0]
+    return wheel, (f"the rim found is {radius[wheel] * 1000:.0f} mm in radius, {other}'s "
+                   f"{radius[other] * 1000:.0f} mm: the rims of an axle are the same size, so this "
+                   "pair measured another contour (the tyre, the hub) or another wheel is fitted")

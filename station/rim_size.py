@@ -17,6 +17,8 @@ nominal size may differ by), exact rim points gave an axis 0.3 deg off; 0.2 %, 0
 """
 from __future__ import annotations
 
+import statistics
+
 AXLE_RIM_TOLERANCE = 0.015  # the two rims of an axle agree in radius to 0.7 % on every benchmark set (dark
                             # rims; 0.05 % at sigma 2); another contour differs by 2-6 % (a lip's inner edge,
                             # a ring inside the barrel) to 30 % and more (the tyre)
@@ -24,22 +26,29 @@ AXLE_PARTNER = {"FL": "FR", "FR": "FL", "RL": "RR", "RR": "RL"}
 RIM_SIZE_WARNING = 0.002  # relative radius difference between the rims of an axle that warns
 
 
-def size_mismatches(radius_m: dict[str, float], partner: dict[str, str]) -> list[tuple[str, str]]:
-    """[(wheel, warning text)] for each axle whose two rims' radii (m, per wheel) differ by more
-    than ``RIM_SIZE_WARNING``; the wheel named is the one farther from the median of all the
-    rims measured (the odd one when the other axle agrees), the text says by how much and what
-    to check. ``partner``: wheel -> the other wheel of its axle."""
+def odd_rims(radius_m: dict[str, float], partner: dict[str, str], tolerance: float) -> list[tuple[str, str]]:
+    """[(odd wheel, its axle partner)] for each axle (once, in wheel-name order) whose two rims'
+    radii (m, per wheel) differ by more than ``tolerance`` of their mean; the odd wheel is the
+    one farther from the median of all the rims measured (the odd one when the other axle
+    agrees). A wheel without its partner is not judged. ``partner``: wheel -> the other wheel of
+    its axle."""
+    median = statistics.median(radius_m.values()) if radius_m else 0.0
     out = []
-    rims = sorted(radius_m.values())
-    median = 0.5 * (rims[(len(rims) - 1) // 2] + rims[len(rims) // 2]) if rims else 0.0
-    for wheel in radius_m:
+    for wheel in sorted(radius_m):
         other = partner.get(wheel)
         if other not in radius_m or wheel > other:  # each axle once
             continue
         a, b = radius_m[wheel], radius_m[other]
-        if abs(a - b) <= RIM_SIZE_WARNING * 0.5 * (a + b):
-            continue
-        odd, even = (wheel, other) if abs(a - median) >= abs(b - median) else (other, wheel)
+        if abs(a - b) > tolerance * 0.5 * (a + b):
+            out.append((wheel, other) if abs(a - median) >= abs(b - median) else (other, wheel))
+    return out
+
+
+def size_mismatches(radius_m: dict[str, float], partner: dict[str, str]) -> list[tuple[str, str]]:
+    """[(wheel, warning text)] for each axle whose two rims' radii (m, per wheel) differ by more
+    than ``RIM_SIZE_WARNING`` (:func:`odd_rims`), the text saying by how much and what to check."""
+    out = []
+    for odd, even in odd_rims(radius_m, partner, RIM_SIZE_WARNING):
         d = radius_m[odd] - radius_m[even]
         out.append((odd, f"its rim came out {abs(d) * 1000:.1f} mm {'larger' if d > 0 else 'smaller'} in radius "
                          f"than {even}'s ({abs(d) / radius_m[even]:.2%}): the rims of an axle are one size, so part "

@@ -21,17 +21,6 @@ from station.rim.ellipse_fit import fit_direct
 PRIOR_POINTS = 180  # points round the carried circle
 
 
-def _ideal_to_normalised(cam: CameraModel, uv_ideal: np.ndarray) -> np.ndarray:
-    """(N,2) ideal pinhole pixels (no distortion) -> (N,2) normalised coordinates."""
-    K = cam.K
-    return np.stack([(uv_ideal[:, 0] - K[0, 2]) / K[0, 0], (uv_ideal[:, 1] - K[1, 2]) / K[1, 1]], axis=1)
-
-
-def _normalised_to_ideal(cam: CameraModel, xy: np.ndarray) -> np.ndarray:
-    K = cam.K
-    return np.stack([K[0, 0] * xy[:, 0] + K[0, 2], K[1, 1] * xy[:, 1] + K[1, 2]], axis=1)
-
-
 def carried_rim(ellipse_ideal: Ellipse, cam_from: CameraModel, axis_station: np.ndarray,
                 radius_m: float) -> np.ndarray | None:
     """(PRIOR_POINTS,3) station points of the circle of ``radius_m`` in a plane of normal
@@ -41,7 +30,7 @@ def carried_rim(ellipse_ideal: Ellipse, cam_from: CameraModel, axis_station: np.
     if not (np.all(np.isfinite(n)) and np.linalg.norm(n) > 0 and radius_m > 0):
         return None
     n = n / np.linalg.norm(n)
-    xy = _ideal_to_normalised(cam_from, ellipse_ideal.points(PRIOR_POINTS))
+    xy = cam_from.unapply_K(ellipse_ideal.points(PRIOR_POINTS))  # ideal pixels -> normalised
     d = np.concatenate([xy, np.ones((len(xy), 1))], axis=1) @ cam_from.R_cam_station   # (N,3) rays, station
     o = cam_from.center_station
     nd = d @ n
@@ -73,7 +62,7 @@ def carried_prior(ellipse_ideal: Ellipse, cam_from: CameraModel, cam_to: CameraM
     if not np.all(P[:, 2] > 0):
         return None
     try:
-        prior = fit_direct(_normalised_to_ideal(cam_to, P[:, :2] / P[:, 2:]))
+        prior = fit_direct(cam_to.apply_K(P[:, :2] / P[:, 2:]))
     except (ValueError, np.linalg.LinAlgError):
         return None
     # a prior the search can start from: finite and no larger than a few images

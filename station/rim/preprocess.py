@@ -129,17 +129,12 @@ class PixelMap:
     def undistort(self, uv: np.ndarray) -> np.ndarray:
         if self.identity:
             return np.asarray(uv, float)
-        xy = self.camera.pixels_to_normalized(uv)
-        K = self.camera.K
-        return np.stack([K[0, 0] * xy[:, 0] + K[0, 2], K[1, 1] * xy[:, 1] + K[1, 2]], axis=1)
+        return self.camera.apply_K(self.camera.pixels_to_normalized(uv))
 
     def distort(self, uv_ideal: np.ndarray) -> np.ndarray:
         if self.identity:
             return np.asarray(uv_ideal, float)
-        K = self.camera.K
-        uv_ideal = np.asarray(uv_ideal, float)
-        xy = np.stack([(uv_ideal[:, 0] - K[0, 2]) / K[0, 0], (uv_ideal[:, 1] - K[1, 2]) / K[1, 1]], axis=1)
-        return self.camera.normalized_to_pixels(xy)
+        return self.camera.normalized_to_pixels(self.camera.unapply_K(np.asarray(uv_ideal, float)))
 
     def along_normals(self, p_ideal: np.ndarray, n_ideal: np.ndarray):
         """Points (N,2) and unit normals (N,2) given in ideal pixels, in image pixels: (points,
