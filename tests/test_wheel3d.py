@@ -8,7 +8,8 @@ from simulators.vehicle import random_vehicle
 import station.wheel3d as wheel3d
 from station.epipolar import fit_conic
 from station.wheel3d import reconstruct_paper, refine_circle
-from station.wheel_arcs import HIDDEN_SECTORS, edge_visibility, hidden_arcs, inward_arcs, sector_medians, stray_arcs
+from station.wheel_arcs import (HIDDEN_SECTORS, arc_median_noise, edge_visibility, hidden_arcs, inward_arcs, sector_medians,
+                                stray_arcs)
 
 
 def _pair(wheel_x, wheel_y):
@@ -211,6 +212,37 @@ def test_inward_arcs_flags_whole_arcs_inside_and_nothing_outside():
     stray = stray_arcs(r, phi, noise_px=0.3)                    # ... and both sides
     assert stray[inside].mean() > 0.75 and stray[outside].mean() > 0.75
     assert not stray[(phi > 1.5) & (phi < 2.5)].any()
+
+
+def test_arc_median_noise_is_the_standard_error_of_one_arcs_median():
+    phi = np.linspace(-np.pi, np.pi, 2400, endpoint=False)      # 100 points per arc
+    rng = np.random.default_rng(4)
+    for sigma in (0.05, 0.15):
+        r = rng.normal(0, sigma, len(phi))
+        expected = 1.2533 * sigma / 10
+        assert arc_median_noise(r, phi) == pytest.approx(expected, rel=0.15)
+        lab = ((phi + np.pi) / (2 * np.pi) * HIDDEN_SECTORS).astype(int)
+        biased = r + rng.normal(0, 0.1, HIDDEN_SECTORS)[lab]   # arcs' own biases are not noise
+        assert arc_median_noise(biased, phi) == pytest.approx(expected, rel=0.15)
+    few = np.abs(phi) < 0.5
+    assert arc_median_noise(r[few], phi[few]) == float("inf")
+
+
+def test_the_stray_floor_follows_the_views_noise():
+    """With the medians known to 0.006 px, an arc 0.1 px off strays; the old fixed 0.3 px kept
+    it. Noise alone flags no arc, and the floor never exceeds the loss scale."""
+    phi = np.linspace(-np.pi, np.pi, 2400, endpoint=False)
+    arc = (phi > 0.3) & (phi < 1.3)
+    for seed in range(20):
+        r = np.random.default_rng(seed).normal(0, 0.05, len(phi))
+        floor = wheel3d.stray_floor_px(r, phi, 0.3)
+        assert 0.02 < floor < 0.05
+        assert not stray_arcs(r, phi, floor).any()
+        r[arc] += 0.1
+        floor = wheel3d.stray_floor_px(r, phi, 0.3)
+        assert stray_arcs(r, phi, floor)[arc].mean() > 0.75 and not stray_arcs(r, phi, 0.3).any()
+    noisy = np.random.default_rng(1).normal(0, 2.0, len(phi))
+    assert wheel3d.stray_floor_px(noisy, phi, 0.3) == 0.3
 
 
 def _one_arc_moved(monkeypatch, phi0_of, depth_px):
