@@ -11,6 +11,8 @@ matches the observed spread.
     .venv/bin/python bench/accuracy.py --n 50            # all scenarios
     .venv/bin/python bench/accuracy.py --n 10 --scenario sigma2
     .venv/bin/python bench/accuracy.py --n 20 --scenario sigma2 --repeat 2   # and repeatability
+    .venv/bin/python bench/accuracy.py --n 50 --scenario sigma2 --calibration file \
+        --more-calibrations /tmp/cal11,/tmp/cal12    # data dirs of `station calibrate --seed K`: pooled
 
 Scenarios: sigma2 (the issue's), sigma5 (more sensor noise), dark-cam (cam2 20 % darker than
 its pair), dark-rim (rim albedo 0.2-0.4: anthracite rims against black tyres). Outside the
@@ -215,6 +217,27 @@ def print_reliability(rows: dict) -> None:
                           f"{rs / re if re > 0 else float('nan'):.2f} |")
 
 
+def print_pooled(rows: dict) -> None:
+    """With more than one calibration ("file", "file:<dir>"): each angle's RMS and max error and
+    stated/RMS over all of them together. One calibration's error is a single draw, the same in
+    every cycle: its share of the stated uncertainty can only be judged over several."""
+    for m in dict.fromkeys(m for _, m in rows):
+        files = [r for (src, mm), r in rows.items() if mm == m and src.startswith("file") and r["err"]]
+        if len(files) < 2:
+            continue
+        print(f"\npooled over {len(files)} calibrations, {m}\n")
+        print("| angle | RMS (deg) | max abs (deg) | stated std / RMS | per calibration: RMS | per calibration: stated/RMS |")
+        print("|---|---|---|---|---|---|")
+        for group, names in GROUPS.items():
+            per = [(np.array([[row[k] for k in names] for row in r["err"]]).ravel(),
+                    np.array([[row[k] for k in names] for row in r["std"]]).ravel()) for r in files]
+            e, s = np.concatenate([p[0] for p in per]), np.concatenate([p[1] for p in per])
+            rms = float(np.sqrt(np.mean(e ** 2)))
+            print(f"| {group} | {rms:.4f} | {np.max(np.abs(e)):.4f} | {np.sqrt(np.mean(s ** 2)) / rms:.2f} | "
+                  + " ".join(f"{np.sqrt(np.mean(a ** 2)):.4f}" for a, _ in per) + " | "
+                  + " ".join(f"{np.sqrt(np.mean(b ** 2) / np.mean(a ** 2)):.2f}" for a, b in per) + " |")
+
+
 def print_table(scenario: str, rows: dict, n: int) -> None:
     print(f"\n### {scenario}: {n} vehicles")
     # stated std / RMS weighs the few wheels stated most uncertain; the typical wheel's honesty
@@ -259,6 +282,10 @@ def main() -> int:
                     help="measure every vehicle this many more times on fresh captures (new sensor noise): repeatability")
     ap.add_argument("--frames", type=int, default=None,
                     help="frames averaged per camera and cycle (default: the configuration's capture.frames_averaged)")
+    ap.add_argument("--more-calibrations", default="",
+                    help="comma-separated data directories, each holding another `station calibrate` of this station "
+                         "(e.g. with --seed K): measured as well, and toe, camber and the stated uncertainty pooled "
+                         "over every calibration (one calibration is a single draw of its own error)")
     ap.add_argument("--cache", type=Path, default=None,
                     help="keep the rendered images here and reuse them on later runs (same seeds, same images)")
     args = ap.parse_args()
@@ -276,20 +303,27 @@ def main() -> int:
             print(f"no calibration at {path}: run `station calibrate` first (or --calibration truth)", file=sys.stderr)
             return 2
         calib = load_calibration(path, config)
-        sources["file"] = {cid: calib.model(cid) for cid in config.cameras}
-        covariances["file"] = calib.pair_covariance  # empty for files written before it was stored
-        if not calib.pair_covariance:
-            print(f"note: {path} holds no pair covariances (written before they were stored): the calibration's "
-                  "share of the stated uncertainty is left out; recalibrate to include it", file=sys.stderr)
+        more = [Path(d) / config.tree.calibration.file for d in args.more_calibrations.split(",") if d]
+        for name, path in [("file", path)] + [(f"file:{p.parent.parent.name}", p) for p in more]:
+            if not path.exists():
+                print(f"no calibration at {path}: run `station calibrate` there first", file=sys.stderr)
+                return 2
+            calib = load_calibration(path, config)
+            sources[name] = {cid: calib.model(cid) for cid in config.cameras}
+            covariances[name] = calib.pair_covariance  # empty for files written before it was stored
+            if not calib.pair_covariance:
+                print(f"note: {path} holds no pair covariances (written before they were stored): the calibration's "
+                      "share of the stated uncertainty is left out; recalibrate to include it", file=sys.stderr)
     methods = args.methods.split(",")
     scenarios = [s for s in SCENARIOS if s not in outside_envelope.KINDS] if args.scenario == "all" else [args.scenario]
     frames = config.capture.frames_averaged if args.frames is None else args.frames
     print(f"# Accuracy benchmark: {args.n} vehicles per scenario, seeds from {args.seed}, "
           f"{frames} frame(s) averaged per camera")
     for sc in scenarios:
-        srcs = sources if sc == "sigma2" else {k: v for k, v in sources.items() if k == "file"} or sources
+        srcs = sources if sc == "sigma2" else {k: v for k, v in sources.items() if k.startswith("file")} or sources
         rows = run(config, srcs, args.n, sc, args.seed, methods, covariances, args.cache, args.repeat, frames)
         print_table(sc, rows, args.n)
+        print_pooled(rows)
     return 0
 
 

@@ -131,6 +131,23 @@ def unseen_axis_variance(o: WheelObservation, config: StationConfig) -> float:
     return float(np.radians(m.uncertainty_floor_deg) ** 2 + noise ** 2)
 
 
+def unseen_axis_shape(axis_station: np.ndarray, toe_scale: float) -> np.ndarray:
+    """(3,3) shape of the unseen variance across a wheel's unit axis (3,): 1 along the
+    direction that tilts the axis up or down (camber), ``toe_scale`` squared along the
+    horizontal one (toe; ``measurement.uncertainty_toe_scale``). The pair's baseline is
+    horizontal, so a tilt about the vertical shows as a disparity across the rim's vertical
+    edges, which the epipolar lines cross, while camber rests on the diagonal arcs and on each
+    ellipse's orientation, where an edge bias of the same size moves the axis further."""
+    a = np.asarray(axis_station, float)
+    a = a / np.linalg.norm(a)
+    e_toe = np.cross([0.0, 0.0, 1.0], a)
+    if np.linalg.norm(e_toe) < 1e-9:  # an axis straight up: no toe direction to tell apart
+        return np.eye(3) - np.outer(a, a)
+    e_toe /= np.linalg.norm(e_toe)
+    e_camber = np.cross(a, e_toe)
+    return toe_scale ** 2 * np.outer(e_toe, e_toe) + np.outer(e_camber, e_camber)
+
+
 def _fill_angles(result: dict, fits: dict[str, WheelFit], observations: dict, config: StationConfig) -> None:
     centers = {w: f.center_station for w, f in fits.items()}
     axes = {w: f.axis_station for w, f in fits.items()}
@@ -140,7 +157,7 @@ def _fill_angles(result: dict, fits: dict[str, WheelFit], observations: dict, co
     # new capture may take the other way, an edge bias the circle absorbs completely), in
     # quadrature on both directions across each axis (docs/measurement.md)
     cov_a = {w: _finite_cov(f.cov_axis, 1e-8) + unseen_axis_variance(observations[w], config) *
-             (np.eye(3) - np.outer(f.axis_station, f.axis_station)) for w, f in fits.items()}
+             unseen_axis_shape(f.axis_station, config.measurement.uncertainty_toe_scale) for w, f in fits.items()}
     cov = alignment.angle_covariance(centers, axes, cov_c, cov_a)
     std = dict(zip(alignment.ANGLE_NAMES, np.sqrt(np.clip(np.diag(cov), 0, None))))
     limit = config.measurement.epipolar_limit_px

@@ -398,6 +398,7 @@ def test_the_uncertainty_floor_adds_in_quadrature_and_moves_no_value(sim, monkey
     cfg, world, _, images = sim
     floor = 0.012
     monkeypatch.setattr(cfg.measurement, "uncertainty_noise_gain", 0.0)
+    monkeypatch.setattr(cfg.measurement, "uncertainty_toe_scale", 1.0)
     monkeypatch.setattr(cfg.measurement, "uncertainty_floor_deg", floor)
     with_floor = measure_frames(images, world.cameras, cfg)
     monkeypatch.setattr(cfg.measurement, "uncertainty_floor_deg", 0.0)
@@ -412,6 +413,45 @@ def test_the_uncertainty_floor_adds_in_quadrature_and_moves_no_value(sim, monkey
         without["axles"]["front"]["total_toe_std_deg"] ** 2 + 2 * floor ** 2, rel=0.1)
 
 
+def test_the_unseen_variance_takes_its_toe_share_across_the_horizontal():
+    """``unseen_axis_shape``: nothing along the axis, 1 along the direction that tilts it up or
+    down (camber), the toe scale squared along the horizontal (toe), for any axis."""
+    from station.measure import unseen_axis_shape
+
+    np.testing.assert_allclose(unseen_axis_shape(np.array([1.0, 0.0, 0.0]), 0.6), np.diag([0.0, 0.36, 1.0]), atol=1e-12)
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        a = rng.normal(size=3) * [1, 0.05, 0.05] + [np.sign(rng.normal()), 0, 0]
+        a /= np.linalg.norm(a)
+        S = unseen_axis_shape(a, 0.6)
+        np.testing.assert_allclose(S @ a, 0.0, atol=1e-12)
+        horizontal = np.cross([0.0, 0.0, 1.0], a)
+        horizontal /= np.linalg.norm(horizontal)
+        assert horizontal @ S @ horizontal == pytest.approx(0.36)
+        assert np.trace(S) == pytest.approx(1.36)
+        np.testing.assert_allclose(unseen_axis_shape(a, 1.0), np.eye(3) - np.outer(a, a), atol=1e-12)
+    np.testing.assert_allclose(unseen_axis_shape(np.array([0.0, 0.0, 2.0]), 0.6), np.diag([1.0, 1.0, 0.0]))
+
+
+@pytest.mark.slow
+def test_the_toe_scale_shrinks_only_toes_unseen_share(sim, monkeypatch):
+    """With a floor F and ``uncertainty_toe_scale`` s, toe states (s F) in quadrature and
+    camber F; no value moves."""
+    cfg, world, _, images = sim
+    floor, scale = 0.012, 0.5
+    monkeypatch.setattr(cfg.measurement, "uncertainty_noise_gain", 0.0)
+    monkeypatch.setattr(cfg.measurement, "uncertainty_floor_deg", 0.0)
+    plain = measure_frames(images, world.cameras, cfg)
+    monkeypatch.setattr(cfg.measurement, "uncertainty_floor_deg", floor)
+    monkeypatch.setattr(cfg.measurement, "uncertainty_toe_scale", scale)
+    scaled = measure_frames(images, world.cameras, cfg)
+    for w in ("FL", "FR", "RL", "RR"):
+        a, b = scaled["wheels"][w], plain["wheels"][w]
+        assert a["toe_deg"] == b["toe_deg"] and a["camber_deg"] == b["camber_deg"]
+        assert a["toe_std_deg"] == pytest.approx(np.hypot(b["toe_std_deg"], scale * floor), rel=0.05)
+        assert a["camber_std_deg"] == pytest.approx(np.hypot(b["camber_std_deg"], floor), rel=0.05)
+
+
 @pytest.mark.slow
 def test_the_unseen_error_grows_with_each_wheels_edge_noise(sim, monkeypatch):
     """``uncertainty_noise_gain`` k adds (k q / a) rad in quadrature, q the wheel's circle
@@ -421,6 +461,7 @@ def test_the_unseen_error_grows_with_each_wheels_edge_noise(sim, monkeypatch):
 
     cfg, world, _, images = sim
     monkeypatch.setattr(cfg.measurement, "uncertainty_floor_deg", 0.0)
+    monkeypatch.setattr(cfg.measurement, "uncertainty_toe_scale", 1.0)
 
     def without_and_with_gain(frames):
         monkeypatch.setattr(cfg.measurement, "uncertainty_noise_gain", 0.0)
