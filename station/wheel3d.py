@@ -44,6 +44,7 @@ SOFT_GRAZING = True       # the grazing choice as a weighted step toward the fit
 GRAZING_TEST = True       # also fit without the points seen across the lip at a grazing angle
 MIN_VIEW_POINTS = 20      # rim points a view must keep on the fitted circle
 INWARD_ARC_PASSES = 3     # rounds of leaving out arcs whose edge strays from the fitted circle (stray_arcs)
+STRAY_MIN_PX = 0.01      # the stray-arc floor never below this: no sub-pixel edge is known better
 GROSS_PX = 1.5           # a point this far (px) off the fitted circle, and GROSS_SIGMAS robust
 GROSS_SIGMAS = 5.0       # sigmas, is on another contour: left out and the circle fitted again
 BIAS_MODES = 2         # edge-bias Fourier modes (0: uniform, 1: + cos/sin, 2: + elongation) in the covariance
@@ -315,8 +316,9 @@ def stray_floor_px(r: np.ndarray, phi: np.ndarray, loss_scale_px: float) -> floa
     standard errors of an arc's median in this view's residuals r (N,) at rim angles phi (N,),
     at most ``loss_scale_px``. A fixed 0.3 px let arcs 0.1 px off stay where their medians are
     known to 0.01 px (a mean of eight frames): one such arc over 60 degrees of one view moved
-    camber 0.03 deg (1043 FR). Noisier edges keep the higher floor."""
-    return min(loss_scale_px, STRAY_NOISE_SIGMAS * arc_median_noise(r, phi))
+    camber 0.03 deg (1043 FR). Noisier edges keep the higher floor; noise-free points (a
+    synthetic test, a perfect render) STRAY_MIN_PX, so that arithmetic is never judged."""
+    return min(loss_scale_px, max(STRAY_MIN_PX, STRAY_NOISE_SIGMAS * arc_median_noise(r, phi)))
 
 
 def _subset(w: np.ndarray | None, keep: np.ndarray) -> np.ndarray | None:

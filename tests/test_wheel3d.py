@@ -243,6 +243,9 @@ def test_the_stray_floor_follows_the_views_noise():
         assert stray_arcs(r, phi, floor)[arc].mean() > 0.75 and not stray_arcs(r, phi, 0.3).any()
     noisy = np.random.default_rng(1).normal(0, 2.0, len(phi))
     assert wheel3d.stray_floor_px(noisy, phi, 0.3) == 0.3
+    exact = 1e-13 * np.sin(7 * phi)                             # noise-free points: no arc is judged on rounding
+    assert wheel3d.stray_floor_px(exact, phi, 0.3) == wheel3d.STRAY_MIN_PX
+    assert not stray_arcs(exact, phi, wheel3d.stray_floor_px(exact, phi, 0.3)).any()
 
 
 def _one_arc_moved(monkeypatch, phi0_of, depth_px):
