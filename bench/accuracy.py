@@ -306,7 +306,8 @@ def main() -> int:
         more = [Path(d) / config.tree.calibration.file for d in args.more_calibrations.split(",") if d]
         for name, path in [("file", path)] + [(f"file:{p.parent.parent.name}", p) for p in more]:
             if not path.exists():
-                print(f"no calibration at {path}: run `station calibrate` there first", file=sys.stderr)
+                print(f"no calibration at {path}: run `STATION_DATA_DIR={path.parent.parent} station calibrate` "
+                      "first (--seed K for another draw of box poses and noise)", file=sys.stderr)
                 return 2
             calib = load_calibration(path, config)
             sources[name] = {cid: calib.model(cid) for cid in config.cameras}
