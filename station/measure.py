@@ -135,9 +135,10 @@ def unseen_axis_shape(axis_station: np.ndarray, toe_scale: float) -> np.ndarray:
     """(3,3) shape of the unseen variance across a wheel's unit axis (3,): 1 along the
     direction that tilts the axis up or down (camber), ``toe_scale`` squared along the
     horizontal one (toe; ``measurement.uncertainty_toe_scale``). The pair's baseline is
-    horizontal, so a tilt about the vertical shows as a disparity across the rim's vertical
-    edges, which the epipolar lines cross, while camber rests on the diagonal arcs and on each
-    ellipse's orientation, where an edge bias of the same size moves the axis further."""
+    horizontal: toe shows in the disparity across the rim's vertical edges, which the epipolar
+    lines cross (modes 0 and cos 2phi of the rim angle), and in each view's aspect ratio;
+    camber only in the sin-2phi mode of the two views' difference, where an edge bias of the
+    same size moves the axis further (docs/measurement.md)."""
     a = np.asarray(axis_station, float)
     a = a / np.linalg.norm(a)
     e_toe = np.cross([0.0, 0.0, 1.0], a)
@@ -155,7 +156,7 @@ def _fill_angles(result: dict, fits: dict[str, WheelFit], observations: dict, co
     cov_c = {w: _finite_cov(f.cov_center, 1e-8) for w, f in fits.items()}
     # the floor: an error no single cycle's residuals show (a decision between arcs that a
     # new capture may take the other way, an edge bias the circle absorbs completely), in
-    # quadrature on both directions across each axis (docs/measurement.md)
+    # quadrature across each axis, less in toe's direction than camber's (docs/measurement.md)
     cov_a = {w: _finite_cov(f.cov_axis, 1e-8) + unseen_axis_variance(observations[w], config) *
              unseen_axis_shape(f.axis_station, config.measurement.uncertainty_toe_scale) for w, f in fits.items()}
     cov = alignment.angle_covariance(centers, axes, cov_c, cov_a)

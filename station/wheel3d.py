@@ -27,8 +27,8 @@ from station.epipolar import (epipolar_tangency_px, fit_conic, pair_relation, pa
                               tangent_point_gaps_deg)
 from station.errors import MeasurementError
 from station.robust_lsq import soft_l1_least_squares
-from station.wheel_arcs import (MIN_KEPT_FRACTION, edge_visibility, hidden_arcs, not_grazing_xy, rim_angles,
-                                sector_labels, stray_arcs, arc_median_noise, STRAY_NOISE_SIGMAS)
+from station.wheel_arcs import (MIN_KEPT_FRACTION, STRAY_NOISE_SIGMAS, arc_median_noise, edge_visibility, hidden_arcs,
+                                not_grazing_xy, rim_angles, sector_labels, stray_arcs)
 from station.wheel_fit_uncertainty import (axis_basis, axis_covariance, bias_covariance, extra_points_bias2,
                                           inconsistent, noise_covariance, normal_from, toward, toward_subset_weight,
                                           with_disagreement)

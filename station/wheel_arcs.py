@@ -6,7 +6,8 @@ and the tests that leave out arcs whose edge is not the flange's (station.wheel3
 * :func:`hidden_arcs` - arcs the sidewall could hide, kept only where they agree with the others;
 * :func:`inward_arcs` - arcs whose edge lies inside the fitted circle beyond the view's scatter;
   :func:`stray_arcs` - those, and the arcs outside it by as much;
-* :func:`not_grazing` - the points whose ray does not graze the lip.
+* :func:`not_grazing` - the points whose ray does not graze the lip;
+* :func:`arc_median_noise` - how well a view's own scatter knows one arc's median.
 """
 
 from __future__ import annotations

@@ -11,7 +11,6 @@ import zlib
 from pathlib import Path
 
 import cv2
-import numpy as np
 
 from calibration.box_target import load_box
 from station.config import load_config
