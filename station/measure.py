@@ -106,6 +106,7 @@ def measure_frames(images: dict[str, np.ndarray], cameras: dict[str, CameraModel
     t2 = time.perf_counter()
     fits = {w: (o.circle if method == "circle" else o.paper) for w, o in observations.items()}
     _fill_angles(result, fits, observations, config)
+    centreline_warnings(result)
     timing["angles"] = time.perf_counter() - t2
     timing["total"] = time.perf_counter() - t0
     result["timing_s"] = timing
@@ -114,6 +115,30 @@ def measure_frames(images: dict[str, np.ndarray], cameras: dict[str, CameraModel
     result["detections"] = _detection_summary(detections)
     result["_observations"] = observations  # for recordings; dropped from JSON
     return result
+
+
+DOUBTFUL_RIM_KINDS = ("uncertain", "rim_size")  # warning kinds that put a wheel's rim centre in doubt
+
+
+def centreline_warnings(result: dict) -> None:
+    """Warn the other wheels when one wheel's rim is in doubt (``DOUBTFUL_RIM_KINDS`` among the
+    result's ``warning_flags``): every toe is measured against the centreline through all four
+    rim centres, so a rim found on the wrong contour turns the other wheels' toes as well (a
+    knocked camera's wheel off by 9 mm moved the three others' toes 0.2 deg, each stated
+    +/-0.015: bench/perturbed_images.py). Adds one text and a "centreline" flag per other wheel;
+    nothing when a drift warning already puts the whole cycle in doubt."""
+    flags = result["warning_flags"]
+    if any(f.get("kind") == "drift" for f in flags):
+        return
+    doubtful = [w for w in WHEELS if any(f.get("kind") in DOUBTFUL_RIM_KINDS and f.get("wheel") == w for f in flags)]
+    others = [w for w in WHEELS if w not in doubtful]
+    if not doubtful or not others:
+        return
+    result["warnings"].append(
+        f"{', '.join(others)}: toe is measured against the car's centreline through all four rim centres, "
+        f"{' and '.join(doubtful)}'s among them, whose rim is in doubt (above); their toe may be off as well: "
+        "resolve that and measure again before adjusting toe")
+    flags.extend({"kind": "centreline", "wheel": w, "because_of": doubtful} for w in others)
 
 
 def unseen_axis_variance(o: WheelObservation, config: StationConfig) -> float:

@@ -413,6 +413,29 @@ def test_the_uncertainty_floor_adds_in_quadrature_and_moves_no_value(sim, monkey
         without["axles"]["front"]["total_toe_std_deg"] ** 2 + 2 * floor ** 2, rel=0.1)
 
 
+def test_a_doubtful_rim_puts_the_other_wheels_toe_in_doubt():
+    """Every toe is measured against the centreline through all four rim centres: a wheel whose
+    rim is in doubt (uncertain, another size than its partner's) warns the three others; a
+    drift warning already covers the cycle; runner-up and camera warnings do not count."""
+    from station.measure import centreline_warnings
+
+    def result(*flags):
+        return {"warnings": [], "warning_flags": [dict(f) for f in flags]}
+
+    r = result({"kind": "uncertain", "wheel": "FL"}, {"kind": "rim_size", "wheel": "FL"})
+    centreline_warnings(r)
+    assert [f["wheel"] for f in r["warning_flags"] if f["kind"] == "centreline"] == ["FR", "RL", "RR"]
+    assert len(r["warnings"]) == 1 and r["warnings"][0].startswith("FR, RL, RR: toe") and "FL's" in r["warnings"][0]
+    r = result({"kind": "rim_size", "wheel": "RL"}, {"kind": "uncertain", "wheel": "RR"})
+    centreline_warnings(r)
+    assert [f["wheel"] for f in r["warning_flags"] if f["kind"] == "centreline"] == ["FL", "FR"]
+    for quiet in (result(), result({"kind": "runner_up", "wheel": "FL"}, {"kind": "focus", "wheel": "FL", "camera": "cam3"}),
+                  result({"kind": "uncertain", "wheel": "FL"}, {"kind": "drift", "wheel": "FR"})):
+        before = [dict(f) for f in quiet["warning_flags"]]
+        centreline_warnings(quiet)
+        assert quiet["warning_flags"] == before and quiet["warnings"] == []
+
+
 def test_the_unseen_variance_takes_its_toe_share_across_the_horizontal():
     """``unseen_axis_shape``: nothing along the axis, 1 along the direction that tilts it up or
     down (camber), the toe scale squared along the horizontal (toe), for any axis."""
