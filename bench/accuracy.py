@@ -172,6 +172,11 @@ def _recaptured(world, scene, scenario, seed, cache, repeat, cams, config, metho
     return out
 
 
+def _values(per_cycle: list[dict], names: list[str]) -> np.ndarray:
+    """The angles ``names`` of every cycle's {angle: value} (errors or stated std), flat (cycles x names,)."""
+    return np.array([[row[k] for k in names] for row in per_cycle], float).ravel()
+
+
 def print_repeatability(rows: dict) -> None:
     """Same vehicle, same pose, captured again with fresh sensor noise: the spread of the
     readings a technician sees when measuring twice (the edge biases repeat, so this is
@@ -190,7 +195,7 @@ def print_repeatability(rows: dict) -> None:
                 vals = np.array([[e[key] for key in names] for e in c])       # (captures, angles)
                 sd.extend(np.std(vals, axis=0, ddof=1))
                 spread.extend(np.ptp(vals, axis=0))
-            e = np.array([[row[key] for key in names] for row in r["err"]]).ravel()
+            e = _values(r["err"], names)
             spread = np.array(spread)
             print(f"| {group} | {np.sqrt(np.mean(np.square(sd))):.4f} | {spread.max():.4f} | "
                   f"{np.mean(spread > 0.02):.0%} | {np.sqrt(np.mean(e ** 2)):.4f} |")
@@ -207,8 +212,7 @@ def print_reliability(rows: dict) -> None:
         print("| angle | stated | wheels | RMS stated | RMS error | stated / RMS |")
         print("|---|---|---|---|---|---|")
         for group in ("toe", "camber"):
-            e = np.abs(np.array([[row[k] for k in GROUPS[group]] for row in r["err"]]).ravel())
-            s = np.array([[row[k] for k in GROUPS[group]] for row in r["std"]]).ravel()
+            e, s = np.abs(_values(r["err"], GROUPS[group])), _values(r["std"], GROUPS[group])
             for lo, hi in zip(edges[:-1], edges[1:]):
                 sel = (s >= lo) & (s < hi)
                 if sel.any():
@@ -229,8 +233,7 @@ def print_pooled(rows: dict) -> None:
         print("| angle | RMS (deg) | max abs (deg) | stated std / RMS | per calibration: RMS | per calibration: stated/RMS |")
         print("|---|---|---|---|---|---|")
         for group, names in GROUPS.items():
-            per = [(np.array([[row[k] for k in names] for row in r["err"]]).ravel(),
-                    np.array([[row[k] for k in names] for row in r["std"]]).ravel()) for r in files]
+            per = [(_values(r["err"], names), _values(r["std"], names)) for r in files]
             e, s = np.concatenate([p[0] for p in per]), np.concatenate([p[1] for p in per])
             rms = float(np.sqrt(np.mean(e ** 2)))
             print(f"| {group} | {rms:.4f} | {np.max(np.abs(e)):.4f} | {np.sqrt(np.mean(s ** 2)) / rms:.2f} | "
@@ -250,8 +253,7 @@ def print_table(scenario: str, rows: dict, n: int) -> None:
             if not r["err"]:
                 print(f"| {src} | {m} | {group} | - | - | - | - | - | - | - | - | {r['failed']} |")
                 continue
-            e = np.array([[row[k] for k in names] for row in r["err"]]).ravel()
-            s = np.array([[row[k] for k in names] for row in r["std"]]).ravel()
+            e, s = _values(r["err"], names), _values(r["std"], names)
             rms = float(np.sqrt(np.mean(e ** 2)))
             ratio = float(np.sqrt(np.mean(s ** 2)) / rms) if rms > 0 else float("nan")
             z = np.abs(e) / np.maximum(s, 1e-12)

@@ -27,8 +27,8 @@ from station.epipolar import (epipolar_tangency_px, fit_conic, pair_relation, pa
                               tangent_point_gaps_deg)
 from station.errors import MeasurementError
 from station.robust_lsq import soft_l1_least_squares
-from station.wheel_arcs import (MIN_KEPT_FRACTION, STRAY_NOISE_SIGMAS, arc_median_noise, edge_visibility, hidden_arcs,
-                                not_grazing_xy, rim_angles, sector_labels, stray_arcs)
+from station.wheel_arcs import (MIN_KEPT_FRACTION, edge_visibility, hidden_arcs, not_grazing_xy, rim_angles,
+                                sector_labels, stray_arcs, stray_floor_px)
 from station.wheel_fit_uncertainty import (axis_basis, axis_covariance, bias_covariance, extra_points_bias2,
                                           inconsistent, noise_covariance, normal_from, toward, toward_subset_weight,
                                           with_disagreement)
@@ -44,7 +44,6 @@ SOFT_GRAZING = True       # the grazing choice as a weighted step toward the fit
 GRAZING_TEST = True       # also fit without the points seen across the lip at a grazing angle
 MIN_VIEW_POINTS = 20      # rim points a view must keep on the fitted circle
 INWARD_ARC_PASSES = 3     # rounds of leaving out arcs whose edge strays from the fitted circle (stray_arcs)
-STRAY_MIN_PX = 0.01      # the stray-arc floor never below this: no sub-pixel edge is known better
 GROSS_PX = 1.5           # a point this far (px) off the fitted circle, and GROSS_SIGMAS robust
 GROSS_SIGMAS = 5.0       # sigmas, is on another contour: left out and the circle fitted again
 BIAS_MODES = 2         # edge-bias Fourier modes (0: uniform, 1: + cos/sin, 2: + elongation) in the covariance
@@ -309,16 +308,6 @@ def contrast_weights(contrast: np.ndarray) -> np.ndarray:
     if not med > 0:
         return np.ones(len(c))
     return np.clip(c / med, MIN_CONTRAST_WEIGHT, 1.0)
-
-
-def stray_floor_px(r: np.ndarray, phi: np.ndarray, loss_scale_px: float) -> float:
-    """The least offset (px) at which an arc of one view strays (``stray_arcs``): STRAY_NOISE_SIGMAS
-    standard errors of an arc's median in this view's residuals r (N,) at rim angles phi (N,),
-    at most ``loss_scale_px``. A fixed 0.3 px let arcs 0.1 px off stay where their medians are
-    known to 0.01 px (a mean of eight frames): one such arc over 60 degrees of one view moved
-    camber 0.03 deg (1043 FR). Noisier edges keep the higher floor; noise-free points (a
-    synthetic test, a perfect render) STRAY_MIN_PX, so that arithmetic is never judged."""
-    return min(loss_scale_px, max(STRAY_MIN_PX, STRAY_NOISE_SIGMAS * arc_median_noise(r, phi)))
 
 
 def _subset(w: np.ndarray | None, keep: np.ndarray) -> np.ndarray | None:
