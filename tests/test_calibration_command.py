@@ -41,6 +41,22 @@ def test_box_not_seen_refuses_and_keeps_the_saved_file(tmp_path, monkeypatch, ca
     assert saved.read_text() == "previous good calibration"
 
 
+def test_every_box_image_is_the_mean_of_a_burst(tmp_path, monkeypatch, capsys):
+    """The box stands still like the car: each of its images is capture.frames_averaged frames."""
+    from simulators import world as world_mod
+    renders: dict[str, int] = {}
+
+    def render(self, cam_id, rng=None, scene=None):
+        renders[cam_id] = renders.get(cam_id, 0) + 1
+        return np.full((1024, 1280), 90, np.uint8)
+    monkeypatch.setattr(world_mod.SimWorld, "render", render)
+    cfg = _config_copy(tmp_path, lambda raw: raw["capture"].update(frames_averaged=3))
+    assert cli.main(["--config", str(cfg), "calibrate", "--poses", "3"]) != 0  # no box: refused
+    capsys.readouterr()
+    # the first pair's two cameras: 3 intrinsic poses and the fixture, 3 frames each
+    assert sorted(renders.values()) == [12, 12], renders
+
+
 def test_nine_cameras_are_refused_with_a_clear_message(tmp_path, capsys):
     def add(raw):
         raw["cameras"]["cam9"] = dict(raw["cameras"]["cam1"], uri="sim://cam9")

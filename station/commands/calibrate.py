@@ -21,7 +21,7 @@ from calibration.calib_file import save_calibration
 from calibration.refine import INTRINSIC_NAMES
 from calibration.station_calibration import assemble, calibrate_pair, check_limits, fixture_poses
 from drivers.registry import build_context
-from station.capture import close_cameras, open_station_cameras
+from station.capture import capture_averaged, close_cameras, open_station_cameras
 from station.config import load_config
 from station.errors import CalibrationError, CalibrationRejected
 from station.operator import TerminalOperator
@@ -59,11 +59,15 @@ def run(args) -> int:
     timeout = max(float(config.capture.timeout_s), float(context.get("capture_timeout_s", 0)))
     detector = BoxDetector(box)
 
+    # The box stands still like the car: each image is the mean of a burst (capture.frames_averaged),
+    # so the corners carry 1/sqrt(N) of one frame's noise into every camera's pose and lens.
+    n_frames = config.capture.frames_averaged
+
     def take(cam_ids, what):
         out = {}
+        frames = capture_averaged({c: cameras[c] for c in cam_ids}, timeout, frames=n_frames)
         for cam in cam_ids:
-            frame = cameras[cam].snap(timeout)
-            det = detector.detect(frame.image)
+            det = detector.detect(frames[cam].image)
             _progress(f"{cam}: {what}: {det.n_points} corners on faces {', '.join(det.faces) or 'none'}")
             out[cam] = det
         return out
