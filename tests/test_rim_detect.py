@@ -313,7 +313,8 @@ def test_the_read_noise_is_estimated_from_the_image_itself():
 def test_a_quiet_image_reaches_less_into_the_tyre(monkeypatch):
     """Where the read noise is under QUIET_NOISE_SHARE of the edge step (here a step of 155
     grey levels) the final profiles take the shorter window (the tyre's bead band stays out
-    of the kink model); a noisier image keeps the longer one."""
+    of the kink model); over LONG_NOISE_SHARE the longer one; between them both, their edges
+    weighted by where the noise lies between the two."""
     from station.rim import detector
     windows = []
     real = detector.repositioned
@@ -323,13 +324,29 @@ def test_a_quiet_image_reaches_less_into_the_tyre(monkeypatch):
         return real(grey, anchors, normals, window_px, step_px)
 
     monkeypatch.setattr(detector, "repositioned", spy)
-    for sigma, quiet in ((0.7, True), (4.0, False)):
+    short, long = detector.QUIET_WINDOW_PX, detector.REPOSITION_WINDOW_PX
+    for sigma, taken in ((0.7, [short]), (5.0, [short, long]), (8.0, [long])):
+        windows.clear()
         img, truth = render_wheel(WheelSpec(noise_sigma=sigma), seed=4)
         det = detect_rim(img, camera=_camera_of(img))
-        assert windows[-1] == (detector.QUIET_WINDOW_PX if quiet else detector.REPOSITION_WINDOW_PX)
-        assert det.details["quiet_window"] == quiet
+        assert windows == taken, (sigma, windows)
+        share = det.details["noise_grey"] / np.median(det.points_contrast)
+        assert det.details["long_window_share"] == pytest.approx(detector.window_blend(share), abs=0.02)
+        assert 0.2 < det.details["long_window_share"] < 0.9 if len(taken) == 2 else \
+            det.details["long_window_share"] == (0.0 if taken == [short] else 1.0)
+        assert det.details["quiet_window"] == (taken != [long])
         assert det.details["noise_grey"] == pytest.approx(np.hypot(sigma, 0.29), rel=0.15)
         assert _errors(det, truth)[0] < 0.05
+
+
+def test_window_blend_weights_the_long_window_between_the_two_shares():
+    from station.rim.detector import LONG_NOISE_SHARE as hi, QUIET_NOISE_SHARE as lo, window_blend
+    assert window_blend(0.0) == 0.0 and window_blend(lo * 0.99) == 0.0
+    assert window_blend(hi) == 1.0 and window_blend(10 * hi) == 1.0
+    assert window_blend((lo + hi) / 2) == pytest.approx(0.5)
+    assert window_blend(float("nan")) == 1.0 and window_blend(float("inf")) == 1.0  # no estimate: as before
+    shares = np.linspace(0, 2 * hi, 41)
+    assert np.all(np.diff([window_blend(x) for x in shares]) >= 0)
 
 
 def _camera_of(img):

@@ -336,13 +336,28 @@ REFIT_ITERATIONS = 4
 # band of its own shade 1-5 px out: a window reaching into it bends the kink model's tyre line
 # and moves the edge (the larger part of the camber error at 1.3 Mpx), a shorter one has fewer
 # samples to hold that line against the noise. Where the image is quiet (an average of a few
-# frames: station/frame_average.py) the shorter reach wins; in a single frame's noise the
-# longer one (docs/accuracy.md, stops 24 and 26).
+# frames: station/frame_average.py) the shorter reach wins; where the noise is large against a
+# faint step (dark rims) the longer one; between, the two edges' weighted mean has the error of
+# neither alone (docs/accuracy.md, stops 24, 26 and 28).
 REPOSITION_WINDOW_PX = (-3.0, 4.5)
 QUIET_WINDOW_PX = (-3.0, 3.0)
-QUIET_NOISE_SHARE = 0.015  # read noise (preprocess.noise_grey) over the inliers' median edge step under
-                           # which it applies: 8 frames of 2 grey levels on the simulator's rims 0.010
-                           # (a single frame 0.025, 8 frames of dark rims 0.021)
+QUIET_NOISE_SHARE = 0.02   # read noise (preprocess.noise_grey) over the inliers' median edge step under
+                           # which it applies alone: 8 frames of 2 grey levels on the simulator's rims 0.010
+                           # (a single frame 0.025, 8 frames of dark rims 0.021, up to 0.076)
+LONG_NOISE_SHARE = 0.04    # and over which the long one does; between the two, both, weighted (window_blend):
+                           # docs/accuracy.md, stop 28 (stop 26: one switch at 0.015)
+
+
+def window_blend(noise_share: float) -> float:
+    """The long window's weight in the final edge positions (0: the quiet window's alone, 1:
+    the long one's) at read noise over edge step ``noise_share``: 0 up to
+    ``QUIET_NOISE_SHARE``, 1 from ``LONG_NOISE_SHARE``, linear between."""
+    lo, hi = QUIET_NOISE_SHARE, max(LONG_NOISE_SHARE, QUIET_NOISE_SHARE)
+    if not noise_share >= lo:
+        return 0.0 if noise_share == noise_share else 1.0  # NaN: no estimate, the long window
+    if noise_share >= hi:
+        return 1.0
+    return float((noise_share - lo) / (hi - lo))
 
 
 def _repositioned(grey: np.ndarray, fit, samples, mask, pmap: PixelMap, blur: float | None, info: dict | None = None):
@@ -364,10 +379,16 @@ def _repositioned(grey: np.ndarray, fit, samples, mask, pmap: PixelMap, blur: fl
     feet, n_ideal = fit.ellipse.point_at(t), fit.ellipse.normal_at(t)       # (M,2) ideal pixels
     anchors, nrm, scale = pmap.along_normals(feet, n_ideal)
     noise, step = noise_grey(grey, anchors), float(np.median(samples.contrast[idx]))
-    quiet = noise < QUIET_NOISE_SHARE * step
+    long_share = window_blend(noise / step if step > 0 else np.inf)
     if info is not None:
-        info["noise_grey"], info["quiet_window"] = round(noise, 3), bool(quiet)
-    d, found, _ = repositioned(grey, anchors, nrm, QUIET_WINDOW_PX if quiet else REPOSITION_WINDOW_PX)
+        info["noise_grey"], info["quiet_window"] = round(noise, 3), bool(long_share < 1.0)
+        info["long_window_share"] = round(long_share, 3)
+    if long_share <= 0.0 or long_share >= 1.0:
+        d, found, _ = repositioned(grey, anchors, nrm, QUIET_WINDOW_PX if long_share <= 0.0 else REPOSITION_WINDOW_PX)
+    else:  # between the two: both windows' edges, weighted
+        d_q, found_q, _ = repositioned(grey, anchors, nrm, QUIET_WINDOW_PX)
+        d_l, found_l, _ = repositioned(grey, anchors, nrm, REPOSITION_WINDOW_PX)
+        d, found = (1.0 - long_share) * d_q + long_share * d_l, found_q & found_l
     points_px = samples.points_px.copy()
     points_px[idx[found]] = anchors[found] + d[found, None] * nrm[found]
     ideal = np.empty((len(idx), 2))
