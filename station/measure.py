@@ -203,6 +203,7 @@ def _fill_angles(result: dict, fits: dict[str, WheelFit], observations: dict, co
                         "reprojection_rms_px": float(o.circle.reprojection_rms_px),
                         "grazing_left_out": bool(o.circle.grazing_left_out),
                         "arcs_left_out": bool(o.circle.arcs_left_out),
+                        "faint_left_out": bool(o.circle.faint_left_out),
                         "other_contour_mm": (None if o.circle.other_contour_mm is None
                                              else round(float(o.circle.other_contour_mm), 2))},
         })

@@ -30,8 +30,8 @@ from station.robust_lsq import soft_l1_least_squares
 from station.wheel_arcs import (MIN_KEPT_FRACTION, edge_visibility, hidden_arcs, not_grazing_xy, rim_angles,
                                 sector_labels, stray_arcs, stray_floor_px)
 from station.wheel_fit_uncertainty import (axis_basis, axis_covariance, bias_covariance, extra_points_bias2,
-                                          inconsistent, noise_covariance, normal_from, toward, toward_subset_weight,
-                                          with_disagreement)
+                                          inconsistent, moved_beyond_subset, noise_covariance, normal_from, toward,
+                                          toward_subset_weight, with_disagreement)
 
 single_thread_blas()  # small least-squares problems: OpenBLAS threads cost 40x here (station/blas_threads.py)
 
@@ -43,6 +43,8 @@ MIN_SAFE_FRACTION = 0.2  # of a view's points that no sidewall can hide, to make
 SOFT_GRAZING = True       # the grazing choice as a weighted step toward the fit without them
 GRAZING_TEST = True       # also fit without the points seen across the lip at a grazing angle
 MIN_VIEW_POINTS = 20      # rim points a view must keep on the fitted circle
+FAINT_TEST = True         # also fit without the points whose edge step is faint (_without_faint)
+FAINT_STEP_SHARE = 0.2    # faint: under this share of the view's median step (the detector passes' own floor)
 INWARD_ARC_PASSES = 3     # rounds of leaving out arcs whose edge strays from the fitted circle (stray_arcs)
 GROSS_PX = 1.5           # a point this far (px) off the fitted circle, and GROSS_SIGMAS robust
 GROSS_SIGMAS = 5.0       # sigmas, is on another contour: left out and the circle fitted again
@@ -67,6 +69,7 @@ class WheelFit:
     calibration_share: tuple[float, float] | None = None  # traces of the calibration's (centre m^2, axis) covariance
     grazing_left_out: bool = False  # fitted without the points seen across the lip at a grazing angle
     arcs_left_out: bool = False  # arcs that do not follow the circle of the other half of the rim left out
+    faint_left_out: bool = False  # fitted without the points of faint edge step (_without_faint)
     tangent_gap_deg: tuple[float, float] = (float("nan"), float("nan"))  # per view, the larger of its
     # tangent_point_gaps_deg on all its rim points: whether it saw the rim where the epipolar planes touch
     other_contour_mm: float | None = None  # some on another concentric contour, this much outside (station/other_contour.py)
@@ -281,7 +284,7 @@ def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: Camer
     ``init_is_fitted``: ``init`` is already a circle fitted this way (``station live``'s previous
     frame): the test is made against it, without the first fit.
     """
-    xys, ws = [], []
+    xys, ws, steps = [], [], []
     for cam, pts, con in zip((cam_l, cam_r), (points_l_px, points_r_px), contrast or (None, None)):
         xy = cam.pixels_to_normalized(pts)
         w = None if con is None else contrast_weights(con)
@@ -290,8 +293,17 @@ def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: Camer
             keep[keep] = edge_visibility(cam, xy[keep], init) > visibility_margin
         xys.append(xy[keep])
         ws.append(_subset(w, keep))
-    fit = _fit_circle(xys[0], xys[1], ws[0], ws[1], cam_l, cam_r, init, loss_scale_px, jackknife_sectors,
-                      inward_weight, bias_modes, occlusion_test, init_is_fitted, grazing_test)
+        steps.append(None if con is None else np.asarray(con, float)[keep])
+
+    def fitted(keep=(None, None)):
+        return _fit_circle(*(xy if k is None else xy[k] for xy, k in zip(xys, keep)),
+                           *(w if k is None else _subset(w, k) for w, k in zip(ws, keep)), cam_l, cam_r, init,
+                           loss_scale_px, jackknife_sectors, inward_weight, bias_modes, occlusion_test,
+                           init_is_fitted, grazing_test)
+
+    fit = fitted()
+    if FAINT_TEST and all(c is not None for c in steps):
+        fit = _without_faint(fit, steps, fitted)
     # on every point the cameras found: did they see the rim where the epipolar planes touch it?
     return replace(fit, tangent_gap_deg=tangent_gaps(xys[0], xys[1], cam_l, cam_r))
 
@@ -482,13 +494,49 @@ def _fit_circle(xy_l: np.ndarray, xy_r: np.ndarray, w_l: np.ndarray | None, w_r:
             # the choice flips); unless the two fits disagree beyond all they state (one of
             # them is broken, say the weaker geometry without them found another minimum):
             # the smaller stated then, stating their difference
-            alt = replace(alt, grazing_left_out=True)
-            if not inconsistent(fit, alt):
-                fit = toward(fit, alt, toward_subset_weight(fit, alt) if SOFT_GRAZING else
-                             float(np.trace(alt.cov_axis) < np.trace(fit.cov_axis) + extra_points_bias2(fit, alt)))
-            elif np.trace(alt.cov_axis) < np.trace(fit.cov_axis):
-                fit = with_disagreement(alt, fit)
-            else:
-                fit = with_disagreement(fit, alt)
+            fit = _with_subset_fit(fit, replace(alt, grazing_left_out=True))
     return fit
+
+
+def _with_subset_fit(fit: WheelFit, subset: WheelFit) -> WheelFit:
+    """``fit`` combined with ``subset``, the fit without some of its points: the least expected
+    squared error between the two (``toward_subset_weight``: the left-out points' bias estimated
+    from how far they move the axis beyond what their noise explains; with ``SOFT_GRAZING`` off,
+    the smaller expected error, a jump where the choice flips), unless they disagree beyond all
+    they state (one of them is broken, say the weaker geometry without the points found another
+    minimum): then the smaller stated, stating their difference."""
+    if not inconsistent(fit, subset):
+        return toward(fit, subset, toward_subset_weight(fit, subset) if SOFT_GRAZING else
+                      float(np.trace(subset.cov_axis) < np.trace(fit.cov_axis) + extra_points_bias2(fit, subset)))
+    if np.trace(subset.cov_axis) < np.trace(fit.cov_axis):
+        return with_disagreement(subset, fit)
+    return with_disagreement(fit, subset)
+
+
+def _without_faint(fit: WheelFit, steps: list, fitted) -> WheelFit:
+    """``fit`` combined (``_with_subset_fit``) with the fit without each view's faint points:
+    edge steps ``steps`` (N,), (M,) under ``FAINT_STEP_SHARE`` of the view's median; ``fitted``
+    fits the circle to a (mask, mask) subset of the views' points.
+
+    Contrast weights (``contrast_weights``) keep a faint point's say small in the final solve,
+    but the tests before it are unweighted (weighted, they moved their own decisions): a faint
+    arc alone in a stretch of the rim that the other view does not see can tilt the circle the
+    tests judge the other arcs by, and they then leave out good arcs (simulated 1121 RL: one
+    camera's shaded bottom arc at a twelfth of the median step, camber 0.13 deg off; without
+    it 0.02). Left out everywhere, the faint points take dark rims' only good arcs with them
+    (6001 RL 1.4 deg off). So the fit without them is a check for that gross failure only: it
+    replaces the weighted fit where the faint points move the axis beyond what the fit without
+    them states (``moved_beyond_subset``), and elsewhere the weighted fit stands as it is.
+    (Weighed by their stated covariances instead, ``_with_subset_fit``, the two moved sound
+    wheels by 0.01-0.025 deg toward the fit without: 1115 FL 0.017 -> 0.042 deg with one
+    calibration. Only where the two were ``inconsistent``, it missed the gross cases: a fit
+    tilted by a faint arc also states a large uncertainty.)"""
+    bright = [c >= FAINT_STEP_SHARE * np.median(c) if len(c) else np.ones(0, bool) for c in steps]
+    if all(b.all() for b in bright) or any(b.sum() < MIN_VIEW_POINTS for b in bright):
+        return fit
+    try:
+        subset = fitted(bright)
+    except (MeasurementError, np.linalg.LinAlgError, ValueError):
+        return fit
+    return replace(subset, faint_left_out=True) if moved_beyond_subset(fit, subset) else fit
 

@@ -218,6 +218,18 @@ def inconsistent(fit: WheelFit, other: WheelFit) -> bool:
     return bool(np.isfinite(spread)) and float(d @ d) > 0.5 * INCONSISTENT_CHI2 * spread
 
 
+def moved_beyond_subset(fit: WheelFit, subset: WheelFit) -> bool:
+    """Whether the points ``fit`` has and ``subset`` (the fit of a subset of them) has not move
+    the axis by more than the subset's own stated uncertainty allows at 99 %. Were those points
+    unbiased, the two axes would differ by about the noise the subset lacks,
+    cov(subset) - cov(fit), less than cov(subset): a difference beyond that says they are
+    biased, whatever ``fit`` states (a fit whose covariance grew with its bad points stays
+    ``inconsistent``-free with anything)."""
+    d = _axis_difference(fit, subset)
+    spread = float(np.trace(subset.cov_axis))
+    return bool(np.isfinite(spread)) and float(d @ d) > 0.5 * INCONSISTENT_CHI2 * spread
+
+
 def axis_covariance(n: np.ndarray, e1: np.ndarray, e2: np.ndarray, cov_ab: np.ndarray) -> np.ndarray:
     """(3,3) covariance of the unit normal n from that (2,2) of its parameters (a, b):
     d n / d (a, b) = (I - n n^T) [e1 e2] / |n0 + a e1 + b e2|, ~ the tangent basis at the solution."""
