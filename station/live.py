@@ -32,7 +32,7 @@ from station.camera_response import linear_images
 from station.measure import measure_frames
 from station.wheel_pair import WEIGHT_BY_CONTRAST, WheelObservation, check_same_rim
 from station.other_contour import on_circle
-from station.wheel3d import WheelFit, reconstruct_paper, refine_circle
+from station.wheel3d import WheelFit, not_faint, reconstruct_paper, refine_circle
 from station.wheel_arcs import not_grazing
 
 AXLES = {"front": ("FL", "FR"), "rear": ("RL", "RR"), "all": WHEELS}
@@ -250,10 +250,17 @@ def live_wheel(wheel: str, cams: tuple[str, str], images: dict, models: dict, pr
                 views = [(cam, cam.pixels_to_normalized(p)) for cam, p in ((cam_l, pl), (cam_r, pr))]
                 keep_l, keep_r = on_circle(views, previous_circle)
                 pl, pr, con_l, con_r = pl[keep_l], pr[keep_r], con_l[keep_l], con_r[keep_r]
+            # and whether the points of faint edge step are (the same rule, without a second fit)
+            faint_out = previous_circle is not None and previous_circle.faint_left_out
+            if faint_out:
+                keep_l, keep_r = not_faint(con_l), not_faint(con_r)
+                pl, pr, con_l, con_r = pl[keep_l], pr[keep_r], con_l[keep_l], con_r[keep_r]
             circle = refine_circle(pl, pr, cam_l, cam_r, previous_circle or paper, bias_modes=0,
                                    init_is_fitted=previous_circle is not None, grazing_test=False,
-                                   contrast=(con_l, con_r) if WEIGHT_BY_CONTRAST else None)
+                                   contrast=(con_l, con_r) if WEIGHT_BY_CONTRAST else None,
+                                   faint_test=previous_circle is None)
             circle = replace(circle, grazing_left_out=grazing_out, arcs_left_out=other_out,
+                             faint_left_out=faint_out or circle.faint_left_out,
                              other_contour_mm=previous_circle.other_contour_mm if other_out else None)
             obs = WheelObservation(wheel, cams, (det_l, det_r), paper, circle)
             check_same_rim(obs, config)

@@ -254,7 +254,8 @@ def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: Camer
                   visibility_margin: float | None = None, jackknife_sectors: int = 0,
                   inward_weight: float = INWARD_WEIGHT, bias_modes: int = BIAS_MODES,
                   occlusion_test: bool = OCCLUSION_TEST, init_is_fitted: bool = False,
-                  grazing_test: bool = GRAZING_TEST, contrast: tuple | None = None) -> WheelFit:
+                  grazing_test: bool = GRAZING_TEST, contrast: tuple | None = None,
+                  faint_test: bool | None = None) -> WheelFit:
     """Fit one 3-D circle to both views' rim points by minimising image distance (px).
 
     ``contrast``: per view, each point's edge step (grey levels, (N,) and (M,), as
@@ -283,6 +284,10 @@ def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: Camer
     beyond the noise is left out of the final fit; arcs that agree are kept.
     ``init_is_fitted``: ``init`` is already a circle fitted this way (``station live``'s previous
     frame): the test is made against it, without the first fit.
+
+    ``faint_test`` (None: ``FAINT_TEST``): with ``contrast``, the circle is also fitted without
+    each view's faint points, and that fit is taken where they move the axis beyond what it
+    states (:func:`_without_faint`).
     """
     xys, ws, steps = [], [], []
     for cam, pts, con in zip((cam_l, cam_r), (points_l_px, points_r_px), contrast or (None, None)):
@@ -302,7 +307,7 @@ def refine_circle(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: Camer
                            init_is_fitted, grazing_test)
 
     fit = fitted()
-    if FAINT_TEST and all(c is not None for c in steps):
+    if (FAINT_TEST if faint_test is None else faint_test) and all(c is not None for c in steps):
         fit = _without_faint(fit, steps, fitted)
     # on every point the cameras found: did they see the rim where the epipolar planes touch it?
     return replace(fit, tangent_gap_deg=tangent_gaps(xys[0], xys[1], cam_l, cam_r))
@@ -513,6 +518,13 @@ def _with_subset_fit(fit: WheelFit, subset: WheelFit) -> WheelFit:
     return with_disagreement(fit, subset)
 
 
+def not_faint(steps: np.ndarray) -> np.ndarray:
+    """(N,) bool: the points of a view whose edge step ``steps`` (N,) is at least
+    ``FAINT_STEP_SHARE`` of the view's median step."""
+    c = np.asarray(steps, float)
+    return c >= FAINT_STEP_SHARE * np.median(c) if len(c) else np.ones(0, bool)
+
+
 def _without_faint(fit: WheelFit, steps: list, fitted) -> WheelFit:
     """``fit`` combined (``_with_subset_fit``) with the fit without each view's faint points:
     edge steps ``steps`` (N,), (M,) under ``FAINT_STEP_SHARE`` of the view's median; ``fitted``
@@ -531,7 +543,7 @@ def _without_faint(fit: WheelFit, steps: list, fitted) -> WheelFit:
     wheels by 0.01-0.025 deg toward the fit without: 1115 FL 0.017 -> 0.042 deg with one
     calibration. Only where the two were ``inconsistent``, it missed the gross cases: a fit
     tilted by a faint arc also states a large uncertainty.)"""
-    bright = [c >= FAINT_STEP_SHARE * np.median(c) if len(c) else np.ones(0, bool) for c in steps]
+    bright = [not_faint(c) for c in steps]
     if all(b.all() for b in bright) or any(b.sum() < MIN_VIEW_POINTS for b in bright):
         return fit
     try:

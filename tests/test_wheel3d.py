@@ -594,3 +594,21 @@ def test_a_faint_arc_one_view_alone_sees_is_weighed_against_the_fit_without_it(s
     without_test = refine_circle(*views, cl, cr, paper, contrast=contrast)
     assert _angle_deg(on_flange.axis_station, w) < 0.006 and not on_flange.faint_left_out
     assert _angle_deg(on_flange.axis_station, without_test.axis_station) < 0.004
+
+
+def test_live_keeps_the_faint_choice_without_a_second_fit(monkeypatch):
+    """``station live`` leaves out the points ``not_faint`` rejects when its baseline did, and
+    fits once (``faint_test=False``): the update matches the baseline's fit without them."""
+    views, contrast, (cl, cr), w, paper = _one_view_faint_arc(0, 1.2)
+    base = refine_circle(*views, cl, cr, paper, contrast=contrast, grazing_test=False)
+    assert base.faint_left_out
+    keep = [wheel3d.not_faint(c) for c in contrast]
+    assert not keep[0].all() and keep[1].all()
+    fits = []
+    real = wheel3d._fit_circle
+    monkeypatch.setattr(wheel3d, "_fit_circle", lambda *a, **k: fits.append(1) or real(*a, **k))
+    update = refine_circle(views[0][keep[0]], views[1][keep[1]], cl, cr, base, init_is_fitted=True,
+                           grazing_test=False, contrast=(contrast[0][keep[0]], contrast[1][keep[1]]),
+                           faint_test=False)
+    assert len(fits) == 1 and not update.faint_left_out
+    assert _angle_deg(update.axis_station, base.axis_station) < 0.003
