@@ -538,7 +538,9 @@ def _without_faint(fit: WheelFit, steps: list, fitted) -> WheelFit:
     it 0.02). Left out everywhere, the faint points take dark rims' only good arcs with them
     (6001 RL 1.4 deg off). So the fit without them is a check for that gross failure only: it
     replaces the weighted fit where the faint points move the axis beyond what the fit without
-    them states (``moved_beyond_subset``), and elsewhere the weighted fit stands as it is.
+    them states (``moved_beyond_subset``), stating their difference as well
+    (``with_disagreement``: the fit without them may be the broken one, as on a bright tyre
+    whose faint points were the flange), and elsewhere the weighted fit stands as it is.
     (Weighed by their stated covariances instead, ``_with_subset_fit``, the two moved sound
     wheels by 0.01-0.025 deg toward the fit without: 1115 FL 0.017 -> 0.042 deg with one
     calibration. Only where the two were ``inconsistent``, it missed the gross cases: a fit
@@ -550,5 +552,7 @@ def _without_faint(fit: WheelFit, steps: list, fitted) -> WheelFit:
         subset = fitted(bright)
     except (MeasurementError, np.linalg.LinAlgError, ValueError):
         return fit
-    return replace(subset, faint_left_out=True) if moved_beyond_subset(fit, subset) else fit
+    if not moved_beyond_subset(fit, subset):
+        return fit
+    return with_disagreement(replace(subset, faint_left_out=True), fit)
 
