@@ -534,7 +534,7 @@ def _without_faint(fit: WheelFit, steps: list, fitted) -> WheelFit:
     but the tests before it are unweighted (weighted, they moved their own decisions): a faint
     arc alone in a stretch of the rim that the other view does not see can tilt the circle the
     tests judge the other arcs by, and they then leave out good arcs (simulated 1121 RL: one
-    camera's shaded bottom arc at a twelfth of the median step, camber 0.13 deg off; without
+    camera's shaded bottom arc at an eighth of the median step, camber 0.13 deg off; without
     it 0.02). Left out everywhere, the faint points take dark rims' only good arcs with them
     (6001 RL 1.4 deg off). So the fit without them is a check for that gross failure only: it
     replaces the weighted fit where the faint points move the axis beyond what the fit without

@@ -554,7 +554,7 @@ def test_a_faint_arc_pulled_off_the_flange_moves_the_contrast_weighted_fit_less(
 
 def _one_view_faint_arc(seed, offset_px):
     """A pair where the reference view does not see a 100-degree stretch of the rim and the
-    precision view sees it only faintly (a twelfth of the median edge step), its points
+    precision view sees it only faintly (a twelfth of the median edge step: 4 against 50), its points
     ``offset_px`` outside the flange: (views, contrast, cameras, true axis, paper fit)."""
     rng = np.random.default_rng(seed)
     v = random_vehicle(np.random.default_rng(seed + 20))
