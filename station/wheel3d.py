@@ -526,9 +526,9 @@ def not_faint(steps: np.ndarray) -> np.ndarray:
 
 
 def _without_faint(fit: WheelFit, steps: list, fitted) -> WheelFit:
-    """``fit`` combined (``_with_subset_fit``) with the fit without each view's faint points:
-    edge steps ``steps`` (N,), (M,) under ``FAINT_STEP_SHARE`` of the view's median; ``fitted``
-    fits the circle to a (mask, mask) subset of the views' points.
+    """``fit``, or the fit without each view's faint points where they tilt it: points of edge
+    step ``steps`` (N,), (M,) under ``FAINT_STEP_SHARE`` of the view's median (``not_faint``);
+    ``fitted`` fits the circle to a (mask, mask) subset of the views' points.
 
     Contrast weights (``contrast_weights``) keep a faint point's say small in the final solve,
     but the tests before it are unweighted (weighted, they moved their own decisions): a faint
@@ -555,4 +555,3 @@ def _without_faint(fit: WheelFit, steps: list, fitted) -> WheelFit:
     if not moved_beyond_subset(fit, subset):
         return fit
     return with_disagreement(replace(subset, faint_left_out=True), fit)
-
