@@ -213,9 +213,7 @@ def inconsistent(fit: WheelFit, other: WheelFit) -> bool:
     """Whether two fits' axes differ by more than even their stated uncertainties (noise and
     biases, ``cov_axis``) allow at 99 %: then at least one of them is wrong in a way its
     covariance does not describe, and neither difference-based estimate can be trusted."""
-    d = _axis_difference(fit, other)
-    spread = float(np.trace(fit.cov_axis) + np.trace(other.cov_axis))  # two components share it
-    return bool(np.isfinite(spread)) and float(d @ d) > 0.5 * INCONSISTENT_CHI2 * spread
+    return _beyond(_axis_difference(fit, other), float(np.trace(fit.cov_axis) + np.trace(other.cov_axis)))
 
 
 def moved_beyond_subset(fit: WheelFit, subset: WheelFit) -> bool:
@@ -225,8 +223,12 @@ def moved_beyond_subset(fit: WheelFit, subset: WheelFit) -> bool:
     cov(subset) - cov(fit), less than cov(subset): a difference beyond that says they are
     biased, whatever ``fit`` states (a fit whose covariance grew with its bad points stays
     ``inconsistent``-free with anything)."""
-    d = _axis_difference(fit, subset)
-    spread = float(np.trace(subset.cov_axis))
+    return _beyond(_axis_difference(fit, subset), float(np.trace(subset.cov_axis)))
+
+
+def _beyond(d: np.ndarray, spread: float) -> bool:
+    """Whether an axis difference d (3,) exceeds the 99 % chi-square (2 dof) of a covariance
+    of trace ``spread`` (rad^2; its two components across the axis share it)."""
     return bool(np.isfinite(spread)) and float(d @ d) > 0.5 * INCONSISTENT_CHI2 * spread
 
 
