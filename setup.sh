@@ -43,7 +43,7 @@ if [ ! -f "$stamp" ]; then
     # numba compiles the rim detector's loops on their first call and caches them beside the
     # sources (station/rim/__pycache__): once here, not in the technician's first cycle
     echo "setup: compiling the rim detector's loops (once, about 10 s)"
-    .venv/bin/python -c "from station.rim import detect_rim; from station.rim.synthetic import WheelSpec, render_wheel; detect_rim(render_wheel(WheelSpec())[0])" \
+    .venv/bin/python -c "from station.rim import detect_rim; from tests.synthetic_wheel import WheelSpec, render_wheel; detect_rim(render_wheel(WheelSpec())[0])" \
         || echo "setup: warning: the rim detector's loops did not compile now; they will at the first measurement." >&2
     rm -f .venv/.installed-*
     touch "$stamp"

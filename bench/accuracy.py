@@ -36,7 +36,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from bench import outside_envelope  # noqa: E402
 from simulators import image_cache  # noqa: E402
 from station.config import WHEELS, load_config  # noqa: E402
-from station.frame_average import mean_image  # noqa: E402
+from station.capture.frame_average import mean_image  # noqa: E402
 from station.measure import add_truth, measure_frames  # noqa: E402
 
 SCENARIOS = {
@@ -87,7 +87,7 @@ def _images(world, scene, scenario: str, seed: int, cache: Path | None, capture:
     very same images in minutes instead of re-rendering them. ``capture`` k > 0: the same
     scene captured again, with the k-th fresh draw of sensor noise (``-r<k>`` in the cache).
     ``frames`` N > 1: each camera's image is the mean of N frames, as the station's
-    ``capture.frames_averaged`` keeps it (station/frame_average.py; ``-f<N>`` in the cache);
+    ``capture.frames_averaged`` keeps it (station/capture/frame_average.py; ``-f<N>`` in the cache);
     the first is the single frame's, the others have fresh sensor noise."""
     name = f"{outside_envelope.images_of(scenario)}-{seed}" + (f"-r{capture}" if capture else "")
     name += f"-f{frames}" if frames > 1 else ""

@@ -32,7 +32,7 @@ sys.path.insert(0, str(REPO / "tests"))
 
 
 def run_cycles(cams, cycles: int, timeout_s: float) -> dict:
-    from station.capture import capture_cycle
+    from station.capture.sync import capture_cycle
     from station.errors import StationError
     times, lost, failed = [], 0, 0
     for _ in range(cycles):
@@ -51,7 +51,7 @@ def run_cycles(cams, cycles: int, timeout_s: float) -> dict:
 
 def bench_gige_inside(cycles: int) -> dict:
     from aravis_probe import FakeCameras, _in_netns_guard, _station_config
-    from station.capture import close_cameras, open_station_cameras
+    from station.capture.cameras import close_cameras, open_station_cameras
     _in_netns_guard()
     fakes = FakeCameras()
     try:
@@ -90,7 +90,7 @@ class _CachedWorld:
 
 def bench_sim(cycles: int, real_renderer: bool) -> dict:
     from simulators.world import SimWorld
-    from station.capture import close_cameras, open_station_cameras
+    from station.capture.cameras import close_cameras, open_station_cameras
     from station.config import load_config
     config = load_config()
     world = SimWorld.from_config(config)

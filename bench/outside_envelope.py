@@ -16,7 +16,7 @@ gives the same car in every scenario:
 - vignette: lens vignetting 0.6-0.8 (0.1-0.4);
 - gamma: every camera encodes its grey levels with gamma 1/2.2 (an sRGB webcam), not linearly,
   and the station is not told; gamma-known: the same images, the station configured with
-  ``response_gamma`` (station/camera_response.py).
+  ``response_gamma`` (station/rim/camera_response.py).
 """
 
 from __future__ import annotations

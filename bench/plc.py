@@ -33,7 +33,7 @@ sys.path.insert(0, str(ROOT))
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient  # noqa: E402
 from pymodbus.framer.rtu import FramerRTU  # noqa: E402
 
-from simulators.plc_sim import PlcSimulator, dry_run_expectation  # noqa: E402
+from station.plc.master import PlcSimulator, dry_run_expectation  # noqa: E402
 
 
 def _vmrss_kib(pid: int) -> int:

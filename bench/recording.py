@@ -24,8 +24,8 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from station.config import load_config  # noqa: E402
-from station.history import History  # noqa: E402
-from station.recording import CycleRecorder, read_recording_summary  # noqa: E402
+from station.records.history import History  # noqa: E402
+from station.records.recording import CycleRecorder, read_recording_summary  # noqa: E402
 
 WHEELS = ("FL", "FR", "RL", "RR")
 

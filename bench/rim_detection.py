@@ -36,7 +36,7 @@ from station.rim.detector import _Scene  # noqa: E402
 from station.rim.ellipse import Ellipse  # noqa: E402
 from station.rim.ellipse_fit import fit_direct  # noqa: E402
 from station.rim.preprocess import PixelMap, to_grey  # noqa: E402
-from station.rim.synthetic import random_spec, render_wheel  # noqa: E402
+from tests.synthetic_wheel import random_spec, render_wheel  # noqa: E402
 
 WHEEL_OF = {"cam1": "FR", "cam2": "FR", "cam3": "FL", "cam4": "FL",
             "cam5": "RL", "cam6": "RL", "cam7": "RR", "cam8": "RR"}
@@ -120,7 +120,7 @@ def main() -> int:
         img, truth = render_wheel(random_spec(np.random.default_rng(1000 + seed)), seed=1000 + seed)
         rows.append(measure(img, truth, None, lambda det: det.points_px))
     if rows:
-        table("synthetic wheels (station.rim.synthetic, 1280x1024, noise sigma 2)", rows)
+        table("synthetic wheels (tests.synthetic_wheel, 1280x1024, noise sigma 2)", rows)
 
     if args.seeds:
         from simulators.world import SimWorld

@@ -291,8 +291,8 @@ def main(argv=None) -> int:
     ap.add_argument("--skimage-cap-s", type=float, default=300.0)
     args = ap.parse_args(argv)
     args.cache.mkdir(parents=True, exist_ok=True)
-    from station.blas_threads import single_thread_blas
-    import scipy.optimize  # noqa: F401  (load scipy's OpenBLAS before setting it, as station/wheel3d.py does)
+    from station.compute.blas_threads import single_thread_blas
+    import scipy.optimize  # noqa: F401  (load scipy's OpenBLAS before setting it, as station/wheel/circle_fit.py does)
     single_thread_blas()
     print(f"# bench/speed.py  (cpus: {os.cpu_count()}, seed {args.seed}, cache {args.cache})")
     if not args.skip_rim:
@@ -301,9 +301,9 @@ def main(argv=None) -> int:
     if not args.skip_calib:
         _, world, _, _ = station_at(1.0, args.cache, args.seed)
         print_calib(calib_row(world, args))
-    from station.wheel_workers import WheelWorkers
+    from station.compute.workers import WorkerPool
 
-    with WheelWorkers() as workers:
+    with WorkerPool() as workers:
         rows = [cycle_row(s, args, workers) for s in sorted(args.scales)]
     print_cycle(rows)
     return 0

@@ -25,7 +25,7 @@ TRIGGER_MODES = ("free-run", "software", "hardware")
 # the driver: the station measures grey levels only).
 PIXEL_FORMATS = ("Mono8", "Mono16", "BayerRG8", "BayerGR8", "BayerGB8", "BayerBG8")
 FRAME_DTYPE = {"Mono16": np.uint16}  # every other format gives uint8
-# Frame.metadata key: the image is the mean of this many exposures (station/frame_average.py),
+# Frame.metadata key: the image is the mean of this many exposures (station/capture/frame_average.py),
 # kept as (H, W) uint16 whatever the pixel format (a replayed burst comes back so)
 AVERAGED_FRAMES_KEY = "averaged_frames"
 

@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 from calibration.camera_model import CameraModel
-from station.bounded_cache import BoundedCache
+from station.compute.bounded_cache import BoundedCache
 from simulators.rays import grid_start, normalized_to_rays_station, pixel_grid_normalized, sample_rays_station
 from simulators.render_body import floor_shadow, trace_body
 from simulators.render_wheel import BARREL, FLANGE, trace_wheel, wheel_outline_points

@@ -17,12 +17,14 @@ from typing import Callable
 
 from calibration.calib_file import StationCalibration, load_calibration
 from drivers.registry import build_context
-from station import capture
+from station.capture.cameras import close_cameras, open_station_cameras, open_trigger_board
+from station.capture.saving import capture_and_save, new_cycle_id
+from station.capture.sync import capture_averaged
 from station.config import StationConfig
-from station.atomic_file import write_text_atomic
+from station.records.atomic_file import write_text_atomic
 from station.errors import StationError, StorageError
 from station.measure import add_truth, measure_frames
-from station.wheel_workers import WheelWorkers, default_workers
+from station.compute.workers import WorkerPool, default_workers
 
 SOFTWARE_NAME = "wheel-alignment-station"
 
@@ -34,11 +36,11 @@ def _say(msg: str) -> None:
 def open_capture(config: StationConfig, context: dict):
     """Open the cameras and the trigger board: (cameras, board or None, capture deadline s).
     The simulated cameras may ask for a longer deadline than the configured one."""
-    cameras = capture.open_station_cameras(config, context)
+    cameras = open_station_cameras(config, context)
     try:
-        board = capture.open_trigger_board(config, context)
+        board = open_trigger_board(config, context)
     except StationError:
-        capture.close_cameras(cameras)
+        close_cameras(cameras)
         raise
     return cameras, board, max(config.capture.timeout_s, float(context.get("capture_timeout_s", 0)))
 
@@ -49,7 +51,7 @@ class Station:
     def __init__(self, config: StationConfig, *, seed: int | None = None,
                  calibration: StationCalibration | None = None, progress: Callable[[str], None] = _say,
                  workers: int | None = None):
-        """workers: measurement worker processes (station/wheel_workers.py); None: one per
+        """workers: measurement worker processes (station/compute/workers.py); None: one per
         core, 0 or 1: none (the four wheels run in two threads of this process)."""
         self.config = config
         self.progress = progress
@@ -60,7 +62,7 @@ class Station:
         self.cameras, self.trigger_board, self.timeout_s = open_capture(config, self.context)
         self.cycle_count = 0
         n = default_workers() if workers is None else workers
-        self.workers = WheelWorkers(n) if n > 1 else None
+        self.workers = WorkerPool(n) if n > 1 else None
 
     def __enter__(self):
         return self
@@ -71,7 +73,7 @@ class Station:
     def close(self) -> None:
         if self.workers is not None:
             self.workers.close()
-        capture.close_cameras(self.cameras)
+        close_cameras(self.cameras)
         if self.trigger_board is not None:
             self.trigger_board.close()
         self.context.get("close", lambda: None)()
@@ -81,7 +83,7 @@ class Station:
                 method: str = "circle", record: bool = True, store: bool = True) -> dict:
         """Run one cycle and return the result dict (docs/result-schema.md)."""
         cfg = self.config
-        cycle_id = capture.new_cycle_id()
+        cycle_id = new_cycle_id()
         t0 = time.perf_counter()
         truth_fn = self.context.get("truth")
         truth = truth_fn() if truth_fn else None
@@ -91,11 +93,11 @@ class Station:
                       + (f", {n} frames each (averaged)" if n > 1 else ""))
         try:
             if cfg.capture.keep_captures:
-                frames, _ = capture.capture_and_save(self.cameras, self.timeout_s, captures_dir, truth=truth,
+                frames, _ = capture_and_save(self.cameras, self.timeout_s, captures_dir, truth=truth,
                                                      trigger_board=self.trigger_board, extra={"job_id": job_id},
                                                      frames_averaged=n)
             else:
-                frames = capture.capture_averaged(self.cameras, self.timeout_s, self.trigger_board, frames=n)
+                frames = capture_averaged(self.cameras, self.timeout_s, self.trigger_board, frames=n)
         except StationError as e:
             saved = getattr(e, "saved_to", None)
             result = self._base(cycle_id, job_id, vehicle_spec)
@@ -157,7 +159,7 @@ class Station:
                 result.setdefault("warnings", []).append(str(e))
         if store:
             try:
-                from station.history import History
+                from station.records.history import History
                 with History(self.config.data_path("history.sqlite")) as history:
                     history.store(result)
             except StorageError as e:
@@ -166,14 +168,14 @@ class Station:
 
 
 def _apply_spec(cfg: StationConfig, result: dict, key: str) -> None:
-    from station.vehicle_specs import apply_spec, get_spec, load_vehicle_specs
+    from station.records.vehicle_specs import apply_spec, get_spec, load_vehicle_specs
 
     specs = load_vehicle_specs(cfg.vehicle_specs_path)
     apply_spec(result, get_spec(specs, key, cfg.vehicle_specs_path))
 
 
 def _record(path: Path, station: Station, result: dict, images: dict, observations: dict) -> None:
-    from station.recording import CycleRecorder, recording_id_for
+    from station.records.recording import CycleRecorder, recording_id_for
 
     rec = CycleRecorder(path, jpeg_quality=station.config.recording.jpeg_quality,
                         recording_id=recording_id_for(result.get("job_id")))

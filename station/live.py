@@ -23,17 +23,21 @@ from typing import Callable
 
 import numpy as np
 
-from station import alignment, capture
+from station import alignment
+from station.capture.cameras import close_cameras
+from station.capture.sync import capture_cycle
 from station.config import WHEELS, StationConfig
 from station.errors import MeasurementError, StationError
 from station.cycle import open_capture
-from station.wheel_workers import WheelWorkers, default_workers
-from station.camera_response import linear_images
+from station.compute.workers import WorkerPool, default_workers
+from station.rim.camera_response import linear_images
 from station.measure import measure_frames
-from station.wheel_pair import WEIGHT_BY_CONTRAST, WheelObservation, check_same_rim
-from station.other_contour import on_circle
-from station.wheel3d import WheelFit, not_faint, reconstruct_paper, refine_circle
-from station.wheel_arcs import not_grazing
+from station.wheel.pair import WheelObservation, check_same_rim
+from station.wheel.other_contour import on_circle
+from station.wheel.circle_fit import CircleFitSettings, not_faint, refine_circle
+from station.wheel.fit import WheelFit
+from station.wheel.paper import reconstruct_paper
+from station.wheel.arcs import not_grazing
 
 AXLES = {"front": ("FL", "FR"), "rear": ("RL", "RR"), "all": WHEELS}
 
@@ -86,7 +90,7 @@ class LiveSession:
         self.axes: dict = {}
         self.n = 0
         n = default_workers() if workers is None else workers
-        self.workers = WheelWorkers(n) if n > 1 else None
+        self.workers = WorkerPool(n) if n > 1 else None
         self._pool = ThreadPoolExecutor(max_workers=2)
 
     def __enter__(self):
@@ -99,7 +103,7 @@ class LiveSession:
         self._pool.shutdown(wait=True)
         if self.workers is not None:
             self.workers.close()
-        capture.close_cameras(self.cameras)
+        close_cameras(self.cameras)
         if self.trigger_board is not None:
             self.trigger_board.close()
         self.context.get("close", lambda: None)()
@@ -107,7 +111,7 @@ class LiveSession:
     # --- the car frame: one full cycle --------------------------------------------------------
     def baseline(self) -> dict:
         """Measure all four wheels once (every camera); raises MeasurementError if it fails."""
-        frames = capture.capture_cycle(self.cameras, self.timeout_s, self.trigger_board)
+        frames = capture_cycle(self.cameras, self.timeout_s, self.trigger_board)
         result = measure_frames({c: f.image for c, f in frames.items()}, self.models, self.config,
                                 workers=self.workers)
         if not result["valid"]:
@@ -128,9 +132,9 @@ class LiveSession:
         reading = Reading(self.n)
         t0 = time.perf_counter()
         cams = {c: self.cameras[c] for c in self.live_cams}
-        frames = capture.capture_cycle(cams, self.timeout_s, self.trigger_board)
+        frames = capture_cycle(cams, self.timeout_s, self.trigger_board)
         t1 = time.perf_counter()
-        images = linear_images({c: frames[c].image for c in cams}, self.config)  # station/camera_response.py
+        images = linear_images({c: frames[c].image for c in cams}, self.config)  # station/rim/camera_response.py
         tasks = [(w, self.pairs[w], {c: images[c] for c in self.pairs[w]},
                   {c: self.models[c] for c in self.pairs[w]}, {c: self.previous.get(c) for c in self.pairs[w]},
                   self.config, self.circles.get(w)) for w in self.live_wheels]
@@ -192,6 +196,9 @@ class LiveSession:
 
 
 LIVE_MAX_POINTS = 400  # edge points per view for the live 3-D fit (a full cycle uses all)
+# the live fit: no covariance's bias term (the display shows no uncertainty) and no second fit
+# without the grazing points (the baseline's choice is kept, below)
+LIVE_FIT = CircleFitSettings(bias_modes=0, grazing_test=False)
 
 
 def _thin(points: np.ndarray, n: int) -> np.ndarray:
@@ -244,7 +251,7 @@ def live_wheel(wheel: str, cams: tuple[str, str], images: dict, models: dict, pr
             if grazing_out:
                 keep_l, keep_r = not_grazing(previous_circle, pl, pr, cam_l, cam_r)
                 pl, pr, con_l, con_r = pl[keep_l], pr[keep_r], con_l[keep_l], con_r[keep_r]
-            # and whether arcs on another concentric contour are left out (station/other_contour.py)
+            # and whether arcs on another concentric contour are left out (station/wheel/other_contour.py)
             other_out = previous_circle is not None and previous_circle.arcs_left_out
             if other_out:
                 views = [(cam, cam.pixels_to_normalized(p)) for cam, p in ((cam_l, pl), (cam_r, pr))]
@@ -255,10 +262,9 @@ def live_wheel(wheel: str, cams: tuple[str, str], images: dict, models: dict, pr
             if faint_out:
                 keep_l, keep_r = not_faint(con_l), not_faint(con_r)
                 pl, pr, con_l, con_r = pl[keep_l], pr[keep_r], con_l[keep_l], con_r[keep_r]
-            circle = refine_circle(pl, pr, cam_l, cam_r, previous_circle or paper, bias_modes=0,
-                                   init_is_fitted=previous_circle is not None, grazing_test=False,
-                                   contrast=(con_l, con_r) if WEIGHT_BY_CONTRAST else None,
-                                   faint_test=previous_circle is None)
+            settings = replace(LIVE_FIT, faint_test=previous_circle is None)
+            circle = refine_circle(pl, pr, cam_l, cam_r, previous_circle or paper, contrast=(con_l, con_r),
+                                   settings=settings, init_is_fitted=previous_circle is not None)
             circle = replace(circle, grazing_left_out=grazing_out, arcs_left_out=other_out,
                              faint_left_out=faint_out or circle.faint_left_out,
                              other_contour_mm=previous_circle.other_contour_mm if other_out else None)

@@ -15,14 +15,14 @@ import numpy as np
 
 from calibration.camera_model import CameraModel
 from station import alignment
-from station.axle_rims import settle_axles
-from station.camera_response import linear_images
+from station.wheel.axle_rims import settle_axles
+from station.rim.camera_response import linear_images
 from station.config import WHEELS, StationConfig
 from station.errors import MeasurementError, StationError
-from station.frame_handoff import FrameHandoff
-from station.rim_size import AXLE_PARTNER, size_mismatches
-from station.wheel3d import WheelFit
-from station.wheel_pair import (FULL_VIEW_COVERAGE, TANGENT_GAP_DEG, WheelObservation, kept_fractions, measure_wheel,
+from station.compute.frame_handoff import FrameHandoff
+from station.wheel.rim_size import AXLE_PARTNER, size_mismatches
+from station.wheel.fit import WheelFit
+from station.wheel.pair import (FULL_VIEW_COVERAGE, TANGENT_GAP_DEG, WheelObservation, kept_fractions, measure_wheel,
                                 unverifiable_epipolar)
 
 METHODS = ("circle", "paper")
@@ -37,7 +37,7 @@ def measure_frames(images: dict[str, np.ndarray], cameras: dict[str, CameraModel
     images, cameras: keyed by camera id. method: "circle" (default, the refined fit) or
     "paper" (section 3.2 exactly). Never raises for a wheel that fails: the result is
     invalid and ``failure`` names the wheel, the camera and why. workers: a
-    :class:`station.wheel_workers.WheelWorkers` to run the four wheels in processes (both
+    :class:`station.compute.workers.WorkerPool` to run the four wheels in processes (both
     cores), else two threads. ``timing_s``: "wheels" the wall time of the four wheels,
     "detect" and "reconstruct" their stages summed over the wheels (work, not wall time).
     calibration_cov: wheel -> the pair's (30,30) camera-parameter covariance from the

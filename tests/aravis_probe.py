@@ -201,7 +201,9 @@ def _station_config(tmp: Path, uris: dict[str, str], width=1280, height=1024):
 def scenario_sync8(fakes: FakeCameras, cycles: str = "10") -> dict:
     import numpy as np
     from drivers.registry import create_camera
-    from station.capture import capture_cycle, close_cameras, open_station_cameras, save_capture
+    from station.capture.cameras import close_cameras, open_station_cameras
+    from station.capture.saving import save_capture
+    from station.capture.sync import capture_cycle
     from station.errors import StationError
     out = {}
     uris = {f"cam{i}": f"aravis://127.0.0.{i + 1}" for i in range(1, 9)}
@@ -242,7 +244,7 @@ def scenario_sync8(fakes: FakeCameras, cycles: str = "10") -> dict:
 
 
 def scenario_open_missing(fakes: FakeCameras) -> dict:
-    from station.capture import open_station_cameras
+    from station.capture.cameras import open_station_cameras
     tmp = Path(tempfile.mkdtemp())
     uris = {f"cam{i}": f"aravis://127.0.0.{i + 1}" for i in range(1, 9)}
     config = _station_config(tmp, uris, 320, 240)

@@ -63,7 +63,7 @@ def make_result(seed: int = 0, *, cycle: int = 1, job_id: str | None = "JOB-1",
 
 def with_spec(result: dict, spec) -> dict:
     """The result with pass/fail filled in from a VehicleSpec (as the pipeline does)."""
-    from station.vehicle_specs import apply_spec
+    from station.records.vehicle_specs import apply_spec
     out = copy.deepcopy(result)
     apply_spec(out, spec)
     return out

@@ -1,10 +1,10 @@
-"""station/bounded_cache.py: the caches the detector and the renderer share between threads."""
+"""station/compute/bounded_cache.py: the caches the detector and the renderer share between threads."""
 
 from __future__ import annotations
 
 import threading
 
-from station.bounded_cache import BoundedCache
+from station.compute.bounded_cache import BoundedCache
 
 
 def test_keeps_values_and_drops_the_oldest():

@@ -1,11 +1,11 @@
-"""Undoing a camera's gamma before rim detection (station/camera_response.py)."""
+"""Undoing a camera's gamma before rim detection (station/rim/camera_response.py)."""
 
 import copy
 from dataclasses import replace
 
 import numpy as np
 
-from station.camera_response import linear, linear_images
+from station.rim.camera_response import linear, linear_images
 from station.measure import measure_frames
 from tests.station_fixtures import small_station_config
 

@@ -13,8 +13,9 @@ from drivers.base import Camera, Frame
 from drivers.registry import create_camera
 from drivers.trigger_board import TriggerBoard
 from simulators.trigger_board_sim import TriggerBoardSim
-from station.capture import (capture_and_save, capture_cycle, close_cameras, new_cycle_id,
-                             open_station_cameras, save_capture)
+from station.capture.cameras import close_cameras, open_station_cameras
+from station.capture.saving import capture_and_save, new_cycle_id, save_capture
+from station.capture.sync import capture_cycle
 from station.errors import CameraMissing, CameraTimeout, DriverError, FrameError
 
 
@@ -232,7 +233,7 @@ def test_station_cameras_lists_failures_without_a_traceback(tmp_path, capsys):
 
 
 def test_station_cycle_saves_under_data_dir_unless_told_not_to(tmp_path, world):
-    from station.capture import capture_station_cycle
+    from station.capture.saving import capture_station_cycle
     config = station_config(tmp_path)
     cams = open_station_cameras(config, {"sim_world": world})
     frames, path = capture_station_cycle(cams, config, truth={"x": 1})

@@ -58,7 +58,7 @@ def test_a_camera_that_refuses_the_linear_setting_is_named_with_the_remedy():
 
 
 def test_the_configured_response_reaches_the_driver(tmp_path):
-    from station.capture import settings_for
+    from station.capture.cameras import settings_for
     from tests.station_fixtures import small_station_config
 
     cfg = small_station_config(tmp_path, camera_defaults__response_gamma=0.45)

@@ -49,14 +49,15 @@ def test_sim_context_builds_the_world_once(tmp_path):
 
 def test_sim_station_with_a_simulated_trigger_board(tmp_path):
     from camera_fakes import station_config
-    from station.capture import capture_cycle, close_cameras, open_station_cameras
+    from station.capture.cameras import close_cameras, open_station_cameras
+    from station.capture.sync import capture_cycle
     from drivers.trigger_board import TriggerBoard
     config = station_config(tmp_path, width=24, height=16)
     text = config.path.read_text().replace("port: null", "port: sim").replace("trigger: software ", "trigger: hardware ")
     config.path.write_text(text)
     from station.config import load_config
     config = load_config(config.path)
-    from station.capture import open_trigger_board
+    from station.capture.cameras import open_trigger_board
     with pytest.raises(DriverError, match="no simulated board was started"):
         open_trigger_board(config, {})
     ctx = build_context([c.uri for c in config.cameras.values()], config)

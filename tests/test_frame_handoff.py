@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from station.frame_handoff import FrameHandoff, FrameRef, resolve
+from station.compute.frame_handoff import FrameHandoff, FrameRef, resolve
 
 
 def _images():
@@ -36,10 +36,10 @@ def test_frames_come_back_equal_and_the_folder_is_removed():
 
 @pytest.mark.skipif(not Path("/dev/shm").is_dir(), reason="no /dev/shm on this machine")
 def test_a_worker_process_reads_the_frame():
-    from station.wheel_workers import WheelWorkers
+    from station.compute.workers import WorkerPool
 
     images = _images()
-    with FrameHandoff(images) as frames, WheelWorkers(1) as w:
+    with FrameHandoff(images) as frames, WorkerPool(1) as w:
         (total, pid), = w.map(_checksum, [(frames["cam2"],)])
     assert total == int(images["cam2"].astype(np.int64).sum()) and pid != os.getpid()
 
@@ -54,7 +54,7 @@ def test_without_shared_memory_the_arrays_travel_as_they_are(tmp_path):
 def test_folders_of_a_killed_station_are_removed_and_live_ones_kept(tmp_path):
     import subprocess
 
-    from station.frame_handoff import PREFIX, remove_orphans
+    from station.compute.frame_handoff import PREFIX, remove_orphans
 
     dead = subprocess.Popen(["true"])
     dead.wait()                                   # a PID that no longer runs

@@ -16,7 +16,7 @@ import pytest
 
 from result_builder import make_result
 from station.errors import StorageError
-from station.history import ANGLE_NAMES, History, export_csv
+from station.records.history import ANGLE_NAMES, History, export_csv
 
 TESTS = Path(__file__).resolve().parent
 
@@ -165,7 +165,7 @@ KILLER = textwrap.dedent("""
     import sys, time
     sys.path.insert(0, {tests!r})
     from result_builder import make_result
-    from station.history import History
+    from station.records.history import History
     h = History(sys.argv[1])
     # slow SQLite down inside each transaction so the kill lands mid-write
     h._conn.set_progress_handler(lambda: time.sleep(0.0005) or 0, 50)
@@ -272,7 +272,7 @@ FULL_DISK = textwrap.dedent("""
     sys.path.insert(0, {tests!r})
     from result_builder import make_result
     from station.errors import StorageError
-    from station.history import History
+    from station.records.history import History
     d = sys.argv[1]
     out = {{"stored": 0, "error": None}}
     h = History(d + "/history.sqlite")

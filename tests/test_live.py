@@ -67,7 +67,7 @@ def test_live_loop_measures_the_adjusted_wheel_and_stops(session_run):
 
 
 def test_display_formats_values_and_verdicts():
-    from station.vehicle_specs import AngleSpec, VehicleSpec
+    from station.records.vehicle_specs import AngleSpec, VehicleSpec
 
     spec = VehicleSpec("x", "X", "", {"front.toe": AngleSpec(0.05, 0.10), "front.camber": AngleSpec(0.1, 0.4),
                                       "front.total_toe": AngleSpec(0.10, 0.20)})
@@ -88,7 +88,7 @@ def test_display_formats_values_and_verdicts():
 
 def test_display_uses_the_real_vehicle_spec_per_wheel():
     from station.config import load_config
-    from station.vehicle_specs import get_spec, load_vehicle_specs
+    from station.records.vehicle_specs import get_spec, load_vehicle_specs
 
     cfg = load_config()
     spec = get_spec(load_vehicle_specs(cfg.vehicle_specs_path), "dodge-caravan-2007")

@@ -93,7 +93,7 @@ def test_a_rim_seen_on_part_of_its_perimeter_is_measured_and_its_unchecked_pair_
     nothing is extrapolated: the same residual is a camera moved since calibration (drift)."""
     from dataclasses import replace
 
-    import station.wheel_pair as wheel_pair
+    import station.wheel.pair as wheel_pair
     from station.errors import MeasurementError
 
     cfg, world, scene, images = sim
@@ -142,7 +142,7 @@ def test_a_pair_that_did_not_see_the_rim_where_the_epipolar_planes_touch_it_is_u
     camera moved. Seen there, the same residual is drift."""
     from dataclasses import replace
 
-    import station.wheel_pair as wheel_pair
+    import station.wheel.pair as wheel_pair
 
     cfg, world, scene, images = sim
     fit = wheel_pair.refine_circle
@@ -225,7 +225,7 @@ def test_an_axle_whose_rims_differ_in_size_fails_naming_the_odd_wheel(sim, monke
     (station seed 8, vehicle 5008 RL: radius 339 mm against 241, every other toe 0.25 deg off
     through the car frame): the rims of an axle are the same size; when no pairing of the
     wheel's candidates has its partner's size, the cycle fails there."""
-    from station import axle_rims
+    from station.wheel import axle_rims
 
     cfg, world, scene, images = sim
     _rl_circle_scaled(monkeypatch, 1.3)
@@ -241,7 +241,7 @@ def test_the_odd_wheel_of_an_axle_is_tried_again_at_its_partners_size(sim, monke
     """Before refusing, the odd wheel's runner-up candidates are paired again, asked for a rim
     of its axle partner's size (5008 RL: cam6's second candidate, 0.4 mm off); the cycle is then
     valid and says what was taken."""
-    from station import axle_rims
+    from station.wheel import axle_rims
 
     cfg, world, scene, images = sim
     good, asked = _rl_circle_scaled(monkeypatch, 1.3), []
@@ -262,8 +262,8 @@ def test_the_odd_wheel_is_found_again_from_one_cameras_rim_carried_to_the_other(
     """When no pairing of the odd wheel's candidates has its partner's size (dark rims 6013 RR:
     one camera's search ended inside the flange, none of its candidates was the flange), one
     camera's rim, at the partner's size and across the wheel's axis, says where the rim must
-    be in the other camera, which is searched again from there (station/rim_transfer.py)."""
-    from station import axle_rims
+    be in the other camera, which is searched again from there (station/wheel/rim_transfer.py)."""
+    from station.wheel import axle_rims
 
     cfg, world, scene, images = sim
     plain = measure_frames(images, world.cameras, cfg)
@@ -282,7 +282,7 @@ def test_the_odd_wheel_is_found_again_from_one_cameras_rim_carried_to_the_other(
 def test_axle_rim_mismatch_tolerates_what_a_measurement_varies_by():
     from types import SimpleNamespace
 
-    from station.axle_rims import axle_rim_mismatch
+    from station.wheel.axle_rims import axle_rim_mismatch
 
     def obs(**radius):
         return {w: SimpleNamespace(circle=SimpleNamespace(radius_m=r)) for w, r in radius.items()}
@@ -299,7 +299,7 @@ def test_axle_rim_mismatch_tolerates_what_a_measurement_varies_by():
 
 def test_a_rim_larger_than_its_axle_partners_is_warned_of_and_nothing_else_changes(sim, monkeypatch):
     """A rim 0.2-1.5 % larger than its axle partner's had part of its edge found on the tyre
-    (station/rim_size.py): the result names the wheel and what to check, with the flag
+    (station/wheel/rim_size.py): the result names the wheel and what to check, with the flag
     ``rim_size``, and every value is the same as without it. Here RL's circle is made 0.5 %
     larger than its points say."""
     cfg, world, scene, images = sim
@@ -336,7 +336,7 @@ def test_a_pair_whose_first_choices_differ_takes_the_candidates_that_are_one_rim
     combination that is one 3-D rim wins."""
     import dataclasses
 
-    from station.wheel_pair import resolve_pair
+    from station.wheel.pair import resolve_pair
     from station.rim import detect_rim
 
     cfg, world, _, images = sim
@@ -363,7 +363,7 @@ def test_a_circle_the_size_of_a_hub_is_not_a_rim(sim):
     import dataclasses
 
     from station.errors import MeasurementError
-    from station.wheel_pair import check_same_rim, reconstruct_wheel
+    from station.wheel.pair import check_same_rim, reconstruct_wheel
     from station.rim import detect_rim
 
     cfg, world, _, images = sim
@@ -544,7 +544,7 @@ def test_a_camera_whose_rim_reaches_the_white_warns_and_is_named(sim):
 def test_a_circle_fit_that_ran_off_its_points_starts_again_from_the_image_ellipses(sim, monkeypatch):
     import dataclasses
 
-    import station.wheel_pair as wheel_pair
+    import station.wheel.pair as wheel_pair
     from station.rim import detect_rim
 
     cfg, world, scene, images = sim

@@ -5,8 +5,9 @@ import pytest
 
 from calibration.camera_model import CameraModel, look_at
 from simulators.vehicle import random_vehicle
-from station.other_contour import radial_offsets_m, refit_other_contour
-from station.wheel3d import reconstruct_paper, refine_circle
+from station.wheel.other_contour import radial_offsets_m, refit_other_contour
+from station.wheel.circle_fit import refine_circle
+from station.wheel.paper import reconstruct_paper
 
 FLANGE_M = 0.011
 
@@ -84,7 +85,7 @@ def test_a_clean_rim_is_left_alone_and_a_certain_circle_is_not_tested():
 
 
 def test_live_keeps_the_arcs_on_the_other_contour_out_by_the_last_circle():
-    from station.other_contour import on_circle
+    from station.wheel.other_contour import on_circle
 
     v, c, w, radius, (cp, cr), (pp, pr) = _views(4)
     circle = refine_circle(pp, pr, cp, cr, reconstruct_paper(pp, pr, cp, cr))
@@ -106,7 +107,7 @@ def test_a_wild_hypothesis_behind_a_camera_explains_nothing_and_does_not_crash()
     cameras) once made the offset histogram's bin width negative and bincount raise."""
     from dataclasses import replace
 
-    from station.other_contour import other_contour_points
+    from station.wheel.other_contour import other_contour_points
 
     v, c, w, radius, (cp, cr), (pp, pr) = _views(5)
     circle = refine_circle(pp, pr, cp, cr, reconstruct_paper(pp, pr, cp, cr))
@@ -124,8 +125,8 @@ def test_a_wild_hypothesis_behind_a_camera_explains_nothing_and_does_not_crash()
 def test_a_view_left_without_points_on_the_rim_contour_is_no_fit_and_does_not_crash():
     """On a harsh-light wheel a labelling left one view with no point of contour 1: the fit's
     noise covariance then divided by zero (a traceback in `station measure`)."""
-    from station.other_contour import fit_two_contours
-    from station.wheel_fit_uncertainty import correlation_factor
+    from station.wheel.other_contour import fit_two_contours
+    from station.wheel.uncertainty import correlation_factor
 
     v, c, w, radius, (cp, cr), (pp, pr) = _views(6, inner_arc=False)
     circle = refine_circle(pp, pr, cp, cr, reconstruct_paper(pp, pr, cp, cr))

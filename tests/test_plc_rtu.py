@@ -15,7 +15,7 @@ import pytest
 from pymodbus.client import ModbusSerialClient
 from pymodbus.exceptions import ModbusException
 
-from simulators.plc_sim import PlcSimulator, dry_run_expectation
+from station.plc.master import PlcSimulator, dry_run_expectation
 from station.plc import register_map as rm
 from station.plc.background import BackgroundServer
 from station.plc.device import PlcDevice
@@ -147,7 +147,7 @@ def test_station_serve_rtu_with_the_plc_simulator(pty_pair):
     try:
         line = serve.stdout.readline()
         assert "Modbus RTU" in line, line + serve.stderr.read()
-        sim = subprocess.run([py, "-m", "simulators.plc_sim", "--rtu", plc_side, "--parity", "N", "--cycles", "3",
+        sim = subprocess.run([py, "-m", "station.plc.master", "--rtu", plc_side, "--parity", "N", "--cycles", "3",
                               "--dry-run-check"], cwd=root, capture_output=True, text=True, timeout=60)
         out, err = serve.communicate(timeout=20)
     finally:

@@ -14,8 +14,8 @@ import pytest
 from pymodbus.client import ModbusTcpClient
 from pymodbus.exceptions import ModbusException
 
-from simulators.plc_sim import PlcSimulator, dry_run_expectation
-from simulators.plc_sim import main as plc_sim_main
+from station.plc.master import PlcSimulator, dry_run_expectation
+from station.plc.master import main as plc_sim_main
 from station.cli import main as cli_main
 from station.errors import ImageError
 from station.plc import register_map as rm

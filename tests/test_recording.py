@@ -14,7 +14,7 @@ import rerun as rr
 from calibration.camera_model import CameraModel, look_at
 from result_builder import make_result
 from station.errors import StorageError
-from station.recording import CycleRecorder, read_recording_summary
+from station.records.recording import CycleRecorder, read_recording_summary
 
 TESTS = Path(__file__).resolve().parent
 WHEELS = ("FL", "FR", "RL", "RR")
@@ -161,7 +161,7 @@ def test_images_round_trip(recorded, tmp_path):
 
 
 def test_job_recording_ids_are_stable():
-    from station.recording import recording_id_for
+    from station.records.recording import recording_id_for
     assert recording_id_for("VIN 1") == recording_id_for("VIN 1") != recording_id_for("VIN 2")
     assert recording_id_for(None) is None
 
@@ -271,7 +271,7 @@ def test_read_only_folder_leaves_no_file_and_keeps_the_result(tmp_path):
 # --- the `station review` command -----------------------------------------------------------------
 def test_review_without_display_prints_contents_and_how(tmp_path, monkeypatch, capsys, recorded):
     from station.cli import main
-    from station.history import History
+    from station.records.history import History
     src, result, _ = recorded
     rec_dir = tmp_path / "recordings"
     rec_dir.mkdir()

@@ -7,10 +7,10 @@ from pathlib import Path
 import pytest
 
 from result_builder import make_result, with_spec
-from station.history import History
-from station.report import build_report, find_chromium, render_with_chromium, safe_filename, write_report
-from station.report_svg import top_view_svg
-from station.vehicle_specs import load_vehicle_specs
+from station.records.history import History
+from station.records.report import build_report, find_chromium, render_with_chromium, safe_filename, write_report
+from station.records.report_svg import top_view_svg
+from station.records.vehicle_specs import load_vehicle_specs
 
 SPECS = load_vehicle_specs(Path(__file__).resolve().parent.parent / "config" / "vehicles.yaml")
 CARAVAN = SPECS["dodge-caravan-2007"]

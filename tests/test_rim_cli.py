@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from station.cli import main
-from station.rim.synthetic import WheelSpec, render_wheel
+from tests.synthetic_wheel import WheelSpec, render_wheel
 
 
 @pytest.fixture(scope="module")

@@ -8,7 +8,7 @@ import pytest
 from calibration.camera_model import CameraModel
 from station.errors import ImageError, RimNotFound
 from station.rim import Ellipse, RimDetection, detect_rim
-from station.rim.synthetic import WheelSpec, random_spec, render_wheel
+from tests.synthetic_wheel import WheelSpec, random_spec, render_wheel
 
 
 def _errors(det: RimDetection, truth: Ellipse):

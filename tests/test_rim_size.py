@@ -1,5 +1,5 @@
-"""The rims of an axle are one size: which wheel is warned of (station/rim_size.py)."""
-from station.rim_size import RIM_SIZE_WARNING, size_mismatches
+"""The rims of an axle are one size: which wheel is warned of (station/wheel/rim_size.py)."""
+from station.wheel.rim_size import RIM_SIZE_WARNING, size_mismatches
 
 PARTNER = {"FL": "FR", "FR": "FL", "RL": "RR", "RR": "RL"}
 

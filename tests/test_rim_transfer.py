@@ -1,10 +1,10 @@
-"""One camera's rim carried to the other camera of its pair (station/rim_transfer.py)."""
+"""One camera's rim carried to the other camera of its pair (station/wheel/rim_transfer.py)."""
 import numpy as np
 import pytest
 
 from calibration.camera_model import CameraModel, look_at
 from station.rim.ellipse_fit import fit_direct
-from station.rim_transfer import carried_prior, carried_rim
+from station.wheel.rim_transfer import carried_prior, carried_rim
 
 CENTRE = np.array([0.78, -1.35, 0.33])   # a front-right wheel's rim centre (station, m)
 RADIUS = 0.2284

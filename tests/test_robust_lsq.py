@@ -3,7 +3,7 @@
 import numpy as np
 from scipy.optimize import least_squares
 
-from station.robust_lsq import soft_l1_cost, soft_l1_least_squares
+from station.wheel.robust_lsq import soft_l1_cost, soft_l1_least_squares
 
 
 def _circle_problem(seed: int):

@@ -7,7 +7,7 @@ import yaml
 
 from result_builder import make_result
 from station.errors import ConfigError
-from station.vehicle_specs import ANGLE_NAMES, apply_spec, evaluate, get_spec, load_vehicle_specs
+from station.records.vehicle_specs import ANGLE_NAMES, apply_spec, evaluate, get_spec, load_vehicle_specs
 
 SHIPPED = Path(__file__).resolve().parent.parent / "config" / "vehicles.yaml"
 

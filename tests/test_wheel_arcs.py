@@ -1,11 +1,11 @@
-"""The tests of a view's arcs (station/wheel_arcs.py) on residuals alone: which arcs the sidewall
+"""The tests of a view's arcs (station/wheel/arcs.py) on residuals alone: which arcs the sidewall
 test keeps, which stray, and the floor an arc's offset is judged against."""
 
 import numpy as np
 import pytest
 
-from station.wheel_arcs import (HIDDEN_SECTORS, STRAY_MIN_PX, arc_median_noise, hidden_arcs, inward_arcs,
-                                sector_medians, stray_arcs, stray_floor_px)
+from station.rim.npfast import sector_medians
+from station.wheel.arcs import (HIDDEN_SECTORS, STRAY_MIN_PX, arc_median_noise, hidden_arcs, inward_arcs, stray_arcs, stray_floor_px)
 
 
 def test_hidden_arcs_keeps_doubtful_arcs_that_agree_and_drops_those_inside():

@@ -1,4 +1,4 @@
-"""Stereo pairs and exact rims for the 3-D wheel tests (tests/test_wheel3d*.py)."""
+"""Stereo pairs and exact rims for the 3-D wheel tests (tests/test_wheel_circle_fit*.py)."""
 
 import numpy as np
 

@@ -33,7 +33,7 @@ def last_saved_frames(captures_dir: Path) -> dict[str, dict]:
 
 def run(args) -> int:
     from drivers.registry import build_context
-    from station.capture import close_cameras, open_cameras, settings_for
+    from station.capture.cameras import close_cameras, open_cameras, settings_for
     from station.config import load_config
     from station.errors import StationError
 

@@ -20,8 +20,8 @@ def run(args) -> int:
     from pathlib import Path
 
     from drivers.registry import build_context
-    from station.capture import (capture_and_save, close_cameras, new_cycle_id, open_station_cameras,
-                                 open_trigger_board)
+    from station.capture.cameras import close_cameras, open_station_cameras, open_trigger_board
+    from station.capture.saving import capture_and_save, new_cycle_id
     from station.config import load_config
     from station.errors import StationError
 

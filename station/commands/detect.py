@@ -89,7 +89,7 @@ def draw(image: np.ndarray, det, path: str | Path) -> None:
 def run(args) -> int:
     from station.rim import detect_rim
 
-    from station.camera_response import linear
+    from station.rim.camera_response import linear
 
     gamma = args.response_gamma
     if gamma is not None and not 0.2 <= gamma <= 5:

@@ -7,7 +7,7 @@ import datetime as dt
 import sys
 
 from station.config import load_config
-from station.history import History, export_csv
+from station.records.history import History, export_csv
 
 HELP = "list the stored measurement cycles (filter by job, date, vehicle, pass/fail; export CSV)"
 

@@ -33,7 +33,7 @@ def run(args) -> int:
     config = load_config(args.config)
     spec = None
     if args.vehicle:  # a typo in the vehicle name is found before the cameras are opened
-        from station.vehicle_specs import get_spec, load_vehicle_specs
+        from station.records.vehicle_specs import get_spec, load_vehicle_specs
         spec = get_spec(load_vehicle_specs(config.vehicle_specs_path), args.vehicle, config.vehicle_specs_path)
     if args.seconds is not None and args.seconds <= 0:
         print(f"--seconds must be positive, not {args.seconds}", file=sys.stderr)

@@ -26,7 +26,7 @@ def run(args) -> int:
 
     config = load_config(args.config)
     if args.vehicle:  # a typo in the vehicle name is found before the cameras are opened
-        from station.vehicle_specs import get_spec, load_vehicle_specs
+        from station.records.vehicle_specs import get_spec, load_vehicle_specs
         get_spec(load_vehicle_specs(config.vehicle_specs_path), args.vehicle, config.vehicle_specs_path)
     seed = args.seed if args.seed is not None else random.randrange(1_000_000)
     with Station(config, seed=seed) as station:

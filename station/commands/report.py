@@ -4,9 +4,9 @@ from __future__ import annotations
 
 from station.config import load_config
 from station.errors import ConfigError, StorageError
-from station.history import History
-from station.report import build_report, render_with_chromium, safe_filename, write_report
-from station.vehicle_specs import load_vehicle_specs
+from station.records.history import History
+from station.records.report import build_report, render_with_chromium, safe_filename, write_report
+from station.records.vehicle_specs import load_vehicle_specs
 
 HELP = "write the printable before/after report (HTML, optionally PDF) of a job"
 

@@ -10,8 +10,8 @@ from pathlib import Path
 
 from station.config import load_config
 from station.errors import StorageError
-from station.history import History
-from station.recording import read_recording_summary
+from station.records.history import History
+from station.records.recording import read_recording_summary
 
 HELP = "open a cycle's recording in the Rerun viewer (default: the newest cycle)"
 

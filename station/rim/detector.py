@@ -24,18 +24,18 @@ from dataclasses import dataclass, field, replace
 import cv2
 import numpy as np
 
-from station.bounded_cache import BoundedCache
+from station.compute.bounded_cache import BoundedCache
 from station.errors import RimNotFound
 from station.rim import edges as edges_mod
 from station.rim import hough
 from station.rim.choice import choose
 from station.rim.ellipse import Ellipse
 from station.rim.ellipse_fit import fit_direct, fit_geometric, ransac_ellipse
-from station.rim.npfast import finite_rows, median, percentiles, rows
+from station.rim.npfast import finite_rows, median, percentiles, rows, sector_medians
 from station.rim.preprocess import PixelMap, detection_scale, downscale, equalize, noise_grey, to_grey
 from station.rim.subpixel import WIDE_BLUR_PX, edge_points, repositioned, window_scale
 from station.rim.white_edge import white_share
-from station.wheel_arcs import sector_medians
+
 
 MIN_REFINED_COVERAGE = 0.35  # the chosen rim's sub-pixel edge may be partly hidden (wheel arch,
                              # tyre bulge in oblique views): the 3-D fit works on arcs
@@ -330,13 +330,12 @@ def detect_rim(image: np.ndarray, *, camera=None, prior: Ellipse | None = None, 
     return _with_white_share(_result(fit, samples, mask, info, clock, camera, pmap, camera_id), grey)
 
 
-REPOSITION = True  # locate the final points again in Lanczos-sampled profiles (subpixel.repositioned)
 REFIT_ITERATIONS = 4
 # The final profiles' window (px, - metal / + tyre side). On the tyre side the bead wall is a
 # band of its own shade 1-5 px out: a window reaching into it bends the kink model's tyre line
 # and moves the edge (the larger part of the camber error at 1.3 Mpx), a shorter one has fewer
 # samples to hold that line against the noise. Where the image is quiet (an average of a few
-# frames: station/frame_average.py) the shorter reach wins; where the noise is large against a
+# frames: station/capture/frame_average.py) the shorter reach wins; where the noise is large against a
 # faint step (dark rims) the longer one; between, the two edges' weighted mean has the error of
 # neither alone (docs/accuracy.md, stops 24, 26 and 28).
 REPOSITION_WINDOW_PX = (-3.0, 4.5)
@@ -368,7 +367,7 @@ def _repositioned(grey: np.ndarray, fit, samples, mask, pmap: PixelMap, blur: fl
     share of the edge's, and the soft-focus decisions stay as they were measured. (A large
     photograph without a camera model, refined at two scales by ``_finer_of``, keeps its
     points too.)"""
-    if not REPOSITION or fit is None or blur is None or blur > WIDE_BLUR_PX:
+    if fit is None or blur is None or blur > WIDE_BLUR_PX:
         return fit, samples, mask
     idx = np.nonzero(mask)[0]
     # the points' feet on the fit: those of their profiles' bases (on the ellipse the pass

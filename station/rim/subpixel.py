@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 from scipy.special import erf
 
-from station.bounded_cache import BoundedCache
+from station.compute.bounded_cache import BoundedCache
 from station.rim import profile_loops
 from station.rim.ellipse import Ellipse
 from station.rim.npfast import finite_rows, median, rows
@@ -30,8 +30,6 @@ SQRT2 = np.sqrt(2.0)
 TWO_OVER_SQRT_PI = 2.0 / np.sqrt(np.pi)
 INTERPOLATION = cv2.INTER_LINEAR    # the passes' profiles (their decisions were measured with it)
 POSITION_INTERPOLATION = cv2.INTER_LANCZOS4  # the final positions' (see ``repositioned``)
-METAL_CURVATURE = False  # optional quadratic term for a shaded rounded lip (measured: noisier and blur-sensitive)
-TYRE_CURVATURE = False   # the same on the tyre side (measured: worse)
 
 
 @dataclass
@@ -123,7 +121,7 @@ def initial_steps(prof: np.ndarray, s: np.ndarray, polarity: float = -1.0) -> np
     return profile_loops.initial_steps(np.ascontiguousarray(prof), np.asarray(s, float), float(polarity))
 
 
-def _kink_basis(x: np.ndarray, sigma: float, curvature: bool | None = None) -> np.ndarray:
+def _kink_basis(x: np.ndarray, sigma: float, curvature: bool = False) -> np.ndarray:
     """(..., S, nb) basis of the blurred step-and-kink at offsets x = s - s0 (..., S):
     [1, Phi, x, x Phi + sigma phi] for (A, h, B, k) in I = A + h Phi + B x + k (x Phi + sigma phi),
     and with ``curvature`` the metal side's blurred x^2 (nb = 5)."""
@@ -131,16 +129,13 @@ def _kink_basis(x: np.ndarray, sigma: float, curvature: bool | None = None) -> n
     Phi = 0.5 * (1 + erf(z / SQRT2))
     phi = np.exp(-0.5 * z * z) / np.sqrt(2 * np.pi)
     cols = [np.ones_like(x), Phi, x, x * Phi + sigma * phi]
-    curved = METAL_CURVATURE if curvature is None else curvature  # None: the module's switch
-    if curved:  # blurred x^2 on the metal side (x < 0): E[u^2 1(u<0)], u ~ N(x, sigma^2)
+    if curvature:  # blurred x^2 on the metal side (x < 0): E[u^2 1(u<0)], u ~ N(x, sigma^2)
         cols.append((x * x + sigma * sigma) * (1 - Phi) - x * sigma * phi)
-        if TYRE_CURVATURE:  # and on the tyre side: E[u^2 1(u>0)]
-            cols.append((x * x + sigma * sigma) * Phi + x * sigma * phi)
     return np.stack(cols, axis=-1)
 
 
 def fit_kinks(prof: np.ndarray, s: np.ndarray, sigma: float, polarity: float = -1.0,
-              grid_step: float = 0.25, margin: float = 1.0, refine: bool = True, curvature: bool | None = None):
+              grid_step: float = 0.25, margin: float = 1.0, refine: bool = True, curvature: bool = False):
     """Locate the edge in each profile (N,S) by a blurred step-and-kink model.
 
     The profile is one straight line on the metal side and another on the tyre side, meeting
@@ -205,12 +200,9 @@ def _kink_minima(prof: np.ndarray, s: np.ndarray, sigma: float, grid: np.ndarray
 
 
 def _model_edges(prof: np.ndarray, s: np.ndarray, sigma: float, straight, curved):
-    """The edges (s0, h, rms, ok) (N,) of the model the module's switches ask for, from both
-    models' (s0, h, rms, ok): the curved lip where ``_curved_where_needed`` takes it (the
-    default), or one model everywhere."""
-    if CURVED_LIP_F is not None and not METAL_CURVATURE:
-        return _curved_where_needed(prof, s, sigma, *straight, curved=curved)
-    return curved if METAL_CURVATURE else straight
+    """The edges (s0, h, rms, ok) (N,) from both models' (s0, h, rms, ok): the curved lip where
+    ``_curved_where_needed`` takes it, the straight model elsewhere."""
+    return _curved_where_needed(prof, s, sigma, *straight, curved=curved)
 
 
 def _kink_pair_projector(s: np.ndarray, grid: np.ndarray, sigma: float):
@@ -218,7 +210,7 @@ def _kink_pair_projector(s: np.ndarray, grid: np.ndarray, sigma: float):
     maps from a profile to the straight and to the curved model's jump h at every s0 (cached
     as ``_kink_projector``)."""
     sigma = round(float(sigma), 6)
-    key = ("straight and curved", s.tobytes(), grid.tobytes(), sigma, TYRE_CURVATURE)
+    key = ("straight and curved", s.tobytes(), grid.tobytes(), sigma)
 
     def make():
         B = _kink_basis(s[None, :] - grid[:, None], sigma, True)     # (G,S,nb), straight first
@@ -236,16 +228,15 @@ _PROJECTORS = BoundedCache(64)   # per (window, grid, blur): every camera's blur
 _BLUR_STACKS = BoundedCache(16)  # per (window, grid): all candidate blurs stacked
 
 
-def _kink_projector(s: np.ndarray, grid: np.ndarray, sigma: float, curvature: bool | None = None):
+def _kink_projector(s: np.ndarray, grid: np.ndarray, sigma: float, curvature: bool = False):
     """Orthonormal bases of the kink model at every grid s0, stacked (S, G*nb), and the (S,G)
     map from a profile to its jump coefficient h at every s0 (cached: the same window and blur
     serve every profile of an image and the next image)."""
-    curvature = METAL_CURVATURE if curvature is None else curvature
     # built at the blur it is kept under: from the exact blur, the projector of a later blur
     # with the same key would depend on which blur came first, and so the detection on the
     # images the process saw before (a point more or less reseeds the consensus search)
     sigma = round(float(sigma), 6)
-    key = (s.tobytes(), grid.tobytes(), sigma, curvature, TYRE_CURVATURE)
+    key = (s.tobytes(), grid.tobytes(), sigma, curvature)
 
     def make():
         B = _kink_basis(s[None, :] - grid[:, None], sigma, curvature)  # (G,S,nb)
@@ -300,7 +291,7 @@ def _blur_rms(prof: np.ndarray, s: np.ndarray, polarity: float, grid_step: float
     S = prof.shape[1]
     grid = np.arange(s[0] + margin, s[-1] - margin + 1e-9, grid_step)
     G, B = len(grid), len(BLUR_GRID_PX)
-    key = (s.tobytes(), grid.tobytes(), METAL_CURVATURE, TYRE_CURVATURE)
+    key = (s.tobytes(), grid.tobytes())
 
     def make():  # one per window of the passes: kept apart from the per-blur projectors
         parts = [_kink_projector(s, grid, sg) for sg in BLUR_GRID_PX]
@@ -373,7 +364,7 @@ CURVED_ARC_DEG = 10.0  # and on the majority of each arc this wide
 
 def _curved_where_needed(prof: np.ndarray, s: np.ndarray, sigma: float, s0, h, rms, ok, curved=None):
     """Per profile (N,S) in order round the rim, the step-and-kink model with the metal side's
-    curvature (``METAL_CURVATURE``'s term) where it fits significantly better, the straight
+    curvature (a blurred x^2 term, ``_kink_basis``) where it fits significantly better, the straight
     one elsewhere; (s0, h, rms, ok) (N,) are the straight model's, returned with the curved
     model's values where it is taken; ``curved`` the curved model's (s0, h, rms, ok) where
     they were found already (``fit_kinks_straight_and_curved``).

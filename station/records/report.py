@@ -2,7 +2,7 @@
 
 "Before" is the first valid cycle of the job in the history, "after" the last (the technician
 measures, adjusts, measures again). Each angle is shown against the vehicle's spec with colours;
-a top-view drawing (station/report_svg.py) shows the four wheels' toe and camber. Everything
+a top-view drawing (station/records/report_svg.py) shows the four wheels' toe and camber. Everything
 that comes from a user (job id, VIN, names, warnings) is HTML-escaped. ``render_with_chromium``
 prints the HTML to PDF or PNG with a headless Chromium (Debian's ``chromium``).
 """
@@ -18,10 +18,10 @@ import tempfile
 from html import escape
 from pathlib import Path
 
-from station.atomic_file import write_text_atomic
+from station.records.atomic_file import write_text_atomic
 from station.errors import StorageError
-from station.report_svg import top_view_svg
-from station.vehicle_specs import ANGLE_NAMES, VehicleSpec, angle_value, evaluate
+from station.records.report_svg import top_view_svg
+from station.records.vehicle_specs import ANGLE_NAMES, VehicleSpec, angle_value, evaluate
 
 _LABELS = {"toe": "toe", "camber": "camber", "total_toe": "total toe"}
 _CSS = """

@@ -2,7 +2,7 @@
 both cameras found the same rim, and pair runner-up candidates when they did not.
 
 The whole cycle over the four pairs is :func:`station.measure.measure_frames`; the checks
-across the pairs of an axle are in station/axle_rims.py.
+across the pairs of an axle are in station/wheel/axle_rims.py.
 """
 
 from __future__ import annotations
@@ -13,13 +13,15 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from calibration.camera_model import CameraModel
-from station.calibration_share import calibration_covariance, pair_perturbation_covariance
+from station.wheel.calibration_share import calibration_covariance, pair_perturbation_covariance
 from station.config import StationConfig
 from station.errors import MeasurementError, StationError
-from station.frame_handoff import resolve as resolve_frame
-from station.other_contour import refit_other_contour
-from station.rim_size import AXLE_RIM_TOLERANCE
-from station.wheel3d import WheelFit, circle_from_ellipses, reconstruct_paper, refine_circle
+from station.compute.frame_handoff import resolve as resolve_frame
+from station.wheel.other_contour import refit_other_contour
+from station.wheel.rim_size import AXLE_RIM_TOLERANCE
+from station.wheel.circle_fit import circle_from_ellipses, refine_circle
+from station.wheel.fit import WheelFit
+from station.wheel.paper import reconstruct_paper
 
 
 @dataclass
@@ -59,7 +61,7 @@ class WheelOutcome:
 def measure_wheel(wheel: str, cams: tuple[str, str], images: dict, cameras: dict,
                   config: StationConfig, calibration_cov: np.ndarray | None = None) -> WheelOutcome:
     """Detect the rim in both cameras of a pair and rebuild the wheel (one worker's task).
-    images: {camera id: array, or a FrameRef of station.frame_handoff}."""
+    images: {camera id: array, or a FrameRef of station.compute.frame_handoff}."""
     t0 = time.perf_counter()
     images = {c: resolve_frame(im) for c, im in images.items()}
     detections = {c: detect_one(images[c], cameras[c], c) for c in cams}
@@ -83,7 +85,6 @@ def measure_wheel(wheel: str, cams: tuple[str, str], images: dict, cameras: dict
     return out
 
 
-WEIGHT_BY_CONTRAST = True  # weight each rim point in the circle fit by its edge step (wheel3d.contrast_weights)
 DIVERGED_PX = 1.0  # a circle fit whose median residual in a view exceeds this is not on its points
 
 
@@ -94,17 +95,17 @@ def reconstruct_wheel(wheel: str, cams: tuple[str, str], detections: dict, camer
     covariance from the calibration (StationCalibration.pair_covariance); when given, its share
     of the circle's uncertainty is added to the circle's centre and axis covariance.
     uncertainty_limit_deg: a circle less certain than this is tested for arcs on another
-    concentric contour of the wheel (station/other_contour.py).
+    concentric contour of the wheel (station/wheel/other_contour.py).
 
     The circle fit starts from the paper's circle, whose centre is the centroid of the
     triangulated points. A view that sees part of the rim moves it toward that part: 0.16 m
     on harsh-light vehicle 1018 RR, where the fit then ran off to a 4 m circle. When the fit
     is not on its points (``DIVERGED_PX``), it starts again from the circle of the two image
-    ellipses (:func:`station.wheel3d.circle_from_ellipses`), kept if that one is."""
+    ellipses (:func:`station.wheel.circle_fit.circle_from_ellipses`), kept if that one is."""
     cam_l, cam_r = (cameras[c] for c in cams)
     det_l, det_r = detections[cams[0]], detections[cams[1]]
     paper = reconstruct_paper(det_l.points_px, det_r.points_px, cam_l, cam_r)
-    contrast = (det_l.points_contrast, det_r.points_contrast) if WEIGHT_BY_CONTRAST else None
+    contrast = (det_l.points_contrast, det_r.points_contrast)  # each point weighted by its edge step
     circle = refine_circle(det_l.points_px, det_r.points_px, cam_l, cam_r, paper, contrast=contrast)
     if not max(circle.view_median_px) <= DIVERGED_PX:  # the paper's circle was too far off to start from
         centre, radius = circle_from_ellipses(cam_l, cam_r, det_l.ellipse, det_r.ellipse)

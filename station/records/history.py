@@ -21,7 +21,7 @@ import sqlite3
 import threading
 from pathlib import Path
 
-from station.atomic_file import write_atomic
+from station.records.atomic_file import write_atomic
 from station.errors import StorageError
 
 ANGLE_NAMES = ("FL.toe", "FL.camber", "FR.toe", "FR.camber", "RL.toe", "RL.camber",

@@ -1,5 +1,5 @@
 """Which of a view's rim points to trust: arcs of the rim, the viewing geometry at each point,
-and the tests that leave out arcs whose edge is not the flange's (station.wheel3d's circle fit).
+and the tests that leave out arcs whose edge is not the flange's (station.wheel.circle_fit's circle fit).
 
 * :func:`edge_visibility` - how the viewing ray meets the rim at each point (outward: no sidewall
   can hide it; low over the wheel plane: it grazes the lip);
@@ -13,14 +13,11 @@ and the tests that leave out arcs whose edge is not the flange's (station.wheel3
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 
 from calibration.camera_model import CameraModel
-
-if TYPE_CHECKING:
-    from station.wheel3d import WheelFit
+from station.rim.npfast import sector_medians
+from station.wheel.fit import WheelFit
 
 GRAZING_VISIBILITY = 0.5  # edge_visibility above which a ray grazes the lip (30 deg from the wheel plane)
 MIN_KEPT_FRACTION = 0.5   # a test leaving out more of a view is not trusted alone
@@ -45,19 +42,6 @@ def rim_angles(cam: CameraModel, xy: np.ndarray, c: np.ndarray, n: np.ndarray) -
 def sector_labels(phi: np.ndarray, n_sectors: int) -> np.ndarray:
     return ((phi + np.pi) / (2 * np.pi) * n_sectors).astype(int) % n_sectors
 
-
-def sector_medians(r: np.ndarray, lab: np.ndarray, n_sectors: int) -> tuple[np.ndarray, np.ndarray]:
-    """Median of ``r`` (N,) in each sector of ``lab`` (N,) ints in [0, n_sectors), and the
-    counts: ((n_sectors,) with NaN for empty sectors, (n_sectors,) ints). One sort for all
-    sectors; equal to np.median per sector."""
-    count = np.bincount(lab, minlength=n_sectors)
-    if len(r) == 0:
-        return np.full(n_sectors, np.nan), count
-    v = r[np.lexsort((r, lab))]
-    start = np.concatenate([[0], np.cumsum(count)[:-1]])
-    lo = np.minimum(start + (count - 1) // 2, len(v) - 1)
-    hi = np.minimum(start + count // 2, len(v) - 1)
-    return np.where(count > 0, 0.5 * (v[lo] + v[hi]), np.nan), count
 
 
 def edge_visibility(cam: CameraModel, xy: np.ndarray, circle: WheelFit) -> np.ndarray:
@@ -192,7 +176,7 @@ def not_grazing_xy(circle: WheelFit, xy_l: np.ndarray, xy_r: np.ndarray, cam_l: 
     from the camera before the flange edge: the edge seen is the lip's terminator, up to a
     millimetre inside (measured on the simulator: 0.65-0.8 px on such arcs of the oblique
     camera, against 0.05 px elsewhere). Leaving such points out removes that bias but weakens
-    the geometry of the view, so :func:`station.wheel3d.refine_circle` fits both ways and keeps the fit that
+    the geometry of the view, so :func:`station.wheel.circle_fit.refine_circle` fits both ways and keeps the fit that
     is better determined by its own covariance."""
     keeps = []
     for cam, xy in ((cam_l, xy_l), (cam_r, xy_r)):

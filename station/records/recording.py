@@ -42,7 +42,7 @@ import numpy as np
 import rerun as rr
 
 from station.errors import StorageError
-from station.history import finite_number, jsonable
+from station.records.history import finite_number, jsonable
 
 WHEELS = ("FL", "FR", "RL", "RR")
 ANGLE_NAMES = ("FL.toe", "FL.camber", "FR.toe", "FR.camber", "RL.toe", "RL.camber",

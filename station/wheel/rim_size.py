@@ -3,7 +3,7 @@
 The two rims of an axle are the same size, and on every benchmark set a well-measured pair gives
 its rim's radius to 0.05 % (0.1 mm at sigma 2). A rim that comes out larger or smaller than its
 partner's by more than ``RIM_SIZE_WARNING`` (but within ``AXLE_RIM_TOLERANCE``, beyond which
-it is another contour, paired again or refused: station/axle_rims.py) had part of its edge
+it is another contour, paired again or refused: station/wheel/axle_rims.py) had part of its edge
 found off the flange: on a lit tyre bead or a tyre brighter than the lip (larger), or where the flange is hidden or
 shaded (smaller). The circle's radius and its tilt are tied (a circle tilted toward a camera 13
 deg off its axis looks narrower), so such a wheel's angles are off by tenths of a degree: on

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from station.bounded_cache import BoundedCache
+from station.compute.bounded_cache import BoundedCache
 
 _LUTS = BoundedCache(16)  # per gamma: the 8-bit lookup table to linear 16-bit grey
 

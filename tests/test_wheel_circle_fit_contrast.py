@@ -1,28 +1,28 @@
 """The 3-D circle fit with the points weighted by their edge step, and the second fit
-without a view's faint points (station.wheel3d.contrast_weights, _without_faint)."""
+without a view's faint points (station.wheel.circle_fit.contrast_weights, _without_faint)."""
 
 import numpy as np
 import pytest
 
 from simulators.vehicle import random_vehicle
-import station.wheel3d as wheel3d
-from station.wheel3d import reconstruct_paper, refine_circle
+import station.wheel.circle_fit as circle_fit
+from station.wheel.circle_fit import CircleFitSettings, refine_circle
+from station.wheel.paper import reconstruct_paper
 from tests.wheel_fixtures import angle_deg as _angle_deg, pair_cameras as _pair, rim_points as _rim
 
 
 def test_contrast_weights_are_the_step_over_the_median_step_at_most_one():
-    w = wheel3d.contrast_weights(np.array([10.0, 20.0, 40.0, 40.0, 80.0]))
+    w = circle_fit.contrast_weights(np.array([10.0, 20.0, 40.0, 40.0, 80.0]))
     np.testing.assert_allclose(w, [0.25, 0.5, 1.0, 1.0, 1.0])
-    assert wheel3d.contrast_weights(np.array([0.0, 40.0, 40.0]))[0] == wheel3d.MIN_CONTRAST_WEIGHT
-    np.testing.assert_array_equal(wheel3d.contrast_weights(np.zeros(4)), np.ones(4))  # no step at all: unweighted
+    assert circle_fit.contrast_weights(np.array([0.0, 40.0, 40.0]))[0] == circle_fit.MIN_CONTRAST_WEIGHT
+    np.testing.assert_array_equal(circle_fit.contrast_weights(np.zeros(4)), np.ones(4))  # no step at all: unweighted
 
 
-def test_a_faint_arc_pulled_off_the_flange_moves_the_contrast_weighted_fit_less(monkeypatch):
+def test_a_faint_arc_pulled_off_the_flange_moves_the_contrast_weighted_fit_less():
     """A dark rim's shaded arc: there the flange edge is faint and the sub-pixel point sits
     0.6 px outside it (on the tyre bead's shading), in both views, under every outlier test.
     Weighted by their edge step, those points pull the axis far less; with equal steps the
     weighted fit is the plain one."""
-    monkeypatch.setattr(wheel3d, "INWARD_ARC_PASSES", 0)  # (the rounds of stray arcs might drop the arc)
     rng = np.random.default_rng(5)
     v = random_vehicle(np.random.default_rng(12))
     c, w, X = _rim(v, "FR")
@@ -37,12 +37,14 @@ def test_a_faint_arc_pulled_off_the_flange_moves_the_contrast_weighted_fit_less(
         views.append(p + rng.normal(0, 0.08, p.shape))
         contrast.append(np.where(faint, 8.0, 40.0) + rng.uniform(-2, 2, len(X)))
     paper = reconstruct_paper(views[0], views[1], cl, cr)
-    plain = refine_circle(views[0], views[1], cl, cr, paper, grazing_test=False)
-    weighted = refine_circle(views[0], views[1], cl, cr, paper, grazing_test=False, contrast=tuple(contrast))
+    settings = CircleFitSettings(stray_arc_passes=0, grazing_test=False)
+    plain = refine_circle(views[0], views[1], cl, cr, paper, settings=settings)
+    weighted = refine_circle(views[0], views[1], cl, cr, paper, contrast=tuple(contrast),
+                             settings=settings)
     err_p, err_w = _angle_deg(plain.axis_station, w), _angle_deg(weighted.axis_station, w)
     assert err_w < 0.5 * err_p, (err_w, err_p)
-    equal = refine_circle(views[0], views[1], cl, cr, paper, grazing_test=False,
-                          contrast=(np.full(len(X), 40.0), np.full(len(X), 40.0)))
+    equal = refine_circle(views[0], views[1], cl, cr, paper,
+                          contrast=(np.full(len(X), 40.0), np.full(len(X), 40.0)), settings=settings)
     np.testing.assert_allclose(equal.axis_station, plain.axis_station, atol=1e-12)
     np.testing.assert_allclose(np.sqrt(np.trace(equal.cov_axis)), np.sqrt(np.trace(plain.cov_axis)), rtol=1e-9)
 
@@ -67,7 +69,7 @@ def _one_view_faint_arc(seed, offset_px):
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2, 3])
-def test_a_faint_arc_one_view_alone_sees_is_weighed_against_the_fit_without_it(seed, monkeypatch):
+def test_a_faint_arc_one_view_alone_sees_is_weighed_against_the_fit_without_it(seed):
     """The faint points count little in the final solve, but the outlier tests before it are
     unweighted: an arc 1.2 px off that only one view sees tilts the circle they judge by
     (0.01-0.06 deg here). The fit without the faint points is weighed against it
@@ -76,17 +78,16 @@ def test_a_faint_arc_one_view_alone_sees_is_weighed_against_the_fit_without_it(s
     views, contrast, (cl, cr), w, paper = _one_view_faint_arc(seed, 1.2)
     err, fits = {}, {}
     for on in (False, True):
-        monkeypatch.setattr(wheel3d, "FAINT_TEST", on)
-        fits[on] = refine_circle(*views, cl, cr, paper, contrast=contrast)
+        fits[on] = refine_circle(*views, cl, cr, paper, contrast=contrast,
+                                 settings=CircleFitSettings(faint_test=on))
         err[on] = _angle_deg(fits[on].axis_station, w)
     assert err[True] < 0.006, err
     if err[False] > 0.008:  # (seed 2: the arc hardly tilts it)
         assert err[True] < 0.6 * err[False] and fits[True].faint_left_out, err
-    monkeypatch.setattr(wheel3d, "FAINT_TEST", True)
     views, contrast, (cl, cr), w, paper = _one_view_faint_arc(seed, 0.0)
     on_flange = refine_circle(*views, cl, cr, paper, contrast=contrast)
-    monkeypatch.setattr(wheel3d, "FAINT_TEST", False)
-    without_test = refine_circle(*views, cl, cr, paper, contrast=contrast)
+    without_test = refine_circle(*views, cl, cr, paper, contrast=contrast,
+                                 settings=CircleFitSettings(faint_test=False))
     assert _angle_deg(on_flange.axis_station, w) < 0.006 and not on_flange.faint_left_out
     assert _angle_deg(on_flange.axis_station, without_test.axis_station) < 0.004
 
@@ -95,15 +96,15 @@ def test_live_keeps_the_faint_choice_without_a_second_fit(monkeypatch):
     """``station live`` leaves out the points ``not_faint`` rejects when its baseline did, and
     fits once (``faint_test=False``): the update matches the baseline's fit without them."""
     views, contrast, (cl, cr), w, paper = _one_view_faint_arc(0, 1.2)
-    base = refine_circle(*views, cl, cr, paper, contrast=contrast, grazing_test=False)
+    base = refine_circle(*views, cl, cr, paper, contrast=contrast, settings=CircleFitSettings(grazing_test=False))
     assert base.faint_left_out
-    keep = [wheel3d.not_faint(c) for c in contrast]
+    keep = [circle_fit.not_faint(c) for c in contrast]
     assert not keep[0].all() and keep[1].all()
     fits = []
-    real = wheel3d._fit_circle
-    monkeypatch.setattr(wheel3d, "_fit_circle", lambda *a, **k: fits.append(1) or real(*a, **k))
+    real = circle_fit._fit_circle
+    monkeypatch.setattr(circle_fit, "_fit_circle", lambda *a, **k: fits.append(1) or real(*a, **k))
     update = refine_circle(views[0][keep[0]], views[1][keep[1]], cl, cr, base, init_is_fitted=True,
-                           grazing_test=False, contrast=(contrast[0][keep[0]], contrast[1][keep[1]]),
-                           faint_test=False)
+                           contrast=(contrast[0][keep[0]], contrast[1][keep[1]]),
+                           settings=CircleFitSettings(grazing_test=False, faint_test=False))
     assert len(fits) == 1 and not update.faint_left_out
     assert _angle_deg(update.axis_station, base.axis_station) < 0.003

@@ -2,8 +2,8 @@
 checks every step and prints the results.
 
     station serve --dry-run &                      # or the real station: station serve
-    python -m simulators.plc_sim --cycles 3 --dry-run-check
-    python -m simulators.plc_sim --rtu /dev/ttyUSB0 --cycles 3
+    python -m station.plc.master --cycles 3 --dry-run-check
+    python -m station.plc.master --rtu /dev/ttyUSB0 --cycles 3
 
 Per cycle it writes job id, vehicle spec and the trigger in one request, polls the state, reads
 the whole result block in one request, acknowledges, and checks: the station leaves idle at
@@ -225,7 +225,7 @@ def header() -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m simulators.plc_sim", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m station.plc.master", description=__doc__.split("\n\n")[0])
     ap.add_argument("--host", default="127.0.0.1")
     ap.add_argument("--port", type=int, default=5020)
     ap.add_argument("--rtu", metavar="DEVICE", help="Modbus RTU on this serial device instead of TCP")

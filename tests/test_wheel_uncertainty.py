@@ -1,5 +1,5 @@
 """The circle fit's uncertainty and how two fits of one wheel compare
-(station/wheel_fit_uncertainty.py), on hand-made fits and sector medians."""
+(station/wheel/uncertainty.py), on hand-made fits and sector medians."""
 
 from dataclasses import replace
 
@@ -8,8 +8,8 @@ import pytest
 
 
 def test_extra_points_bias_is_the_axis_change_beyond_the_noise():
-    from station.wheel3d import WheelFit
-    from station.wheel_fit_uncertainty import extra_points_bias2
+    from station.wheel.fit import WheelFit
+    from station.wheel.fit_compare import extra_points_bias2
     a = np.radians(0.05)
     cov = lambda s: np.diag([0.0, s, s]) ** 2  # noqa: E731 - (3,3), axis std s rad across it
     full = WheelFit("circle", np.zeros(3), np.array([1.0, 0, 0]), 0.2, cov_axis_noise=cov(np.radians(0.01)))
@@ -24,8 +24,8 @@ def test_extra_points_bias_is_the_axis_change_beyond_the_noise():
 
 
 def test_fits_that_disagree_beyond_all_they_state_are_inconsistent():
-    from station.wheel3d import WheelFit
-    from station.wheel_fit_uncertainty import inconsistent
+    from station.wheel.fit import WheelFit
+    from station.wheel.fit_compare import inconsistent
     cov = np.diag([0.0, 1.0, 1.0]) * np.radians(0.05) ** 2  # 0.05 deg each way across the axis
     a = WheelFit("circle", np.zeros(3), np.array([1.0, 0, 0]), 0.2, cov_axis=cov)
 
@@ -38,7 +38,7 @@ def test_fits_that_disagree_beyond_all_they_state_are_inconsistent():
 
 
 def test_high_mode_amplitude_measures_modes_3_4_above_the_noise():
-    from station.wheel_fit_uncertainty import high_mode_amplitude
+    from station.wheel.uncertainty import high_mode_amplitude
     sectors = np.arange(18)
     angle = (sectors + 0.5) * (2 * np.pi / 18) - np.pi
     se2 = np.full(18, 0.002 ** 2)
@@ -51,8 +51,8 @@ def test_high_mode_amplitude_measures_modes_3_4_above_the_noise():
 
 
 def test_a_fit_kept_against_a_disagreeing_one_states_their_difference():
-    from station.wheel3d import WheelFit
-    from station.wheel_fit_uncertainty import with_disagreement
+    from station.wheel.fit import WheelFit
+    from station.wheel.fit_compare import with_disagreement
     sd = np.radians(0.1)
     cov = np.diag([0.0, 1.0, 1.0]) * sd ** 2                 # +/-0.1 deg across the axis (x)
     a = WheelFit("circle", np.zeros(3), np.array([1.0, 0, 0]), 0.2, cov_axis=cov)
@@ -71,8 +71,8 @@ def test_the_grazing_choice_moves_smoothly_toward_the_subset_fit():
     weight toward the subset is |b|^2 / (|b|^2 + V), b the extra points' estimated bias, V
     the variance the subset adds. A hard choice of the smaller expected error jumps by the
     whole difference where |b|^2 crosses V; the weighted fit passes through the midpoint."""
-    from station.wheel3d import WheelFit
-    from station.wheel_fit_uncertainty import toward, toward_subset_weight
+    from station.wheel.fit import WheelFit
+    from station.wheel.fit_compare import toward, toward_subset_weight
 
     def cov(sd_deg):
         return np.diag([0.0, 1.0, 1.0]) * np.radians(sd_deg) ** 2  # across the axis (x)

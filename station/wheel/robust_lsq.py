@@ -1,6 +1,6 @@
 """Robust (soft-L1) least squares by Levenberg-Marquardt, for the small fits of every cycle.
 
-The 3-D circle fit (station/wheel3d.py) minimises, over P = 6 parameters and N ~ 2000 rim
+The 3-D circle fit (station/wheel/circle_fit.py) minimises, over P = 6 parameters and N ~ 2000 rim
 points, the soft-L1 cost
 
     F(x) = 1/2 sum_i C^2 rho(z_i),   rho(z) = 2 (sqrt(1 + z) - 1),   z_i = (r_i(x) / C)^2,

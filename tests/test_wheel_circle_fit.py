@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 
 from simulators.vehicle import random_vehicle
-import station.wheel3d as wheel3d
-from station.epipolar import fit_conic
-from station.wheel3d import reconstruct_paper, refine_circle
+from station.wheel.epipolar import fit_conic
+from station.wheel.circle_fit import CircleFitSettings, refine_circle
+from station.wheel.paper import reconstruct_paper
 from calibration.camera_model import CameraModel
-from station.wheel_arcs import edge_visibility
+from station.wheel.arcs import edge_visibility
 from tests.wheel_fixtures import angle_deg as _angle_deg, pair_cameras as _pair, rim_points as _rim
 
 
@@ -78,8 +78,7 @@ def _arc_bias(cam, pts_px, centre_px, phi0, half_width, depth_px):
     return pts_px - (depth_px * np.sin(0.5 * np.pi * w) ** 2)[:, None] * d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
-def test_an_arc_seen_inside_the_rim_pulls_the_inward_weighted_fit_less(monkeypatch):
-    monkeypatch.setattr(wheel3d, "INWARD_ARC_PASSES", 0)  # (the rounds of inward arcs would drop the arc)
+def test_an_arc_seen_inside_the_rim_pulls_the_inward_weighted_fit_less():
     v = random_vehicle(np.random.default_rng(11))
     c, w, X = _rim(v, "FR")
     cl, cr = _pair(c[0], c[1])
@@ -88,8 +87,10 @@ def test_an_arc_seen_inside_the_rim_pulls_the_inward_weighted_fit_less(monkeypat
     pr = _arc_bias(cr, pr_true, pr_true.mean(axis=0), 0.0, np.radians(40), 3.0)
     paper = reconstruct_paper(pl, pr, cl, cr)
     # (without the second fit that leaves grazing points out, which would hide the weight's effect)
-    symmetric = refine_circle(pl, pr, cl, cr, paper, inward_weight=1.0, grazing_test=False)
-    weighted = refine_circle(pl, pr, cl, cr, paper, grazing_test=False)
+    symmetric = refine_circle(pl, pr, cl, cr, paper,
+                              settings=CircleFitSettings(stray_arc_passes=0, inward_weight=1.0, grazing_test=False))
+    weighted = refine_circle(pl, pr, cl, cr, paper,
+                             settings=CircleFitSettings(stray_arc_passes=0, grazing_test=False))
     err_sym, err_w = _angle_deg(symmetric.axis_station, w), _angle_deg(weighted.axis_station, w)
     assert err_w < 0.6 * err_sym, (err_w, err_sym)
 
@@ -103,13 +104,12 @@ def _hidden_side_angle(cam, X, pts_px, fit):
 
 
 @pytest.mark.parametrize("seed,wheel", [(11, "FR"), (5, "RL")])
-def test_an_arc_hidden_by_the_sidewall_is_left_out(seed, wheel, monkeypatch):
+def test_an_arc_hidden_by_the_sidewall_is_left_out(seed, wheel):
     """The reference camera sees the flange edge 1.2 px inside on the arc the tyre's sidewall
     could hide (where the ray travels inward over the tyre): the occlusion test drops that arc
     and the axis comes out several times closer than with every point weighted in (1.2 px:
     too close to the circle for the rejection of points on another contour to catch it; the
     rounds of inward arcs, which would, are off here to show this test alone)."""
-    monkeypatch.setattr(wheel3d, "INWARD_ARC_PASSES", 0)
     rng = np.random.default_rng(seed)
     v = random_vehicle(np.random.default_rng(seed))
     c, w, X = _rim(v, wheel)
@@ -120,8 +120,9 @@ def test_an_arc_hidden_by_the_sidewall_is_left_out(seed, wheel, monkeypatch):
     phi0 = _hidden_side_angle(cr, X, pr_true, exact)
     pr = _arc_bias(cr, pr_true, pr_true.mean(axis=0), phi0, np.radians(35), 1.2) + rng.normal(0, 0.1, (len(X), 2))
     paper = reconstruct_paper(pl, pr, cl, cr)
-    tested = refine_circle(pl, pr, cl, cr, paper)
-    trusting = refine_circle(pl, pr, cl, cr, paper, occlusion_test=False)
+    tested = refine_circle(pl, pr, cl, cr, paper, settings=CircleFitSettings(stray_arc_passes=0))
+    trusting = refine_circle(pl, pr, cl, cr, paper,
+                             settings=CircleFitSettings(stray_arc_passes=0, occlusion_test=False))
     err_t, err_all = _angle_deg(tested.axis_station, w), _angle_deg(trusting.axis_station, w)
     assert err_t < 0.35 * err_all, (err_t, err_all)
     assert tested.n_points[1] < 0.9 * len(pr)   # the arc is gone from the reference view
@@ -147,7 +148,7 @@ def test_an_arc_on_another_contour_is_left_out_and_not_taken_for_drift():
     assert paper.epipolar_rms_px > 1.0 > fit.epipolar_rms_px
 
 
-def _one_arc_moved(monkeypatch, phi0_of, depth_px):
+def _one_arc_moved(phi0_of, depth_px):
     """FR rim, noise 0.1 px; in the reference view a 60-degree arc at image angle
     ``phi0_of(cam_l, cam_r, X, pr_true)`` moved ``depth_px`` inward (negative: outward).
     Returns (axis error with the rounds of stray arcs, without them, those two fits, len(pl))."""
@@ -160,23 +161,23 @@ def _one_arc_moved(monkeypatch, phi0_of, depth_px):
     phi0 = phi0_of(cl, cr, X, pr_true)
     pr = _arc_bias(cr, pr_true, pr_true.mean(axis=0), phi0, np.radians(30), depth_px) + rng.normal(0, 0.1, (len(X), 2))
     paper = reconstruct_paper(pl, pr, cl, cr)
-    trimmed = refine_circle(pl, pr, cl, cr, paper, grazing_test=False)
-    monkeypatch.setattr(wheel3d, "INWARD_ARC_PASSES", 0)
-    untrimmed = refine_circle(pl, pr, cl, cr, paper, grazing_test=False)
+    trimmed = refine_circle(pl, pr, cl, cr, paper, settings=CircleFitSettings(grazing_test=False))
+    untrimmed = refine_circle(pl, pr, cl, cr, paper,
+                              settings=CircleFitSettings(stray_arc_passes=0, grazing_test=False))
     return (_angle_deg(trimmed.axis_station, w), _angle_deg(untrimmed.axis_station, w), trimmed, untrimmed,
             len(pl))
 
 
-def test_an_arc_seen_outside_the_rim_is_left_out(monkeypatch):
+def test_an_arc_seen_outside_the_rim_is_left_out():
     """A lit tyre bead wall taken for metal: the reference camera sees the edge 1.0 px
     outside on a 60-degree arc, under the gross-outlier limit. The rounds of stray arcs leave
     it out; without them the axis is far more off."""
-    err_t, err_u, trimmed, untrimmed, _ = _one_arc_moved(monkeypatch, lambda cl, cr, X, pr: 1.0, -1.0)
+    err_t, err_u, trimmed, untrimmed, _ = _one_arc_moved(lambda cl, cr, X, pr: 1.0, -1.0)
     assert err_t < 0.5 * err_u, (err_t, err_u)
     assert trimmed.n_points[1] < untrimmed.n_points[1]
 
 
-def test_an_inward_arc_on_the_side_no_sidewall_hides_is_left_out(monkeypatch):
+def test_an_inward_arc_on_the_side_no_sidewall_hides_is_left_out():
     """The reference camera sees the edge 1.0 px inside on the arc it sees best (its ray
     leaves the rim outward there, so the sidewall test trusts it: a lip shaded dark, say).
     The rounds of inward arcs leave it out; without them the axis is twice as far off."""
@@ -184,7 +185,7 @@ def test_an_inward_arc_on_the_side_no_sidewall_hides_is_left_out(monkeypatch):
         exact = reconstruct_paper(cl.project(X), pr_true, cl, cr)
         return _hidden_side_angle(cr, X, pr_true, exact) + np.pi
 
-    err_t, err_u, trimmed, untrimmed, n_left = _one_arc_moved(monkeypatch, best_seen, 1.0)
+    err_t, err_u, trimmed, untrimmed, n_left = _one_arc_moved(best_seen, 1.0)
     assert err_t < 0.6 * err_u, (err_t, err_u)
     assert trimmed.n_points[1] < untrimmed.n_points[1] and trimmed.n_points[0] == n_left
 
@@ -209,9 +210,11 @@ def test_stated_uncertainty_grows_with_a_slowly_varying_edge_bias():
     assert _angle_deg(biased.axis_station, w) < 3 * axis_std_deg(biased)
     # the bias term is what grew: without it the biased fit states less; with noise alone
     # (the sector medians explained by the noise) it adds next to nothing
-    no_term = refine_circle(pl, pr_b, cl, cr, reconstruct_paper(pl, pr_b, cl, cr), bias_modes=0)
+    no_term = refine_circle(pl, pr_b, cl, cr, reconstruct_paper(pl, pr_b, cl, cr),
+                            settings=CircleFitSettings(bias_modes=0))
     assert axis_std_deg(biased) > 1.3 * axis_std_deg(no_term)
-    clean_no_term = refine_circle(pl, pr, cl, cr, reconstruct_paper(pl, pr, cl, cr), bias_modes=0)
+    clean_no_term = refine_circle(pl, pr, cl, cr, reconstruct_paper(pl, pr, cl, cr),
+                                  settings=CircleFitSettings(bias_modes=0))
     assert axis_std_deg(clean) < 1.3 * axis_std_deg(clean_no_term)
 
 
@@ -219,7 +222,7 @@ def test_bundle_parameters_map_to_the_perturbation_parameters():
     """A small step of the bundle adjustment's camera parameters (rotation vector, centre) and
     the mapped step of perturb_camera's parameters move every projected point the same way."""
     from calibration.camera_model import matrix_to_rodrigues, rodrigues_to_matrix
-    from station.calibration_share import bundle_to_perturbation, perturb_camera
+    from station.wheel.calibration_share import bundle_to_perturbation, perturb_camera
 
     cam = _pair(0.78, 1.35)[1]
     X = np.random.default_rng(0).uniform([0.5, 1.1, 0.1], [1.0, 1.6, 0.6], (50, 3))
@@ -240,13 +243,13 @@ def test_bundle_parameters_map_to_the_perturbation_parameters():
 def test_calibration_covariance_matches_refits_with_perturbed_cameras():
     """Monte Carlo: refit the circle with cameras drawn from a parameter covariance; the spread
     of the axis matches the first-order prediction."""
-    from station.calibration_share import calibration_covariance, perturb_camera
+    from station.wheel.calibration_share import calibration_covariance, perturb_camera
 
     v = random_vehicle(np.random.default_rng(2))
     c, w, X = _rim(v, "FR")
     cl, cr = _pair(c[0], c[1])
     pl, pr = cl.project(X), cr.project(X)
-    fit = refine_circle(pl, pr, cl, cr, reconstruct_paper(pl, pr, cl, cr), bias_modes=0)
+    fit = refine_circle(pl, pr, cl, cr, reconstruct_paper(pl, pr, cl, cr), settings=CircleFitSettings(bias_modes=0))
     sd = np.array([0.3, 0.3, 0.3, 0.3, 2e-4, 5e-4, 2e-5, 2e-5, 1e-3, 5e-5, 5e-5, 5e-5, 1e-4, 1e-4, 1e-4])
     A = np.random.default_rng(5).normal(size=(30, 30)) * 0.3 + np.eye(30)
     corr = A @ A.T
@@ -262,7 +265,7 @@ def test_calibration_covariance_matches_refits_with_perturbed_cameras():
             d = rng.multivariate_normal(np.zeros(30), cov)
             ml, mr = perturb_camera(cl, d[:15]), perturb_camera(cr, d[15:])
             kw = {} if robust else {"inward_weight": 1.0, "loss_scale_px": 100.0}
-            axes.append(refine_circle(pl, pr, ml, mr, fit, bias_modes=0, **kw).axis_station)
+            axes.append(refine_circle(pl, pr, ml, mr, fit, settings=CircleFitSettings(bias_modes=0, **kw)).axis_station)
         spread = np.trace(np.cov(np.array(axes).T))
         assert 0.6 < spread / np.trace(cov_axis) < 1.6, (scale, robust, spread / np.trace(cov_axis))
 
@@ -270,7 +273,7 @@ def test_calibration_covariance_matches_refits_with_perturbed_cameras():
 def test_sampson_jacobian_matches_finite_differences():
     """The circle fit's analytic Jacobian: the Sampson distance's derivative along any symmetric
     conic direction equals a central difference of sampson_px."""
-    from station.wheel3d import circle_conic, sampson_jacobian, sampson_px
+    from station.wheel.conics import circle_conic, sampson_jacobian, sampson_px
     rng = np.random.default_rng(3)
     n = np.array([0.2, 0.1, -0.97])
     C = circle_conic(np.array([0.1, 0.05, 1.3]), n / np.linalg.norm(n), 0.2)
@@ -284,15 +287,14 @@ def test_sampson_jacobian_matches_finite_differences():
     assert np.abs(J - numeric).max() < 1e-6 * np.abs(numeric).max()
 
 
-def test_points_seen_across_the_lip_at_a_grazing_angle_are_fitted_without(monkeypatch):
+def test_points_seen_across_the_lip_at_a_grazing_angle_are_fitted_without():
     """Where the oblique camera looks outward across the rounded lip at a grazing angle, the
     edge it sees is the lip's terminator, inside the flange edge. With those points moved
     0.8 px inward (as measured on the simulator), the second fit without them, kept because it
     is better determined, is far closer to the true axis than the fit of all points (the
     rounds of inward arcs, which catch much of it too, are off to show this test alone)."""
-    monkeypatch.setattr(wheel3d, "INWARD_ARC_PASSES", 0)
-    from station.wheel3d import WheelFit
-    from station.wheel_arcs import GRAZING_VISIBILITY, not_grazing
+    from station.wheel.fit import WheelFit
+    from station.wheel.arcs import GRAZING_VISIBILITY, not_grazing
     v = random_vehicle(np.random.default_rng(4))
     c, w, X = _rim(v, "FR")
     cl, cr = _pair(c[0], c[1])
@@ -306,8 +308,9 @@ def test_points_seen_across_the_lip_at_a_grazing_angle_are_fitted_without(monkey
     d = pr - pr.mean(axis=0)
     pr = pr - 0.8 * grazing[:, None] * d / np.linalg.norm(d, axis=1, keepdims=True) + rng.normal(0, 0.08, pr.shape)
     paper = reconstruct_paper(pl, pr, cl, cr)
-    both = refine_circle(pl, pr, cl, cr, paper, grazing_test=False)
-    without = refine_circle(pl, pr, cl, cr, paper)
+    both = refine_circle(pl, pr, cl, cr, paper, settings=CircleFitSettings(stray_arc_passes=0,
+                                                                           grazing_test=False))
+    without = refine_circle(pl, pr, cl, cr, paper, settings=CircleFitSettings(stray_arc_passes=0))
     err_both, err_without = _angle_deg(both.axis_station, w), _angle_deg(without.axis_station, w)
     assert err_without < 0.4 * err_both, (err_without, err_both)
     assert without.grazing_left_out and not both.grazing_left_out  # station live keeps the choice
@@ -336,7 +339,7 @@ def test_a_view_with_nothing_on_the_circle_is_refused_not_crashed():
 
 
 def test_the_epipolar_tangent_points_and_how_far_the_rim_seen_is_from_them():
-    from station.epipolar import epipolar_tangent_points, pair_relation, tangent_point_gaps_deg
+    from station.wheel.epipolar import epipolar_tangent_points, pair_relation, tangent_point_gaps_deg
 
     v = random_vehicle(np.random.default_rng(4))
     c, w, X = _rim(v, "FL", n=1440)
@@ -360,8 +363,8 @@ def test_the_epipolar_tangent_points_and_how_far_the_rim_seen_is_from_them():
 
 def _grazing_shifted(seed, shift_px):
     """An FR rim whose oblique view's grazing points sit ``shift_px`` inside the flange edge."""
-    from station.wheel3d import WheelFit
-    from station.wheel_arcs import GRAZING_VISIBILITY
+    from station.wheel.fit import WheelFit
+    from station.wheel.arcs import GRAZING_VISIBILITY
     v = random_vehicle(np.random.default_rng(seed))
     c, w, X = _rim(v, "FR")
     cl, cr = _pair(c[0], c[1])
@@ -383,8 +386,9 @@ def test_grazing_points_a_little_inside_are_left_out_though_the_fit_with_them_st
     the axis beyond their noise) is the one without."""
     pl, pr, cl, cr, w, grazing = _grazing_shifted(seed, 0.04)
     paper = reconstruct_paper(pl, pr, cl, cr)
-    both = refine_circle(pl, pr, cl, cr, paper, grazing_test=False)
-    without = refine_circle(pl, pr[~grazing], cl, cr, paper, grazing_test=False)
+    both = refine_circle(pl, pr, cl, cr, paper, settings=CircleFitSettings(grazing_test=False))
+    without = refine_circle(pl, pr[~grazing], cl, cr, paper,
+                            settings=CircleFitSettings(grazing_test=False))
     assert np.trace(both.cov_axis) < np.trace(without.cov_axis)  # the stated uncertainty alone keeps them
     chosen = refine_circle(pl, pr, cl, cr, paper)
     assert chosen.grazing_left_out
@@ -402,7 +406,7 @@ def test_a_uniform_edge_offset_is_the_same_in_both_views():
     directions (a disparity), the same offset in both cancels; the slowly varying modes stay
     each view's own."""
     from types import SimpleNamespace
-    from station.wheel_fit_uncertainty import axis_basis, bias_covariance
+    from station.wheel.uncertainty import axis_basis, bias_covariance
     v = random_vehicle(np.random.default_rng(1))
     c, w, X = _rim(v, "FR", n=720)
     cl, cr = _pair(c[0], c[1])
@@ -444,7 +448,8 @@ def test_an_elongating_edge_bias_is_in_the_stated_camber():
         paper = reconstruct_paper(pl, pr, cl, cr)
         up = np.array([0.0, 0.0, 1.0])
         for modes in ratios:
-            fit = refine_circle(pl, pr, cl, cr, paper, bias_modes=modes, grazing_test=False)
+            fit = refine_circle(pl, pr, cl, cr, paper,
+                                settings=CircleFitSettings(bias_modes=modes, grazing_test=False))
             ratios[modes].append(abs(fit.axis_station @ up - w @ up) / np.sqrt(up @ fit.cov_axis @ up))
     assert np.mean(ratios[1]) > 1.8
     assert 0.7 < np.mean(ratios[2]) < 1.5
@@ -457,7 +462,8 @@ def test_a_view_with_a_quarter_of_its_points_safe_is_still_tested_for_hidden_arc
     MIN_SAFE_FRACTION the sidewall test is skipped and the fit follows the contour (0.6-0.75
     deg off at 0.3). (Seed 0 leaves so little that the test's fit is doubtful and the plain
     fit, stated surer, is kept: the rule of MIN_KEPT_FRACTION, not this one.)"""
-    from station.wheel3d import MIN_SAFE_FRACTION, WheelFit
+    from station.wheel.circle_fit import MIN_SAFE_FRACTION
+    from station.wheel.fit import WheelFit
     assert MIN_SAFE_FRACTION <= 0.25
     v = random_vehicle(np.random.default_rng(seed))
     c, w, X = _rim(v, "FR")
@@ -479,7 +485,7 @@ def test_a_view_with_a_quarter_of_its_points_safe_is_still_tested_for_hidden_arc
 def test_the_circle_of_two_image_ellipses_holds_where_the_cameras_see_part_of_the_rim(seed, wheel):
     from station.rim.ellipse_fit import fit_direct
     from station.rim.preprocess import PixelMap
-    from station.wheel3d import circle_from_ellipses
+    from station.wheel.circle_fit import circle_from_ellipses
 
     v = random_vehicle(np.random.default_rng(seed))
     c, w, X = _rim(v, wheel)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from station.errors import WorkerFailure
-from station.wheel_workers import WheelWorkers
+from station.compute.workers import WorkerPool
 
 
 def _square(x):
@@ -29,13 +29,13 @@ def _die(_):
 
 
 def test_results_come_back_in_order_from_every_worker():
-    with WheelWorkers(2) as w:
+    with WorkerPool(2) as w:
         assert w.map(_square, [(i,) for i in range(7)]) == [i * i for i in range(7)]
         assert os.getpid() not in w.map(_pid, [(i,) for i in range(4)])
 
 
 def test_a_dead_worker_fails_the_cycle_clearly_and_the_next_cycle_runs():
-    with WheelWorkers(2) as w:
+    with WorkerPool(2) as w:
         with pytest.raises(WorkerFailure, match="worker process died"):
             w.map(_die, [(0,)])
         assert w.map(_square, [(3,)]) == [9]
@@ -52,7 +52,7 @@ def test_measure_frames_in_workers_equals_in_process(tmp_path):
     world.set_scene(world.vehicle_scene(5))
     images = world.render_all(np.random.default_rng(5))
     local = measure_frames(images, world.cameras, cfg)
-    with WheelWorkers(2) as w:
+    with WorkerPool(2) as w:
         pooled = measure_frames(images, world.cameras, cfg, workers=w)
     assert local["valid"] and pooled["valid"]
     for wheel in ("FL", "FR", "RL", "RR"):
@@ -61,7 +61,7 @@ def test_measure_frames_in_workers_equals_in_process(tmp_path):
 
 
 def test_close_does_not_wait_forever_for_a_stuck_worker():
-    w = WheelWorkers(1)
+    w = WorkerPool(1)
     pid = w.map(_sleep, [(0.0,)])[0]
     w._pool.submit(_sleep, 60.0)  # a task that will not finish in time
     time.sleep(0.5)

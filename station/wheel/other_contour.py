@@ -28,12 +28,13 @@ import numpy as np
 from calibration.camera_model import CameraModel
 from calibration.triangulation import homogeneous
 from station.errors import MeasurementError
-from station.robust_lsq import soft_l1_least_squares
-from station.epipolar import epipolar_tangency_px
-from station.wheel3d import (BIAS_MODES, MIN_VIEW_POINTS, WheelFit, circle_conics, contrast_weights, sampson_jacobian,
-                            tangent_gaps)
-from station.wheel_fit_uncertainty import axis_basis, axis_covariance, bias_covariance, noise_covariance, normal_from
-from station.wheel_arcs import rim_angles
+from station.wheel.robust_lsq import soft_l1_least_squares
+from station.wheel.epipolar import epipolar_tangency_px
+from station.wheel.circle_fit import MIN_VIEW_POINTS, CircleFitSettings, contrast_weights, tangent_gaps
+from station.wheel.conics import circle_conics, sampson_jacobian
+from station.wheel.fit import WheelFit
+from station.wheel.uncertainty import axis_basis, axis_covariance, bias_covariance, noise_covariance, normal_from
+from station.wheel.arcs import rim_angles
 
 WINDOWS = 4               # half-rim windows, centred 90 degrees apart
 MIN_WINDOW_POINTS = 40    # per view, for a hypothesis circle
@@ -149,8 +150,8 @@ def other_contour_points(views, circle, fit_plain):
 MIN_SECOND_PER_VIEW = 20  # points on the second contour in each view, to fit it as well
 
 
-def fit_two_contours(views, labels, init, loss_scale_px: float = 0.3, bias_modes: int = BIAS_MODES,
-                     weights=None):
+def fit_two_contours(views, labels, init, loss_scale_px: float = CircleFitSettings.loss_scale_px,
+                     bias_modes: int = CircleFitSettings.bias_modes, weights=None):
     """One spin axis, centre and radius for the points of label 1, and a second concentric
     circle (its own radius, its plane offset along the axis) for those of label 2.
 
@@ -159,7 +160,7 @@ def fit_two_contours(views, labels, init, loss_scale_px: float = 0.3, bias_modes
     R1, R2, h2): the normal n0 + a e1 + b e2 (normalised), contour 1 the circle (c, n, R1),
     contour 2 (c + h2 n, n, R2). Residuals: Sampson distances (px), soft-L1 at
     ``loss_scale_px``, each weighted by ``weights`` (per view (N,), or None: 1; as in
-    :func:`station.wheel3d.refine_circle`). Returns a WheelFit of contour 1, its covariances as the circle fit
+    :func:`station.wheel.circle_fit.refine_circle`). Returns a WheelFit of contour 1, its covariances as the circle fit
     states them (Jacobian, residual correlation along the rim, slow edge biases); None when a
     view keeps fewer than MIN_VIEW_POINTS points of contour 1 (no 3-D circle rests on it)."""
     if any(int((lab == 1).sum()) < MIN_VIEW_POINTS for lab in labels):
@@ -235,7 +236,7 @@ def refit_other_contour(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l:
     Tried only when ``circle`` (the fit of all points, (N,2) and (M,2) pixels) states an axis
     uncertainty above ``above_deg`` (the station's uncertainty limit: such a cycle would be
     reported as uncertain), and kept only when it states a smaller one. ``contrast``: as for
-    :func:`station.wheel3d.refine_circle`."""
+    :func:`station.wheel.circle_fit.refine_circle`."""
     if not np.degrees(np.sqrt(max(np.trace(circle.cov_axis), 0.0))) > above_deg:  # (NaN: not above)
         return None
     views, weights = [], []

@@ -2,7 +2,7 @@
 
 When one camera of a pair ended on another contour (a ring inside the barrel, a dark flange's
 shaded inner edge) and none of its runner-up candidates is the rim, the other camera's rim and
-the rim's size (its axle partner's, :mod:`station.rim_size`) fix where the rim must appear in
+the rim's size (its axle partner's, :mod:`station.wheel.rim_size`) fix where the rim must appear in
 this camera: the rays of the first camera's rim ellipse form a cone from its centre, and a
 plane of the wheel's orientation cuts that cone in a circle whose size grows with the plane's
 distance from the camera. The plane at which the circle has the partner's radius holds the

@@ -26,7 +26,7 @@ from concurrent.futures.process import BrokenProcessPool
 
 from station.errors import WorkerFailure
 
-PRELOAD = ["station.measure", "station.rim.detector", "station.wheel3d"]
+PRELOAD = ["station.measure", "station.rim.detector", "station.wheel.circle_fit"]
 
 
 def default_workers() -> int:
@@ -49,7 +49,7 @@ def _ready(_index: int) -> int:
     return os.getpid()
 
 
-class WheelWorkers:
+class WorkerPool:
     """A pool of ``n`` worker processes. ``map(fn, args)`` runs ``fn(*a)`` for each tuple of
     ``args`` (``fn`` a module-level function) and returns the results in order. Use as a
     context manager or call :meth:`close`."""

@@ -3,7 +3,7 @@
 The pair's joint (30,30) camera-parameter covariance from the calibration's bundle adjustment
 (stored per pair in the calibration file) is mapped to small perturbations of the two cameras
 (:func:`pair_perturbation_covariance`) and propagated to the 3-D circle of
-``station.wheel3d.refine_circle`` by the implicit-function theorem (:func:`calibration_covariance`).
+``station.wheel.circle_fit.refine_circle`` by the implicit-function theorem (:func:`calibration_covariance`).
 """
 
 from __future__ import annotations
@@ -11,8 +11,9 @@ from __future__ import annotations
 import numpy as np
 
 from calibration.camera_model import CameraModel
-from station.wheel3d import WheelFit, circle_conic, sampson_px
-from station.wheel_fit_uncertainty import normal_from
+from station.wheel.conics import circle_conic, sampson_px
+from station.wheel.fit import WheelFit
+from station.wheel.uncertainty import normal_from
 
 CAMERA_PARAMS = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "rx", "ry", "rz", "tx", "ty", "tz")
 

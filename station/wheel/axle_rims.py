@@ -1,6 +1,6 @@
 """The rims of an axle are one size: a wheel measured at another size than its axle partner
 took another contour; it is paired again at the partner's size, or the cycle is refused.
-(A rim a little off its partner's size is only warned of: station/rim_size.py.)
+(A rim a little off its partner's size is only warned of: station/wheel/rim_size.py.)
 """
 
 from __future__ import annotations
@@ -9,8 +9,8 @@ import numpy as np
 
 from station.config import StationConfig
 from station.errors import MeasurementError, StationError
-from station.rim_size import AXLE_PARTNER, AXLE_RIM_TOLERANCE, odd_rims
-from station.wheel_pair import WheelObservation, check_same_rim, reconstruct_wheel, resolve_pair
+from station.wheel.rim_size import AXLE_PARTNER, AXLE_RIM_TOLERANCE, odd_rims
+from station.wheel.pair import WheelObservation, check_same_rim, reconstruct_wheel, resolve_pair
 
 
 def _rescued_to_size(wheel: str, observations: dict, outcomes: list, images: dict, cameras: dict,
@@ -41,14 +41,14 @@ def _carried_pair(wheel: str, cams: tuple[str, str], detection_sets: list[dict],
                   radius_m: float) -> tuple[WheelObservation, str] | None:
     """A pair made of one camera's detection and the rim searched again in the other camera
     from where that detection, at ``radius_m`` and in a plane across ``axis_station``, must
-    appear there (station/rim_transfer.py): the best such pair (by the weaker score) that is one
+    appear there (station/wheel/rim_transfer.py): the best such pair (by the weaker score) that is one
     3-D rim of that size, with a warning saying what was done; None if there is none. Tried from
     each camera's detection in ``detection_sets`` (the first choices, the pairing taken).
     Dark rims, vehicle 6013 RR: cam8's search ended between the flange and the lip's inner edge,
     none of its candidates was the flange; carried from cam7's first choice, its rim is found
     0.1 px from the true one and the wheel's centre 0.2 mm off."""
     from station.rim.detector import refine_candidate
-    from station.rim_transfer import carried_prior
+    from station.wheel.rim_transfer import carried_prior
 
     best, tried = None, set()
     for detections in detection_sets:
@@ -110,7 +110,7 @@ def axle_rim_mismatch(observations: dict) -> tuple[str, str] | None:
     AXLE_RIM_TOLERANCE: the rims of an axle are the same size, so one pair measured another
     contour (both its cameras on the tyre's outline, say, which a 3-D circle fits as well as
     the rim) or another wheel is fitted. The wheel named is the one farther from the median
-    radius of the four (station.rim_size.odd_rims). None when they agree."""
+    radius of the four (station.wheel.rim_size.odd_rims). None when they agree."""
     radius = {w: o.circle.radius_m for w, o in observations.items()}
     odd = odd_rims(radius, AXLE_PARTNER, AXLE_RIM_TOLERANCE)
     if not odd:

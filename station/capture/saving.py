@@ -1,0 +1,73 @@
+"""Keeping a cycle's frames: cycle ids and lossless replay sets (docs/replay-format.md).
+
+    path = save_capture(frames, config.data_path("captures", new_cycle_id()))
+
+A failed cycle's partial frames are kept too (``capture_and_save``): nothing is lost.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import itertools
+import logging
+from pathlib import Path
+
+from drivers.base import Camera, Frame
+from drivers.frame_store import save_cycle
+from station.capture.sync import capture_averaged
+from station.errors import StationError
+
+log = logging.getLogger("station.capture")
+
+_cycle_counter = itertools.count(1)
+
+
+def new_cycle_id() -> str:
+    """A sortable, unique id: UTC time to the millisecond + a process counter."""
+    now = _dt.datetime.now(_dt.timezone.utc)
+    return f"{now:%Y%m%dT%H%M%S}{now.microsecond // 1000:03d}Z-{next(_cycle_counter):04d}"
+
+
+def save_capture(frames: dict[str, Frame], directory, *, cycle_id: str | None = None,
+                 failures: dict[str, str] | None = None, truth: dict | None = None,
+                 extra: dict | None = None) -> Path:
+    """Save a (possibly partial) set losslessly with its metadata (docs/replay-format.md)."""
+    directory = Path(directory)
+    meta = {"cycle_id": cycle_id or directory.name,
+            "saved_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="milliseconds"),
+            "complete": not failures, "failures": dict(failures or {}), **(extra or {})}
+    return save_cycle(directory, frames, extra=meta, truth=truth)
+
+
+def capture_and_save(cameras: dict[str, Camera], timeout_s: float, out_dir, *, trigger_board=None,
+                     max_skew_s: float | None = None, truth: dict | None = None,
+                     extra: dict | None = None, frames_averaged: int = 1) -> tuple[dict[str, Frame], Path]:
+    """capture_averaged, then save; a failed cycle's partial frames are saved too, then it raises.
+
+    The error then has ``saved_to`` (the directory) besides ``frames`` and ``failures``.
+    """
+    out_dir = Path(out_dir)
+    try:
+        frames = capture_averaged(cameras, timeout_s, trigger_board, max_skew_s, frames_averaged)
+    except StationError as e:
+        partial = getattr(e, "frames", {})
+        if partial:
+            e.saved_to = save_capture(partial, out_dir, failures=getattr(e, "failures", {}),
+                                      truth=truth, extra=extra)
+            log.warning("cycle failed; %d frame(s) kept in %s", len(partial), e.saved_to)
+        raise
+    return frames, save_capture(frames, out_dir, truth=truth, extra=extra)
+
+
+def capture_station_cycle(cameras: dict[str, Camera], config, *, trigger_board=None, context: dict | None = None,
+                          truth: dict | None = None, extra: dict | None = None) -> tuple[dict[str, Frame], Path | None]:
+    """The station's cycle: capture with ``capture.timeout_s`` (or the simulated cameras' own
+    deadline from ``context``) and, if ``capture.keep_captures``, save under
+    ``<data_dir>/captures/<cycle id>`` (a failed cycle's partial set too). (frames, path or None)."""
+    timeout = max(config.capture.timeout_s, (context or {}).get("capture_timeout_s", 0.0))
+    n = config.capture.frames_averaged
+    if not config.capture.keep_captures:
+        return capture_averaged(cameras, timeout, trigger_board, frames=n), None
+    cycle_id = new_cycle_id()
+    return capture_and_save(cameras, timeout, config.data_path("captures", cycle_id), trigger_board=trigger_board,
+                            truth=truth, extra={"station": config.name, **(extra or {})}, frames_averaged=n)
