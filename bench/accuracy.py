@@ -35,9 +35,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from bench import outside_envelope  # noqa: E402
 from simulators import image_cache  # noqa: E402
-from station.config import WHEELS, load_config  # noqa: E402
+from calibration.station_frame import WHEELS  # noqa: E402
+from station.config import load_config
 from station.capture.frame_average import mean_image  # noqa: E402
-from station.measure import add_truth, measure_frames  # noqa: E402
+from station.measure import measure_frames  # noqa: E402
+from station.result import Measurement  # noqa: E402
 
 SCENARIOS = {
     # name: (noise sigma, darker camera or None, rim albedo range or None (the random vehicle's))
@@ -59,8 +61,8 @@ GROUPS = {
 }
 
 
-def _errors(result: dict) -> dict[str, float]:
-    e = result["errors"]
+def _errors(result: Measurement) -> dict[str, float]:
+    e = result.errors
     out = {}
     for w in WHEELS:
         out[f"{w}.toe"] = e[w]["toe_error_deg"]
@@ -70,14 +72,14 @@ def _errors(result: dict) -> dict[str, float]:
     return out
 
 
-def _stated(result: dict) -> dict[str, float]:
+def _stated(result: Measurement) -> dict[str, float]:
     out = {}
     for w in WHEELS:
-        out[f"{w}.toe"] = result["wheels"][w]["toe_std_deg"]
-        out[f"{w}.camber"] = result["wheels"][w]["camber_std_deg"]
-    out["front.total_toe"] = result["axles"]["front"]["total_toe_std_deg"]
-    out["rear.total_toe"] = result["axles"]["rear"]["total_toe_std_deg"]
-    out["thrust"] = result["thrust_std_deg"]
+        out[f"{w}.toe"] = result.wheels[w].toe_std_deg
+        out[f"{w}.camber"] = result.wheels[w].camber_std_deg
+    out["front.total_toe"] = result.axles["front"].total_toe_std_deg
+    out["rear.total_toe"] = result.axles["rear"].total_toe_std_deg
+    out["thrust"] = result.thrust_std_deg
     return out
 
 
@@ -134,18 +136,18 @@ def run(config, cameras_by_source: dict, n: int, scenario: str, seed0: int, meth
                 res = measure_frames(images, cams, config, method=m,
                                      calibration_cov=(covariance_by_source or {}).get(src))
                 rows[(src, m)]["time"].append(time.perf_counter() - t0)
-                if not res["valid"]:
+                if not res.valid:
                     rows[(src, m)]["failed"] += 1
-                    print(f"  seed {seed} {src}/{m}: FAILED {res['failure']['message']}", file=sys.stderr)
+                    print(f"  seed {seed} {src}/{m}: FAILED {res.failure.message}", file=sys.stderr)
                     continue
-                add_truth(res, truth)
-                rows[(src, m)]["warnings"].update(f["kind"] for f in res["warning_flags"])
+                res.add_truth(truth)
+                rows[(src, m)]["warnings"].update(f.kind for f in res.warning_flags)
                 errs = _errors(res)
                 worst = max(errs, key=lambda k: abs(errs[k]))
                 if abs(errs[worst]) > 0.05:
-                    q = {w: res["wheels"][w]["quality"] for w in WHEELS}
+                    q = {w: res.wheels[w].quality for w in WHEELS}
                     print(f"  seed {seed} {src}/{m}: worst {worst} {errs[worst]:+.3f} deg; epipolar px "
-                          + " ".join(f"{w}:{q[w]['epipolar_rms_px']:.2f}" for w in WHEELS), file=sys.stderr)
+                          + " ".join(f"{w}:{q[w].epipolar_rms_px:.2f}" for w in WHEELS), file=sys.stderr)
                 rows[(src, m)]["err"].append(errs)
                 rows[(src, m)]["std"].append(_stated(res))
                 if repeat and (src, m) == first:
@@ -164,11 +166,11 @@ def _recaptured(world, scene, scenario, seed, cache, repeat, cams, config, metho
     for k in range(1, repeat + 1):
         res = measure_frames(_images(world, scene, scenario, seed, cache, capture=k, frames=frames), cams, config, method=method,
                              calibration_cov=(covariances or {}).get(src))
-        if res["valid"]:
-            add_truth(res, world.truth(scene))
+        if res.valid:
+            res.add_truth(world.truth(scene))
             out.append(_errors(res))
         else:
-            print(f"  seed {seed} capture {k}: FAILED {res['failure']['message']}", file=sys.stderr)
+            print(f"  seed {seed} capture {k}: FAILED {res.failure.message}", file=sys.stderr)
     return out
 
 

@@ -30,8 +30,9 @@ sys.path.append(str(ROOT / "bench"))
 import outside_envelope  # noqa: E402
 from accuracy import _images  # noqa: E402
 
-from station.config import WHEELS, load_config  # noqa: E402
-from station.measure import add_truth, measure_frames  # noqa: E402
+from calibration.station_frame import WHEELS  # noqa: E402
+from station.config import load_config
+from station.measure import measure_frames  # noqa: E402
 from station.rim import detect_rim  # noqa: E402
 from station.rim.ellipse_fit import fit_direct  # noqa: E402
 from station.rim.preprocess import PixelMap  # noqa: E402
@@ -89,13 +90,13 @@ def main() -> int:
         world.set_scene(scene)
         images = _images(world, scene, "sigma2", seed, args.cache)
         res = measure_frames(images, world.cameras, config, method="circle")
-        if not res["valid"]:
+        if not res.valid:
             print(f"  seed {seed}: cycle failed, left out", file=sys.stderr)
             continue
-        add_truth(res, world.truth(scene))
+        res.add_truth(world.truth(scene))
         for w in WHEELS:
             h = [harmonics(*view_offsets(images[c], world.cameras[c], scene.vehicle, w, c)) for c in cams_of[w]]
-            e = res["errors"][w]
+            e = res.errors[w]
             rows[w].append((np.concatenate(h), e["camber_error_deg"], e["toe_error_deg"]))
         print(f"  vehicle {i + 1}/{args.n} done", file=sys.stderr, flush=True)
     names = [f"{k}{c}" for k in ("A.", "B.") for c in HARMONICS]

@@ -25,7 +25,8 @@ from dataclasses import replace
 
 import numpy as np
 
-WHEELS = ("FL", "FR", "RL", "RR")
+from calibration.station_frame import WHEELS
+
 SOFT_FOCUS_PX = (1.3, 2.0)
 GAMMA = 1 / 2.2
 

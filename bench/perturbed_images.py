@@ -29,18 +29,20 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.accuracy import _images  # noqa: E402
 from simulators.image_damage import KINDS, damage  # noqa: E402
-from station.config import WHEELS, load_config  # noqa: E402
-from station.measure import add_truth, measure_frames  # noqa: E402
+from calibration.station_frame import WHEELS  # noqa: E402
+from station.config import load_config
+from station.measure import measure_frames  # noqa: E402
+from station.result import Measurement  # noqa: E402
 
 WRONG_DEG = 0.1       # an error beyond this and beyond WRONG_STATED stated std is wrong
 WRONG_STATED = 3.0
 
 
-def _wheel_off(result: dict, wheel: str) -> tuple[float, bool]:
+def _wheel_off(result: Measurement, wheel: str) -> tuple[float, bool]:
     """(larger of |toe| and |camber| error, deg; whether that is beyond what the wheel states)."""
-    e, w = result["errors"][wheel], result["wheels"][wheel]
+    e, w = result.errors[wheel], result.wheels[wheel]
     err = max(abs(e["toe_error_deg"]), abs(e["camber_error_deg"]))
-    stated = max(w["toe_std_deg"], w["camber_std_deg"])
+    stated = max(w.toe_std_deg, w.camber_std_deg)
     return err, err > max(WRONG_DEG, WRONG_STATED * stated)
 
 
@@ -50,14 +52,13 @@ def _names(warning: str) -> set[str]:
     return set(re.findall(r"\b(?:[FR][LR]|cam\w+)\b", warning.split(":")[0]))
 
 
-def classify(result: dict, wheel: str, cam: str) -> tuple[str, float | None, int]:
+def classify(result: Measurement, wheel: str, cam: str) -> tuple[str, float | None, int]:
     """(class of the damaged camera's wheel, its error if reported unwarned, others silent)."""
-    if not result["valid"]:
+    if not result.valid:
         return "refused", None, 0
-    named = set().union(*map(_names, result["warnings"])) if result["warnings"] else set()
-    flags = result.get("warning_flags", [])
-    named |= {f["wheel"] for f in flags if f.get("wheel")}
-    if any(f.get("kind") == "drift" for f in flags):  # its warning puts the whole cycle in doubt
+    named = set().union(*map(_names, result.warnings)) if result.warnings else set()
+    named |= {f.wheel for f in result.warning_flags if f.wheel}
+    if result.has_flag("drift"):  # its warning puts the whole cycle in doubt
         named |= set(WHEELS)
     others = sum(_wheel_off(result, w)[1] and w not in named for w in WHEELS if w != wheel)
     if wheel in named or cam in named:
@@ -99,8 +100,8 @@ def main() -> int:
             if kind != "none":
                 images[cam] = damage(clean[cam], kind, np.random.default_rng([seed, len(kind)]))
             result = measure_frames(images, world.cameras, config)
-            if result["valid"]:
-                add_truth(result, truth)
+            if result.valid:
+                result.add_truth(truth)
             what, err, others = classify(result, wheel, cam)
             r = rows[kind]
             r[what] += 1

@@ -26,8 +26,8 @@ sys.path.insert(0, str(ROOT))
 from station.config import load_config  # noqa: E402
 from station.records.history import History  # noqa: E402
 from station.records.recording import CycleRecorder, read_recording_summary  # noqa: E402
+from calibration.station_frame import WHEELS  # noqa: E402
 
-WHEELS = ("FL", "FR", "RL", "RR")
 
 
 def station_images(config, seed: int):

@@ -245,13 +245,13 @@ def cycle_row(scale: float, args, workers) -> dict:
     runs = []
     for _ in range(args.cycles):
         r = measure_frames(images, world.cameras, config, workers=workers)
-        if not r["valid"]:
-            print(f"  scale {scale}: cycle failed: {r['failure']['message']}")
-        runs.append(r["timing_s"])
+        if not r.valid:
+            print(f"  scale {scale}: cycle failed: {r.failure.message}")
+        runs.append(r.timing_s)
     m = {k: float(np.median([t.get(k, np.nan) for t in runs]))
          for k in ("wheels", "detect", "reconstruct", "angles", "total")}
     w, h = config.cameras["cam1"].width, config.cameras["cam1"].height
-    return {"scale": scale, "w": w, "h": h, "mpx": w * h / 1e6, **m, "valid": r["valid"]}
+    return {"scale": scale, "w": w, "h": h, "mpx": w * h / 1e6, **m, "valid": r.valid}
 
 
 def print_cycle(rows: list[dict]) -> None:

@@ -21,13 +21,13 @@ import cv2
 import numpy as np
 
 from calibration.camera_model import CameraModel
+from calibration.station_frame import WHEELS
 from station.compute.bounded_cache import BoundedCache
 from simulators.rays import grid_start, normalized_to_rays_station, pixel_grid_normalized, sample_rays_station
 from simulators.render_body import floor_shadow, trace_body
 from simulators.render_wheel import BARREL, FLANGE, trace_wheel, wheel_outline_points
 from simulators.scene import Lighting, Scene
 from simulators.shading import LABEL_QUAD, LABEL_WHEEL, Hits
-from simulators.vehicle import WHEELS
 from simulators.workshop import trace_floor, trace_quads, trace_room
 
 EDGE_RADIANCE_STEP = 0.04   # radiance jump between neighbours that also counts as an edge (~10 grey)

@@ -10,9 +10,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from calibration.station_frame import WHEELS
 from simulators.scene import Lighting
 from simulators.shading import LABEL_BODY, Hits, rowmat, shade
-from simulators.vehicle import WHEELS, Vehicle
+from simulators.vehicle import Vehicle
 
 SILL_Z_M = 0.20          # lowest edge of the body panel (ground clearance)
 ROOF_Z_M = 1.45

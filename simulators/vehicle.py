@@ -12,8 +12,8 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-WHEELS = ("FL", "FR", "RL", "RR")
-SIDE = {"FL": -1.0, "FR": 1.0, "RL": -1.0, "RR": 1.0}  # s = +1 right, -1 left
+from calibration.station_frame import SIDE, WHEELS
+
 
 
 @dataclass(frozen=True)

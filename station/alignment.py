@@ -1,17 +1,15 @@
 """Alignment angles from the four wheels' centres and outward spin axes.
 
 Formulas and signs: docs/conventions.md ("Car frame", "Alignment angles"). Inputs are in the
-station frame; wheel order is ``WHEELS = ("FL", "FR", "RL", "RR")``.
+station frame; wheels in the order of ``calibration.station_frame.WHEELS``.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-WHEELS = ("FL", "FR", "RL", "RR")
-SIDE = {"FL": -1.0, "FR": 1.0, "RL": -1.0, "RR": 1.0}
-ANGLE_NAMES = ("FL.toe", "FL.camber", "FR.toe", "FR.camber", "RL.toe", "RL.camber",
-               "RR.toe", "RR.camber", "front.total_toe", "rear.total_toe", "thrust")
+from calibration.station_frame import SIDE, WHEELS
+from station.result import ANGLE_NAMES
 
 
 def _unit(v: np.ndarray) -> np.ndarray:

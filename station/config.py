@@ -16,10 +16,9 @@ from typing import Any, Callable
 
 import yaml
 
+from calibration.station_frame import WHEELS
 from station.errors import ConfigError
 
-WHEELS = ("FL", "FR", "RL", "RR")
-PAPER_WHEEL_NUMBER = {"FR": 1, "FL": 2, "RL": 3, "RR": 4}
 DEFAULT_CONFIG = Path(__file__).resolve().parent.parent / "config" / "station.yaml"
 URI_SCHEMES = ("sim", "replay", "aravis", "v4l2")
 

@@ -12,21 +12,22 @@ from __future__ import annotations
 
 import json
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
-from calibration.calib_file import StationCalibration, load_calibration
+from calibration.calib_file import StationCalibration, load_calibration, software_version
 from drivers.registry import build_context
 from station.capture.cameras import close_cameras, open_station_cameras, open_trigger_board
 from station.capture.saving import capture_and_save, new_cycle_id
 from station.capture.sync import capture_averaged
-from station.config import StationConfig
-from station.records.atomic_file import write_text_atomic
-from station.errors import StationError, StorageError
-from station.measure import add_truth, measure_frames
 from station.compute.workers import WorkerPool, default_workers
-
-SOFTWARE_NAME = "wheel-alignment-station"
+from station.config import StationConfig
+from station.errors import CalibrationMismatch, StationError, StorageError
+from station.measure import measure_frames
+from station.records.atomic_file import write_text_atomic
+from station.result import Failure, Measurement
+from station.sequencer import Sequencer
 
 
 def _say(msg: str) -> None:
@@ -61,6 +62,7 @@ class Station:
         self.context = build_context(uris, config, seed=seed)
         self.cameras, self.trigger_board, self.timeout_s = open_capture(config, self.context)
         self.cycle_count = 0
+        self.sequencer = Sequencer()  # the cycle's states: idle, capturing, measuring, reporting, done, fault
         n = default_workers() if workers is None else workers
         self.workers = WorkerPool(n) if n > 1 else None
 
@@ -80,126 +82,164 @@ class Station:
 
     # --- one cycle --------------------------------------------------------------------------
     def measure(self, *, job_id: str | None = None, vehicle_spec: str | None = None,
-                method: str = "circle", record: bool = True, store: bool = True) -> dict:
-        """Run one cycle and return the result dict (docs/result-schema.md)."""
+                method: str = "circle", record: bool = True, store: bool = True) -> Measurement:
+        """Run one cycle through the sequencer's states (station/sequencer.py) and return its
+        result. A capture that fails gives an invalid result, kept in the history, and leaves
+        the sequencer in fault. A vehicle spec that cannot be applied is raised after the cycle
+        is kept (with a warning saying so)."""
+        cycle = _Cycle(new_cycle_id(), job_id, vehicle_spec, record and self.config.recording.enabled, store,
+                       time.perf_counter())
+        try:
+            result = self.sequencer.run_cycle(capture=lambda: self._capture(cycle),
+                                              measure=lambda frames: self._measure(cycle, frames, method),
+                                              report=lambda measured: self._report(cycle, measured))
+        except StationError:
+            if cycle.failed is None:
+                raise
+            return cycle.failed
+        if cycle.spec_error is not None:
+            raise cycle.spec_error
+        return result
+
+    def _capture(self, cycle: _Cycle) -> dict:
+        """The cycle's frames. A failed capture's result is kept (``cycle.failed``) and its error raised."""
         cfg = self.config
-        cycle_id = new_cycle_id()
-        t0 = time.perf_counter()
-        truth_fn = self.context.get("truth")
-        truth = truth_fn() if truth_fn else None
-        captures_dir = cfg.data_path("captures", cycle_id)
+        cycle.truth = self.context.get("truth", lambda: None)()
+        captures_dir = cfg.data_path("captures", cycle.cycle_id)
         n = cfg.capture.frames_averaged
-        self.progress(f"cycle {cycle_id}: capturing {len(self.cameras)} cameras"
+        self.progress(f"cycle {cycle.cycle_id}: capturing {len(self.cameras)} cameras"
                       + (f", {n} frames each (averaged)" if n > 1 else ""))
         try:
             if cfg.capture.keep_captures:
-                frames, _ = capture_and_save(self.cameras, self.timeout_s, captures_dir, truth=truth,
-                                                     trigger_board=self.trigger_board, extra={"job_id": job_id},
-                                                     frames_averaged=n)
+                frames, _ = capture_and_save(self.cameras, self.timeout_s, captures_dir, truth=cycle.truth,
+                                             trigger_board=self.trigger_board, extra={"job_id": cycle.job_id},
+                                             frames_averaged=n)
             else:
                 frames = capture_averaged(self.cameras, self.timeout_s, self.trigger_board, frames=n)
         except StationError as e:
             saved = getattr(e, "saved_to", None)
-            result = self._base(cycle_id, job_id, vehicle_spec)
-            result["failure"] = {"code": e.code, "message": str(e), "hint": e.hint}
-            result["captures_dir"] = str(saved) if saved else None
-            self._finish(result, record=False, store=store)
-            return result
-        t_capture = time.perf_counter() - t0
-        self.progress(f"cycle {cycle_id}: detecting rims and rebuilding the wheels")
-        images = {cid: f.image for cid, f in frames.items()}
-        result = measure_frames(images, self.models, cfg, method=method, workers=self.workers,
+            result = Measurement(station=cfg.name, failure=Failure(e.code, str(e), e.hint))
+            self._stamp(result, cycle)
+            result.captures_dir = str(saved) if saved else None
+            self._finish(result, record=False, store=cycle.store)
+            cycle.failed = result
+            raise
+        cycle.captures_dir = str(captures_dir) if cfg.capture.keep_captures else None
+        return frames
+
+    def _measure(self, cycle: _Cycle, frames: dict, method: str) -> Measurement:
+        t_capture = time.perf_counter() - cycle.t0
+        self.progress(f"cycle {cycle.cycle_id}: detecting rims and rebuilding the wheels")
+        cycle.images = {cid: f.image for cid, f in frames.items()}
+        result = measure_frames(cycle.images, self.models, self.config, method=method, workers=self.workers,
                                 calibration_cov=self.calibration.pair_covariance)
-        result.update(self._base(cycle_id, job_id, vehicle_spec))
-        result["timing_s"]["capture"] = t_capture
-        result["captures_dir"] = str(captures_dir) if cfg.capture.keep_captures else None
-        if truth is not None:
-            add_truth(result, truth)
-        spec_error = None
-        if vehicle_spec and result["valid"]:
-            try:
-                _apply_spec(cfg, result, vehicle_spec)
-            except StationError as e:  # the measurement is still kept; the caller gets the error
-                spec_error = e
-                result["warnings"].append(f"vehicle spec {vehicle_spec!r}: {e}")
-        self._finish(result, record=record and cfg.recording.enabled, store=store, images=images)
-        result["timing_s"]["total"] = time.perf_counter() - t0
-        self.cycle_count += 1
-        if spec_error is not None:
-            raise spec_error
+        self._stamp(result, cycle)
+        result.timing_s["capture"] = t_capture
+        result.captures_dir = cycle.captures_dir
+        if cycle.truth is not None:
+            result.add_truth(cycle.truth)
         return result
 
-    def calibration_check(self) -> dict:
+    def _report(self, cycle: _Cycle, result: Measurement) -> Measurement:
+        """Pass/fail against the vehicle spec, then the recording and the history. A spec that
+        cannot be applied becomes a warning on the kept cycle (``cycle.spec_error``)."""
+        if cycle.vehicle_spec and result.valid:
+            try:
+                _apply_spec(self.config, result, cycle.vehicle_spec)
+            except StationError as e:
+                cycle.spec_error = e
+                result.warnings.append(f"vehicle spec {cycle.vehicle_spec!r}: {e}")
+        self._finish(result, record=cycle.record, store=cycle.store, images=cycle.images)
+        result.timing_s["total"] = time.perf_counter() - cycle.t0
+        self.cycle_count += 1
+        return result
+
+    def calibration_check(self) -> Measurement:
         """A PLC's calibration check: one cycle whose verdict is whether every pair still fits
         its calibration (the epipolar residual of the rim points within the configured limit)."""
         result = self.measure(job_id="calibration-check", record=True, store=True)
-        drift = [w for w in result.get("warnings", []) if "epipolar residual" in w]
-        if result["valid"] and drift:
-            from station.errors import CalibrationMismatch
+        drift = [f.text or f"pair {f.wheel}: a camera may have moved" for f in result.warning_flags if f.kind == "drift"]
+        if result.valid and drift:
             raise CalibrationMismatch("; ".join(drift), hint="recalibrate with `station calibrate`")
         return result
 
-    def _base(self, cycle_id, job_id, vehicle_spec) -> dict:
-        from calibration.calib_file import software_version
-        return {"cycle_id": cycle_id,
-                "time_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-                "station": self.config.name, "software_version": software_version(),
-                "calibration_id": self.calibration.calibration_id,
-                "job_id": job_id, "vehicle_spec": vehicle_spec}
+    def _stamp(self, result: Measurement, cycle: _Cycle) -> None:
+        """The cycle's identity on its result."""
+        result.cycle_id = cycle.cycle_id
+        result.time_utc = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+        result.software_version = software_version()
+        result.calibration_id = self.calibration.calibration_id
+        result.job_id, result.vehicle_spec = cycle.job_id, cycle.vehicle_spec
 
-    def _finish(self, result: dict, *, record: bool, store: bool, images: dict | None = None) -> None:
-        observations = result.pop("_observations", None)
+    def _finish(self, result: Measurement, *, record: bool, store: bool, images: dict | None = None) -> None:
         t0 = time.perf_counter()
         if record:
-            path = self.config.data_path("recordings", f"{result['cycle_id']}.rrd")
+            path = self.config.data_path("recordings", f"{result.cycle_id}.rrd")
             try:
-                _record(path, self, result, images or {}, observations or {})
-                result["recording"] = str(path)
+                _record(path, self, result, images or {})
+                result.recording = str(path)
             except StorageError as e:
-                result.setdefault("warnings", []).append(str(e))
+                result.warnings.append(str(e))
         if store:
             try:
                 from station.records.history import History
                 with History(self.config.data_path("history.sqlite")) as history:
                     history.store(result)
             except StorageError as e:
-                result.setdefault("warnings", []).append(str(e))
-        result.setdefault("timing_s", {})["record_and_store"] = time.perf_counter() - t0
+                result.warnings.append(str(e))
+        result.timing_s["record_and_store"] = time.perf_counter() - t0
 
 
-def _apply_spec(cfg: StationConfig, result: dict, key: str) -> None:
+@dataclass
+class _Cycle:
+    """What one cycle knows as it goes: its ids and options, the truth (simulation), its
+    images, and how it ended early (a failed capture's result, a vehicle spec's error)."""
+
+    cycle_id: str
+    job_id: str | None
+    vehicle_spec: str | None
+    record: bool
+    store: bool
+    t0: float
+    truth: dict | None = None
+    captures_dir: str | None = None
+    images: dict | None = None
+    failed: Measurement | None = None
+    spec_error: StationError | None = None
+
+
+def _apply_spec(cfg: StationConfig, result: Measurement, key: str) -> None:
     from station.records.vehicle_specs import apply_spec, get_spec, load_vehicle_specs
 
     specs = load_vehicle_specs(cfg.vehicle_specs_path)
     apply_spec(result, get_spec(specs, key, cfg.vehicle_specs_path))
 
 
-def _record(path: Path, station: Station, result: dict, images: dict, observations: dict) -> None:
+def _record(path: Path, station: Station, result: Measurement, images: dict) -> None:
     from station.records.recording import CycleRecorder, recording_id_for
 
     rec = CycleRecorder(path, jpeg_quality=station.config.recording.jpeg_quality,
-                        recording_id=recording_id_for(result.get("job_id")))
+                        recording_id=recording_id_for(result.job_id))
     with rec:
         rec.log_cameras(station.models)
         if images:
             rec.log_images(images)
-        for wheel, o in observations.items():
+        for wheel, o in result.observations.items():
             for cam_id, det in zip(o.cams, o.detections):
                 rec.log_detection(cam_id, det.ellipse.points(180), det.points_px)
             rec.log_wheel(wheel, o.paper.points_station, o.circle.center_station, o.circle.axis_station,
                           o.circle.radius_m)
-        frame = result.get("alignment_frame")
-        if frame:
-            rec.log_car_frame(frame["origin_station_m"], frame["R_station_align"])
+        if result.alignment_frame:
+            rec.log_car_frame(result.alignment_frame["origin_station_m"], result.alignment_frame["R_station_align"])
         rec.log_result(result)
 
 
-def write_json(result: dict, path: str | Path) -> Path:
+def write_json(result: Measurement, path: str | Path) -> Path:
     """Write a result as JSON atomically (temp file + rename). OSError -> StorageError."""
     path = Path(path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        return write_text_atomic(path, json.dumps(result, indent=1, default=_json_default))
+        return write_text_atomic(path, json.dumps(result.to_json(), indent=1, default=_json_default))
     except OSError as e:
         raise StorageError(f"{path}: cannot write the result JSON: {e.strerror or e}; the cycle is "
                            "kept in the history", hint="choose a writable folder for --json") from e

@@ -26,12 +26,14 @@ import numpy as np
 from station import alignment
 from station.capture.cameras import close_cameras
 from station.capture.sync import capture_cycle
-from station.config import WHEELS, StationConfig
+from calibration.station_frame import WHEELS
+from station.config import StationConfig
 from station.errors import MeasurementError, StationError
 from station.cycle import open_capture
 from station.compute.workers import WorkerPool, default_workers
 from station.rim.camera_response import linear_images
 from station.measure import measure_frames
+from station.result import Measurement
 from station.wheel.pair import WheelObservation, check_same_rim
 from station.wheel.other_contour import on_circle
 from station.wheel.circle_fit import CircleFitSettings, not_faint, refine_circle
@@ -109,19 +111,19 @@ class LiveSession:
         self.context.get("close", lambda: None)()
 
     # --- the car frame: one full cycle --------------------------------------------------------
-    def baseline(self) -> dict:
+    def baseline(self) -> Measurement:
         """Measure all four wheels once (every camera); raises MeasurementError if it fails."""
         frames = capture_cycle(self.cameras, self.timeout_s, self.trigger_board)
         result = measure_frames({c: f.image for c, f in frames.items()}, self.models, self.config,
                                 workers=self.workers)
-        if not result["valid"]:
-            raise MeasurementError(f"the first full measurement failed: {result['failure']['message']}",
+        if not result.valid:
+            raise MeasurementError(f"the first full measurement failed: {result.failure.message}",
                                    hint="check the vehicle's position and the cameras' images (station measure)")
         for w in WHEELS:
-            self.centers[w] = np.asarray(result["wheels"][w]["center_station_m"])
-            self.axes[w] = np.asarray(result["wheels"][w]["axis_station"])
-        self.previous = {c: d for o in result["_observations"].values() for c, d in zip(o.cams, o.detections)}
-        self.circles = {w: o.circle for w, o in result["_observations"].items()}
+            self.centers[w] = np.asarray(result.wheels[w].center_station_m)
+            self.axes[w] = np.asarray(result.wheels[w].axis_station)
+        self.previous = {c: d for o in result.observations.values() for c, d in zip(o.cams, o.detections)}
+        self.circles = {w: o.circle for w, o in result.observations.items()}
         return result
 
     # --- one live update ----------------------------------------------------------------------

@@ -1,8 +1,8 @@
 """One measurement from eight images: detect the rims, rebuild the wheels, compute the angles.
 
-:func:`measure_frames` is pure (images + calibrated cameras -> result dict, schema in
-docs/result-schema.md); the cycle around it (capture, saving, recording, history) is in
-station/cycle.py. A wheel that cannot be measured makes the whole result invalid, with the
+:func:`measure_frames` is pure (images + calibrated cameras -> a :class:`~station.result.Measurement`,
+its JSON in docs/result-schema.md); the cycle around it (capture, saving, recording, history) is
+in station/cycle.py. A wheel that cannot be measured makes the whole result invalid, with the
 wheel, the camera and the reason; no angle of an invalid result is reported as valid.
 """
 
@@ -14,25 +14,27 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from calibration.camera_model import CameraModel
+from calibration.station_frame import AXLE_PARTNER, AXLES, WHEELS
 from station import alignment
-from station.wheel.axle_rims import settle_axles
-from station.rim.camera_response import linear_images
-from station.config import WHEELS, StationConfig
-from station.errors import MeasurementError, StationError
 from station.compute.frame_handoff import FrameHandoff
-from station.wheel.rim_size import AXLE_PARTNER, size_mismatches
+from station.config import StationConfig
+from station.errors import MeasurementError, StationError
+from station.result import (ANGLE_NAMES, AxleResult, CameraDetection, Failure, Measurement, WarningFlag, WheelQuality,
+                            WheelResult)
+from station.rim.camera_response import linear_images
+from station.wheel.axle_rims import settle_axles
 from station.wheel.fit import WheelFit
 from station.wheel.pair import (FULL_VIEW_COVERAGE, TANGENT_GAP_DEG, WheelObservation, kept_fractions, measure_wheel,
                                 unverifiable_epipolar)
+from station.wheel.rim_size import size_mismatches
 
 METHODS = ("circle", "paper")
-SCHEMA_VERSION = 1
 
 
 def measure_frames(images: dict[str, np.ndarray], cameras: dict[str, CameraModel],
                    config: StationConfig, method: str = "circle", workers=None,
-                   calibration_cov: dict | None = None) -> dict:
-    """The measurement result (docs/result-schema.md) for one set of eight images.
+                   calibration_cov: dict | None = None) -> Measurement:
+    """The measurement of one set of eight images.
 
     images, cameras: keyed by camera id. method: "circle" (default, the refined fit) or
     "paper" (section 3.2 exactly). Never raises for a wheel that fails: the result is
@@ -47,7 +49,63 @@ def measure_frames(images: dict[str, np.ndarray], cameras: dict[str, CameraModel
         raise MeasurementError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
     t0 = time.perf_counter()
     images = linear_images(images, config)  # grey proportional to light, as the edge model takes it
+    outcomes = _measure_wheels(images, cameras, config, workers, calibration_cov)
+    timing = {"wheels": time.perf_counter() - t0,
+              "detect": sum(o.timing_s["detect"] for o in outcomes),
+              "reconstruct": sum(o.timing_s["reconstruct"] for o in outcomes)}
+    by_cam = {c: d for o in outcomes for c, d in o.detections.items()}
+    detections = {c: by_cam[c] for c in images if c in by_cam}
+    result = Measurement(station=config.name)
+    for kind, warn in (("focus", _soft_focus_warnings), ("small_rim", _small_rim_warnings),
+                       ("exposure", _white_edge_warnings)):
+        for cid, text in warn(detections, config):
+            result.warn(text, WarningFlag(kind, config.cameras[cid].wheel, camera=cid))
+    for o in outcomes:
+        if o.note:
+            result.warnings.append(o.note)
+    result.warning_flags += [WarningFlag("runner_up", o.wheel) for o in outcomes if o.note]
 
+    def finish(failure: Failure | None, summary: bool = True) -> Measurement:
+        result.failure = failure
+        timing["total"] = time.perf_counter() - t0
+        result.timing_s = timing
+        if summary:
+            result.detections = _detection_summary(detections)
+        return result
+
+    failures = [(cid, d) for cid, d in detections.items() if isinstance(d, StationError)]
+    if failures:
+        cid, err = failures[0]
+        wheel = config.cameras[cid].wheel
+        result.warnings += [f"{config.cameras[c].wheel} {c}: {e}" for c, e in failures[1:]]
+        return finish(Failure(err.code, f"{wheel} {cid}: {err}", err.hint, wheel, cid))
+    observations = {}
+    for o in outcomes:
+        if o.error is not None:
+            e, cams = o.error, o.cams
+            return finish(Failure(e.code, f"{o.wheel} ({cams[0]}, {cams[1]}): {e}", e.hint, o.wheel,
+                                  f"{cams[0]}+{cams[1]}"), summary=False)
+        observations[o.wheel] = o.observation
+    failure = settle_axles(result, observations, outcomes, images, cameras, config, calibration_cov)
+    if failure is not None:
+        return finish(failure)
+    for wheel, text in size_mismatches({w: o.circle.radius_m for w, o in observations.items()}, AXLE_PARTNER):
+        result.warn(f"{wheel} ({', '.join(observations[wheel].cams)}): {text}", WarningFlag("rim_size", wheel))
+    t2 = time.perf_counter()
+    fits = {w: (o.circle if method == "circle" else o.paper) for w, o in observations.items()}
+    _fill_angles(result, fits, observations, config)
+    _pair_warnings(result, observations, config)
+    centreline_warnings(result)
+    timing["angles"] = time.perf_counter() - t2
+    result.valid = True
+    result.method = method
+    result.observations = observations  # for recordings and station live; not in the JSON
+    return finish(None)
+
+
+def _measure_wheels(images: dict, cameras: dict, config: StationConfig, workers, calibration_cov: dict | None) -> list:
+    """The four wheels' :class:`station.wheel.pair.WheelOutcome`, in WHEELS order: in the
+    worker processes (the frames handed over in shared memory), else in two threads."""
     def tasks(frames):
         out = []
         for wheel in WHEELS:
@@ -58,87 +116,32 @@ def measure_frames(images: dict[str, np.ndarray], cameras: dict[str, CameraModel
 
     if workers is not None:
         with FrameHandoff(images) as frames:
-            outcomes = workers.map(measure_wheel, tasks(frames))
-    else:  # threads: overlap only where OpenCV and large numpy calls release the GIL
-        with ThreadPoolExecutor(max_workers=2) as pool:
-            outcomes = list(pool.map(lambda a: measure_wheel(*a), tasks(images)))
-    timing = {"wheels": time.perf_counter() - t0,
-              "detect": sum(o.timing_s["detect"] for o in outcomes),
-              "reconstruct": sum(o.timing_s["reconstruct"] for o in outcomes)}
-    by_cam = {c: d for o in outcomes for c, d in o.detections.items()}
-    detections = {c: by_cam[c] for c in images if c in by_cam}
-    result = _empty_result(config)
-    for kind, warn in (("focus", _soft_focus_warnings), ("small_rim", _small_rim_warnings),
-                       ("exposure", _white_edge_warnings)):
-        for cid, text in warn(detections, config):
-            result["warnings"].append(text)
-            result["warning_flags"].append({"kind": kind, "wheel": config.cameras[cid].wheel, "camera": cid})
-    result["warnings"] += [o.note for o in outcomes if o.note]
-    result["warning_flags"] += [{"kind": "runner_up", "wheel": o.wheel} for o in outcomes if o.note]
-    failures = [(cid, d) for cid, d in detections.items() if isinstance(d, StationError)]
-    if failures:
-        cid, err = failures[0]
-        wheel = config.cameras[cid].wheel
-        result["failure"] = {"code": err.code, "wheel": wheel, "camera": cid,
-                             "message": f"{wheel} {cid}: {err}", "hint": err.hint}
-        result["warnings"] += [f"{config.cameras[c].wheel} {c}: {e}" for c, e in failures[1:]]
-        result["timing_s"] = {**timing, "total": time.perf_counter() - t0}
-        result["detections"] = _detection_summary(detections)
-        return result
-    observations = {}
-    for o in outcomes:
-        if o.error is not None:
-            e, cams = o.error, o.cams
-            result["failure"] = {"code": e.code, "wheel": o.wheel, "camera": f"{cams[0]}+{cams[1]}",
-                                 "message": f"{o.wheel} ({cams[0]}, {cams[1]}): {e}", "hint": e.hint}
-            result["timing_s"] = {**timing, "total": time.perf_counter() - t0}
-            return result
-        observations[o.wheel] = o.observation
-    failure = settle_axles(result, observations, outcomes, images, cameras, config, calibration_cov)
-    if failure is not None:
-        result["failure"] = failure
-        result["timing_s"] = {**timing, "total": time.perf_counter() - t0}
-        result["detections"] = _detection_summary(detections)
-        return result
-    for wheel, text in size_mismatches({w: o.circle.radius_m for w, o in observations.items()}, AXLE_PARTNER):
-        result["warnings"].append(f"{wheel} ({', '.join(observations[wheel].cams)}): {text}")
-        result["warning_flags"].append({"kind": "rim_size", "wheel": wheel})
-    t2 = time.perf_counter()
-    fits = {w: (o.circle if method == "circle" else o.paper) for w, o in observations.items()}
-    _fill_angles(result, fits, observations, config)
-    centreline_warnings(result)
-    timing["angles"] = time.perf_counter() - t2
-    timing["total"] = time.perf_counter() - t0
-    result["timing_s"] = timing
-    result["valid"] = True
-    result["method"] = method
-    result["detections"] = _detection_summary(detections)
-    result["_observations"] = observations  # for recordings; dropped from JSON
-    return result
+            return workers.map(measure_wheel, tasks(frames))
+    with ThreadPoolExecutor(max_workers=2) as pool:  # overlap only where OpenCV and large numpy calls release the GIL
+        return list(pool.map(lambda a: measure_wheel(*a), tasks(images)))
 
 
 DOUBTFUL_RIM_KINDS = ("uncertain", "rim_size")  # warning kinds that put a wheel's rim centre in doubt
 
 
-def centreline_warnings(result: dict) -> None:
+def centreline_warnings(result: Measurement) -> None:
     """Warn the other wheels when one wheel's rim is in doubt (``DOUBTFUL_RIM_KINDS`` among the
     result's ``warning_flags``): every toe is measured against the centreline through all four
     rim centres, so a rim found on the wrong contour turns the other wheels' toes as well (a
     knocked camera's wheel off by 9 mm moved the three others' toes 0.2 deg, each stated
     +/-0.015: bench/perturbed_images.py). Adds one text and a "centreline" flag per other wheel;
     nothing when a drift warning already puts the whole cycle in doubt."""
-    flags = result["warning_flags"]
-    if any(f.get("kind") == "drift" for f in flags):
+    if result.has_flag("drift"):
         return
-    doubtful = [w for w in WHEELS if any(f.get("kind") in DOUBTFUL_RIM_KINDS and f.get("wheel") == w for f in flags)]
+    doubtful = [w for w in WHEELS if any(result.has_flag(kind, w) for kind in DOUBTFUL_RIM_KINDS)]
     others = [w for w in WHEELS if w not in doubtful]
     if not doubtful or not others:
         return
-    result["warnings"].append(
+    result.warnings.append(
         f"{', '.join(others)}: toe is measured against the car's centreline through all four rim centres, "
         f"{' and '.join(doubtful)}'s among them, whose rim is in doubt (above); their toe may be off as well: "
         "resolve that and measure again before adjusting toe")
-    flags.extend({"kind": "centreline", "wheel": w, "because_of": doubtful} for w in others)
+    result.warning_flags.extend(WarningFlag("centreline", w, because_of=doubtful) for w in others)
 
 
 def unseen_axis_variance(o: WheelObservation, config: StationConfig) -> float:
@@ -174,7 +177,9 @@ def unseen_axis_shape(axis_station: np.ndarray, toe_scale: float) -> np.ndarray:
     return toe_scale ** 2 * np.outer(e_toe, e_toe) + np.outer(e_camber, e_camber)
 
 
-def _fill_angles(result: dict, fits: dict[str, WheelFit], observations: dict, config: StationConfig) -> None:
+def _fill_angles(result: Measurement, fits: dict[str, WheelFit], observations: dict, config: StationConfig) -> None:
+    """The angles of the wheels ``fits`` (one WheelFit per wheel), their standard uncertainty
+    and each wheel's 3-D rim, into ``result``."""
     centers = {w: f.center_station for w, f in fits.items()}
     axes = {w: f.axis_station for w, f in fits.items()}
     angles = alignment.compute_angles(centers, axes)
@@ -185,77 +190,81 @@ def _fill_angles(result: dict, fits: dict[str, WheelFit], observations: dict, co
     cov_a = {w: _finite_cov(f.cov_axis, 1e-8) + unseen_axis_variance(observations[w], config) *
              unseen_axis_shape(f.axis_station, config.measurement.uncertainty_toe_scale) for w, f in fits.items()}
     cov = alignment.angle_covariance(centers, axes, cov_c, cov_a)
-    std = dict(zip(alignment.ANGLE_NAMES, np.sqrt(np.clip(np.diag(cov), 0, None))))
-    limit = config.measurement.epipolar_limit_px
+    std = dict(zip(ANGLE_NAMES, np.sqrt(np.clip(np.diag(cov), 0, None))))
     for w in WHEELS:
         f, o = fits[w], observations[w]
-        entry = {k: float(v) for k, v in angles["wheels"][w].items()}
-        entry["toe_std_deg"] = float(std[f"{w}.toe"])
-        entry["camber_std_deg"] = float(std[f"{w}.camber"])
+        a = angles["wheels"][w]
         det_l, det_r = o.detections
-        entry.update({
-            "center_station_m": f.center_station.tolist(),
-            "axis_station": f.axis_station.tolist(),
-            "rim_radius_m": float(f.radius_m),
-            "quality": {"score": float(min(det_l.score, det_r.score)),
-                        "points_left": int(len(det_l.points_px)), "points_right": int(len(det_r.points_px)),
-                        "epipolar_rms_px": float(o.circle.epipolar_rms_px),
-                        "reprojection_rms_px": float(o.circle.reprojection_rms_px),
-                        "grazing_left_out": bool(o.circle.grazing_left_out),
-                        "arcs_left_out": bool(o.circle.arcs_left_out),
-                        "faint_left_out": bool(o.circle.faint_left_out),
-                        "other_contour_mm": (None if o.circle.other_contour_mm is None
-                                             else round(float(o.circle.other_contour_mm), 2))},
-        })
-        result["wheels"][w] = entry
-        worst = max(("toe", entry["toe_std_deg"]), ("camber", entry["camber_std_deg"]), key=lambda kv: kv[1])
+        result.wheels[w] = WheelResult(
+            toe_deg=float(a["toe_deg"]), camber_deg=float(a["camber_deg"]),
+            toe_thrust_deg=float(a["toe_thrust_deg"]) if "toe_thrust_deg" in a else None,
+            toe_std_deg=float(std[f"{w}.toe"]), camber_std_deg=float(std[f"{w}.camber"]),
+            center_station_m=f.center_station.tolist(), axis_station=f.axis_station.tolist(),
+            rim_radius_m=float(f.radius_m),
+            quality=WheelQuality(score=float(min(det_l.score, det_r.score)), points_left=int(len(det_l.points_px)),
+                                 points_right=int(len(det_r.points_px)),
+                                 epipolar_rms_px=float(o.circle.epipolar_rms_px),
+                                 reprojection_rms_px=float(o.circle.reprojection_rms_px),
+                                 grazing_left_out=bool(o.circle.grazing_left_out),
+                                 arcs_left_out=bool(o.circle.arcs_left_out),
+                                 faint_left_out=bool(o.circle.faint_left_out),
+                                 other_contour_mm=(None if o.circle.other_contour_mm is None
+                                                   else round(float(o.circle.other_contour_mm), 2))))
+    for axle in AXLES:
+        a = {k: float(v) for k, v in angles["axles"][axle].items()}
+        result.axles[axle] = AxleResult(**a, total_toe_std_deg=float(std[f"{axle}.total_toe"]))
+    result.thrust_deg = float(angles["thrust_deg"])
+    result.thrust_std_deg = float(std["thrust"])
+    result.wheelbase_m = angles["wheelbase_m"]
+    result.centreline_deg = angles["centreline_deg"]
+    result.paper_front_angles_deg = alignment.paper_front_angles(centers, axes)
+    result.alignment_frame = {"origin_station_m": np.mean([centers[w] for w in WHEELS], axis=0).tolist(),
+                              "R_station_align": angles["R_station_align"].tolist()}
+
+
+def _pair_warnings(result: Measurement, observations: dict, config: StationConfig) -> None:
+    """Per wheel: a stated uncertainty above the limit (what the 3-D rim rests on), and whether
+    this cycle could check the pair's calibration (the epipolar residual: a moved camera, or
+    tangents extrapolated where a camera did not see the rim)."""
+    limit = config.measurement.epipolar_limit_px
+    for w in WHEELS:
+        o, r = observations[w], result.wheels[w]
+        worst = max(("toe", r.toe_std_deg), ("camber", r.camber_std_deg), key=lambda kv: kv[1])
         if worst[1] > config.measurement.uncertainty_limit_deg:
             kept = kept_fractions(o)
             weak = o.cams[int(np.argmin(kept))]
-            result["warning_flags"].append({"kind": "uncertain", "wheel": w})
-            result["warnings"].append(
+            result.warn(
                 f"{w}: {worst[0]} +/-{worst[1]:.3f} deg exceeds the {config.measurement.uncertainty_limit_deg} deg "
                 f"uncertainty limit: the 3-D rim rests on {min(kept):.0%} of {weak}'s edge points; check that "
-                f"{weak} sees the whole rim (wheel position, tyre, arch) and measure again")
+                f"{weak} sees the whole rim (wheel position, tyre, arch) and measure again",
+                WarningFlag("uncertain", w))
         d = min(o.detections, key=lambda det: det.coverage)
         if unverifiable_epipolar(o, config) and d.coverage < FULL_VIEW_COVERAGE:
-            result["warning_flags"].append({"kind": "unchecked", "wheel": w})
-            result["warnings"].append(
+            result.warn(
                 f"pair {w} ({o.cams[0]}, {o.cams[1]}): {d.camera_id or 'a camera'} sees the rim edge on only "
                 f"{d.coverage:.0%} of its perimeter, too little to check the pair's calibration this cycle "
                 f"(epipolar residual {o.circle.epipolar_rms_px:.1f} px from extrapolated tangents; one 3-D circle "
                 f"fits both views within {max(o.circle.view_median_px):.2f} px); if this persists, look at "
-                f"{d.camera_id or 'the camera'}'s image (lighting, the tyre or the wheel arch hiding the rim) and recalibrate")
+                f"{d.camera_id or 'the camera'}'s image (lighting, the tyre or the wheel arch hiding the rim) and recalibrate",
+                WarningFlag("unchecked", w))
         elif o.circle.epipolar_rms_px > limit and not np.max(o.circle.tangent_gap_deg) <= TANGENT_GAP_DEG:
             # the epipolar planes touch the rim where a camera did not see it: the tangents
             # there are extrapolated, and their disagreement is no evidence that a camera moved
             gaps = np.nan_to_num(np.asarray(o.circle.tangent_gap_deg, float), nan=360.0)
             k = int(np.argmax(gaps))
             where = f"nearest edge point {gaps[k]:.0f} deg of the rim away" if gaps[k] < 360 else "no tangent point found"
-            result["warning_flags"].append({"kind": "unchecked", "wheel": w})
-            result["warnings"].append(
+            result.warn(
                 f"pair {w} ({o.cams[0]}, {o.cams[1]}): {o.cams[k]} did not see the rim where the epipolar planes "
                 f"touch it ({where}), too little "
                 f"to check the pair's calibration this cycle (epipolar residual {o.circle.epipolar_rms_px:.1f} px "
-                f"from extrapolated tangents); if this persists on well-lit, fully visible rims, recalibrate")
+                f"from extrapolated tangents); if this persists on well-lit, fully visible rims, recalibrate",
+                WarningFlag("unchecked", w))
         elif o.circle.epipolar_rms_px > limit:
-            result["warning_flags"].append({"kind": "drift", "wheel": w})
-            result["warnings"].append(
+            result.warn(
                 f"pair {w} ({o.cams[0]}, {o.cams[1]}): epipolar residual {o.circle.epipolar_rms_px:.2f} px "
                 f"> {limit} px: a camera of this pair may have moved since calibration; recalibrate. Every "
                 f"wheel's toe is taken against the car frame this wheel's centre helps define: treat the whole "
-                f"cycle as suspect until then")
-    for axle in ("front", "rear"):
-        a = {k: float(v) for k, v in angles["axles"][axle].items()}
-        a["total_toe_std_deg"] = float(std[f"{axle}.total_toe"])
-        result["axles"][axle] = a
-    result["thrust_deg"] = float(angles["thrust_deg"])
-    result["thrust_std_deg"] = float(std["thrust"])
-    result["wheelbase_m"] = angles["wheelbase_m"]
-    result["centreline_deg"] = angles["centreline_deg"]
-    result["paper_front_angles_deg"] = alignment.paper_front_angles(centers, axes)
-    result["alignment_frame"] = {"origin_station_m": np.mean([centers[w] for w in WHEELS], axis=0).tolist(),
-                                 "R_station_align": angles["R_station_align"].tolist()}
+                f"cycle as suspect until then", WarningFlag("drift", w))
 
 
 def _finite_cov(c: np.ndarray, fallback_var: float) -> np.ndarray:
@@ -305,37 +314,15 @@ def _white_edge_warnings(detections: dict, config: StationConfig) -> list[tuple[
             for cid, d in _detections_where(detections, lambda d: d.details.get("white_share", 0.0) > limit)]
 
 
-def _detection_summary(detections: dict) -> dict:
+def _detection_summary(detections: dict) -> dict[str, CameraDetection]:
     out = {}
     for cid, d in detections.items():
         if isinstance(d, StationError):
-            out[cid] = {"ok": False, "reason": str(d)}
+            out[cid] = CameraDetection(ok=False, reason=str(d))
         else:
             e = d.ellipse
-            out[cid] = {"ok": True, "center_px": np.asarray(e.center_px).tolist(),
-                        "axes_px": np.asarray(e.axes_px).tolist(), "angle_deg": float(np.degrees(e.angle_rad)),
-                        "score": float(d.score), "coverage": float(d.coverage), "points": int(len(d.points_px)),
-                        "white_share": float(d.details.get("white_share", 0.0))}
+            out[cid] = CameraDetection(ok=True, center_px=np.asarray(e.center_px).tolist(),
+                                       axes_px=np.asarray(e.axes_px).tolist(), angle_deg=float(np.degrees(e.angle_rad)),
+                                       score=float(d.score), coverage=float(d.coverage), points=int(len(d.points_px)),
+                                       white_share=float(d.details.get("white_share", 0.0)))
     return out
-
-
-def _empty_result(config: StationConfig) -> dict:
-    return {"schema_version": SCHEMA_VERSION, "station": config.name, "valid": False, "failure": None,
-            "warnings": [], "warning_flags": [], "wheels": {}, "axles": {}, "thrust_deg": None}
-
-
-def add_truth(result: dict, truth: dict) -> None:
-    """Simulation only: attach the truth and each angle's error (measured - true)."""
-    result["truth"] = truth
-    if not result.get("valid"):
-        return
-    errors = {}
-    for w in WHEELS:
-        m, t = result["wheels"][w], truth["wheels"][w]
-        errors[w] = {"toe_error_deg": m["toe_deg"] - t["toe_deg"], "camber_error_deg": m["camber_deg"] - t["camber_deg"]}
-        result["wheels"][w]["toe_error_deg"] = errors[w]["toe_error_deg"]
-        result["wheels"][w]["camber_error_deg"] = errors[w]["camber_error_deg"]
-    errors["front.total_toe"] = result["axles"]["front"]["total_toe_deg"] - truth["total_toe_front_deg"]
-    errors["rear.total_toe"] = result["axles"]["rear"]["total_toe_deg"] - truth["total_toe_rear_deg"]
-    errors["thrust"] = result["thrust_deg"] - truth["thrust_deg"]
-    result["errors"] = errors

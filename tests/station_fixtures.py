@@ -38,3 +38,17 @@ def rendered_small_station(tmp_path: Path, seed: int = 3):
     scene = world.vehicle_scene(seed)
     world.set_scene(scene)
     return cfg, world, scene, world.render_all(np.random.default_rng(seed))
+
+
+def truth_calibration(config):
+    """Save the simulated station's true cameras as its calibration file (no box calibration)."""
+    from calibration.calib_file import CameraCalibration, StationCalibration, save_calibration
+    from simulators.world import SimWorld
+
+    world = SimWorld.from_config(config)
+    cams = {c: CameraCalibration(m, 0.1, 1000, {}) for c, m in world.cameras.items()}
+    calib = StationCalibration(cams, {w: (p.precision, p.reference) for w, p in config.pairs.items()},
+                               station_name=config.name)
+    config.calibration_file.parent.mkdir(parents=True, exist_ok=True)
+    save_calibration(calib, config.calibration_file)
+    return calib

@@ -3,9 +3,10 @@
 import numpy as np
 import pytest
 
-from simulators.vehicle import WHEELS, Vehicle, random_vehicle
-from station.alignment import (ANGLE_NAMES, angle_covariance, angle_vector, compute_angles,
-                               paper_front_angles)
+from calibration.station_frame import WHEELS
+from simulators.vehicle import Vehicle, random_vehicle
+from station.alignment import angle_covariance, angle_vector, compute_angles, paper_front_angles
+from station.result import ANGLE_NAMES
 
 
 def _wheels(vehicle):
@@ -90,7 +91,9 @@ def test_covariance_propagation_matches_monte_carlo():
 
 
 def test_the_batched_angles_and_their_covariance_are_those_of_compute_angles():
-    from station.alignment import ANGLE_NAMES, SIDE, WHEELS, angle_covariance, angle_vector, angle_vectors, compute_angles
+    from calibration.station_frame import SIDE, WHEELS
+    from station.alignment import angle_covariance, angle_vector, angle_vectors, compute_angles
+    from station.result import ANGLE_NAMES
 
     rng = np.random.default_rng(11)
     nominal = {"FL": [-0.8, 1.4, 0.33], "FR": [0.8, 1.4, 0.33], "RL": [-0.8, -1.3, 0.33], "RR": [0.8, -1.3, 0.33]}

@@ -54,10 +54,10 @@ def test_measure_frames_in_workers_equals_in_process(tmp_path):
     local = measure_frames(images, world.cameras, cfg)
     with WorkerPool(2) as w:
         pooled = measure_frames(images, world.cameras, cfg, workers=w)
-    assert local["valid"] and pooled["valid"]
+    assert local.valid and pooled.valid
     for wheel in ("FL", "FR", "RL", "RR"):
         for k in ("toe_deg", "camber_deg", "toe_std_deg"):
-            assert pooled["wheels"][wheel][k] == local["wheels"][wheel][k]
+            assert getattr(pooled.wheels[wheel], k) == getattr(local.wheels[wheel], k)
 
 
 def test_close_does_not_wait_forever_for_a_stuck_worker():

@@ -16,7 +16,8 @@ import pytest
 
 from result_builder import make_result
 from station.errors import StorageError
-from station.records.history import ANGLE_NAMES, History, export_csv
+from station.records.history import History, export_csv
+from station.result import ANGLE_NAMES
 
 TESTS = Path(__file__).resolve().parent
 
@@ -29,27 +30,27 @@ def hist(tmp_path):
 
 
 def _fill(h):
-    h.store(make_result(1, cycle=1, job_id="JOB-A", time_utc="2026-11-20T08:00:00Z") | {"pass": {"overall": False}})
-    h.store(make_result(2, cycle=2, job_id="JOB-A", time_utc="2026-11-20T08:05:00Z") | {"pass": {"overall": True}})
+    h.store(make_result(1, cycle=1, job_id="JOB-A", time_utc="2026-11-20T08:00:00Z", verdicts={"overall": False}))
+    h.store(make_result(2, cycle=2, job_id="JOB-A", time_utc="2026-11-20T08:05:00Z", verdicts={"overall": True}))
     h.store(make_result(3, cycle=3, job_id="JOB-B", vehicle_spec="toyota-echo-2003",
-                        time_utc="2026-11-21T23:59:59.5Z") | {"pass": {"overall": True}})
+                        time_utc="2026-11-21T23:59:59.5Z", verdicts={"overall": True}))
     h.store(make_result(4, cycle=4, job_id=None, vehicle_spec=None, time_utc="2026-11-22T00:00:00Z"))
     h.store(make_result(5, cycle=5, job_id="JOB-A", valid=False, time_utc="2026-11-20T07:00:00+01:00"))
 
 
 def test_store_and_read_back_every_field(hist):
-    r = make_result(7, cycle=7, recording="/var/recordings/x.rrd") | {"pass": {"overall": True, "FL.toe": True}}
+    r = make_result(7, cycle=7, recording="/var/recordings/x.rrd", verdicts={"overall": True, "FL.toe": True})
     rowid = hist.store(r)
     rows = hist.query()
     assert len(rows) == 1 and rows[0]["id"] == rowid
     row = rows[0]
-    assert row["result"] == json.loads(json.dumps(r))
+    assert row["result"] == json.loads(json.dumps(r.to_json()))
     assert row["passed"] is True and row["valid"] is True
-    assert row["calibration_id"] == r["calibration_id"] and row["software_version"] == "0.1.0"
+    assert row["calibration_id"] == r.calibration_id and row["software_version"] == "0.1.0"
     assert row["recording"] == "/var/recordings/x.rrd"
-    assert row["angles"]["FL.toe"] == pytest.approx(r["wheels"]["FL"]["toe_deg"])
-    assert row["angles"]["thrust"] == pytest.approx(r["thrust_deg"])
-    assert row["angles"]["rear.total_toe"] == pytest.approx(r["axles"]["rear"]["total_toe_deg"])
+    assert row["angles"]["FL.toe"] == pytest.approx(r.wheels["FL"].toe_deg)
+    assert row["angles"]["thrust"] == pytest.approx(r.thrust_deg)
+    assert row["angles"]["rear.total_toe"] == pytest.approx(r.axles["rear"].total_toe_deg)
     # the raw tables: 11 angle rows, pass stored per angle where present
     con = sqlite3.connect(hist.path)
     assert con.execute("SELECT COUNT(*) FROM angles").fetchone()[0] == len(ANGLE_NAMES)
@@ -71,7 +72,7 @@ def test_filters_and_time_order(hist):
     # the +01:00 time was normalised to UTC (06:00Z), so it sorts first
     assert hist.query(job="JOB-A")[0]["time_utc"] == "2026-11-20T06:00:00.000Z"
     assert [r["cycle_id"][-1] for r in hist.jobs("JOB-A") and hist.query(job="JOB-A")] == ["5", "1", "2"]
-    assert [r["cycle_id"] for r in hist.jobs("JOB-A")][-1].endswith("0002")
+    assert [r.cycle_id for r in hist.jobs("JOB-A")][-1].endswith("0002")
     assert hist.jobs("nobody") == []
     invalid = hist.query(job="JOB-A")[0]
     assert invalid["valid"] is False and all(v is None for v in invalid["angles"].values())
@@ -255,10 +256,10 @@ def test_threads_share_one_history(hist):
 def test_numpy_and_nan_values_store_cleanly(hist):
     import numpy as np
     r = make_result(1, cycle=1)
-    r["wheels"]["FL"]["toe_deg"] = np.float32(0.25)
-    r["wheels"]["FL"]["toe_std_deg"] = float("nan")
-    r["wheels"]["FR"]["center_station_m"] = np.array([0.78, 1.35, 0.33])
-    r["pass"] = {"overall": np.bool_(True)}
+    r.wheels["FL"].toe_deg = np.float32(0.25)
+    r.wheels["FL"].toe_std_deg = float("nan")
+    r.wheels["FR"].center_station_m = np.array([0.78, 1.35, 0.33])
+    r.verdicts = {"overall": np.bool_(True)}
     hist.store(r)
     row = hist.query()[0]
     assert row["angles"]["FL.toe"] == pytest.approx(0.25)
@@ -278,8 +279,7 @@ FULL_DISK = textwrap.dedent("""
     h = History(d + "/history.sqlite")
     try:
         for i in range(100000):
-            r = make_result(i, cycle=i + 1)
-            r["warnings"] = ["x" * 2000]  # fill the disk faster
+            r = make_result(i, cycle=i + 1, warnings=["x" * 2000])  # fill the disk faster
             h.store(r)
             out["stored"] += 1
     except StorageError as e:

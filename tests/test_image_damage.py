@@ -5,9 +5,10 @@ import numpy as np
 import pytest
 
 from simulators.image_damage import KINDS, damage
-from station.config import WHEELS
+from calibration.station_frame import WHEELS
 from station.measure import measure_frames
 from station.plc.results import result_station_warning_bits
+from station.result import WarningFlag
 from tests.station_fixtures import rendered_small_station
 
 
@@ -24,20 +25,20 @@ def test_a_damaged_image_is_measured_or_refused_never_a_traceback(sim, kind):
     assert damaged["cam6"].dtype == np.uint8 and damaged["cam6"].shape == images["cam6"].shape
     assert not np.array_equal(damaged["cam6"], images["cam6"])
     result = measure_frames(damaged, world.cameras, cfg)
-    if not result["valid"]:
-        assert result["failure"]["message"]
+    if not result.valid:
+        assert result.failure.message
         return
     for w in WHEELS:
-        assert np.isfinite(result["wheels"][w]["toe_deg"]) and np.isfinite(result["wheels"][w]["camber_deg"])
+        assert np.isfinite(result.wheels[w].toe_deg) and np.isfinite(result.wheels[w].camber_deg)
     if kind == "over-exposed":
-        assert any(x.startswith("RL cam6: ") and "sensor's white" in x for x in result["warnings"]), result["warnings"]
-        assert {"kind": "exposure", "wheel": "RL", "camera": "cam6"} in result["warning_flags"]
+        assert any(x.startswith("RL cam6: ") and "sensor's white" in x for x in result.warnings), result.warnings
+        assert WarningFlag("exposure", "RL", camera="cam6") in result.warning_flags
         assert result_station_warning_bits(result) & (1 << 1)  # the PLC's "a camera at the white"
     if kind == "soft-focus":
-        assert {"kind": "focus", "wheel": "RL", "camera": "cam6"} in result["warning_flags"], result["warnings"]
+        assert WarningFlag("focus", "RL", camera="cam6") in result.warning_flags, result.warnings
         assert result_station_warning_bits(result) & (1 << 2)
     if kind == "knocked":  # the pair cannot agree: a drift warning for RL (or a refusal, above)
-        assert {"kind": "drift", "wheel": "RL"} in result["warning_flags"], result["warnings"]
+        assert WarningFlag("drift", "RL") in result.warning_flags, result.warnings
 
 
 def test_an_unknown_damage_is_named():

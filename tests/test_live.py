@@ -13,30 +13,17 @@ import numpy as np
 import pytest
 
 from station.live import LiveSession, Reading, format_reading, rate_summary
-from tests.station_fixtures import small_station_config
+from tests.station_fixtures import small_station_config, truth_calibration
 
 ROOT = Path(__file__).resolve().parents[1]
 SEED = 1
-
-
-def _truth_calibration(config):
-    from calibration.calib_file import CameraCalibration, StationCalibration, save_calibration
-    from simulators.world import SimWorld
-
-    world = SimWorld.from_config(config)
-    cams = {c: CameraCalibration(m, 0.1, 1000, {}) for c, m in world.cameras.items()}
-    calib = StationCalibration(cams, {w: (p.precision, p.reference) for w, p in config.pairs.items()},
-                               station_name=config.name)
-    config.calibration_file.parent.mkdir(parents=True, exist_ok=True)
-    save_calibration(calib, config.calibration_file)
-    return calib
 
 
 @pytest.fixture(scope="module")
 def station(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("live")
     config = small_station_config(tmp)
-    _truth_calibration(config)
+    truth_calibration(config)
     return config, tmp / "cache"
 
 

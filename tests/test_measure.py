@@ -8,7 +8,8 @@ import sys
 import numpy as np
 import pytest
 
-from station.measure import add_truth, measure_frames
+from station.measure import measure_frames
+from station.result import Measurement, WarningFlag
 from tests.station_fixtures import rendered_small_station, small_station_config
 
 
@@ -21,17 +22,17 @@ def sim(tmp_path_factory):
 def test_angles_match_the_simulated_vehicle(sim):
     cfg, world, scene, images = sim
     result = measure_frames(images, world.cameras, cfg)
-    assert result["valid"], result["failure"]
-    add_truth(result, world.truth(scene))
+    assert result.valid, result.failure
+    result.add_truth(world.truth(scene))
     for w in ("FL", "FR", "RL", "RR"):
         # Half resolution and a single vehicle: a loose bound that a sign or frame error breaks.
-        assert abs(result["wheels"][w]["toe_error_deg"]) < 0.4
-        assert abs(result["wheels"][w]["camber_error_deg"]) < 0.4
-        assert result["wheels"][w]["toe_std_deg"] > 0
+        assert abs(result.errors[w]["toe_error_deg"]) < 0.4
+        assert abs(result.errors[w]["camber_error_deg"]) < 0.4
+        assert result.wheels[w].toe_std_deg > 0
     truth_toe = np.array([scene.vehicle.toe_deg[w] for w in ("FL", "FR", "RL", "RR")])
-    measured = np.array([result["wheels"][w]["toe_deg"] for w in ("FL", "FR", "RL", "RR")])
+    measured = np.array([result.wheels[w].toe_deg for w in ("FL", "FR", "RL", "RR")])
     assert np.corrcoef(truth_toe, measured)[0, 1] > 0.95
-    json.dumps({k: v for k, v in result.items() if not k.startswith("_")})  # JSON-ready
+    json.dumps(result.to_json())  # JSON-ready
 
 
 @pytest.mark.slow
@@ -39,15 +40,15 @@ def test_a_black_camera_invalidates_the_cycle_and_is_named(sim):
     cfg, world, scene, images = sim
     broken = dict(images, cam5=np.zeros_like(images["cam5"]))
     result = measure_frames(broken, world.cameras, cfg)
-    assert not result["valid"]
-    assert result["failure"]["camera"] == "cam5" and result["failure"]["wheel"] == "RL"
-    assert "cam5" in result["failure"]["message"]
-    assert not result["wheels"], "no angle of an invalid cycle is reported"
+    assert not result.valid
+    assert result.failure.camera == "cam5" and result.failure.wheel == "RL"
+    assert "cam5" in result.failure.message
+    assert not result.wheels, "no angle of an invalid cycle is reported"
     from station.commands.measure import print_result  # the technician reads what to do, not only what failed
     out = io.StringIO()
     print_result(result, out)
-    assert "MEASUREMENT FAILED" in out.getvalue() and f"what to do: {result['failure']['hint']}" in out.getvalue()
-    assert result["failure"]["hint"]
+    assert "MEASUREMENT FAILED" in out.getvalue() and f"what to do: {result.failure.hint}" in out.getvalue()
+    assert result.failure.hint
 
 
 def test_unknown_method_is_refused(sim):
@@ -78,10 +79,10 @@ def test_a_knocked_camera_is_reported_as_calibration_drift(sim):
     R = rodrigues_to_matrix([np.radians(0.15), 0, 0]) @ c.R_cam_station
     cams["cam2"] = c.with_pose(R, -R @ c.center_station)
     result = measure_frames(images, cams, cfg)
-    drift = [w for w in result["warnings"] if "may have moved" in w]
-    assert any("pair FR (cam1, cam2)" in w for w in drift), result["warnings"]
-    assert {"kind": "drift", "wheel": "FR"} in result["warning_flags"]
-    assert not any("pair RL" in w for w in result["warnings"])
+    drift = [w for w in result.warnings if "may have moved" in w]
+    assert any("pair FR (cam1, cam2)" in w for w in drift), result.warnings
+    assert WarningFlag("drift", "FR") in result.warning_flags
+    assert not any("pair RL" in w for w in result.warnings)
 
 
 @pytest.mark.slow
@@ -113,22 +114,22 @@ def test_a_rim_seen_on_part_of_its_perimeter_is_measured_and_its_unchecked_pair_
     monkeypatch.setattr(wheel_pair, "refine_circle", extrapolated)
     monkeypatch.setattr(wheel_pair, "detect_one", partly_seen)
     result = measure_frames(images, world.cameras, cfg)
-    assert result["valid"], result["failure"]
-    note = [w for w in result["warnings"] if w.startswith("pair RL")]
-    assert len(note) == 1 and "too little to check the pair's calibration" in note[0], result["warnings"]
-    assert {"kind": "unchecked", "wheel": "RL"} in result["warning_flags"]
-    assert not any("may have moved" in w for w in result["warnings"])
+    assert result.valid, result.failure
+    note = [w for w in result.warnings if w.startswith("pair RL")]
+    assert len(note) == 1 and "too little to check the pair's calibration" in note[0], result.warnings
+    assert WarningFlag("unchecked", "RL") in result.warning_flags
+    assert not any("may have moved" in w for w in result.warnings)
     missed.clear()  # both saw the tangent points: however much of the rim cam6 sees, the residual is a moved camera
     seen_part = measure_frames(images, world.cameras, cfg)
-    assert not seen_part["valid"] and "did not find the same rim" in seen_part["failure"]["message"]
+    assert not seen_part.valid and "did not find the same rim" in seen_part.failure.message
     monkeypatch.setattr(wheel_pair, "detect_one", detect)
     seen = measure_frames(images, world.cameras, cfg)
-    assert not seen["valid"] and "a camera may have moved" in seen["failure"]["hint"]
+    assert not seen.valid and "a camera may have moved" in seen.failure.hint
     residual["epipolar_rms_px"] = 3.0  # under the mismatch limit: measured, and the drift named
     drift = measure_frames(images, world.cameras, cfg)
-    assert drift["valid"] and {"kind": "drift", "wheel": "RL"} in drift["warning_flags"], drift["warnings"]
-    assert any(w.startswith("pair RL") and "whole cycle as suspect" in w for w in drift["warnings"])
-    o = result["_observations"]["RL"]
+    assert drift.valid and WarningFlag("drift", "RL") in drift.warning_flags, drift.warnings
+    assert any(w.startswith("pair RL") and "whole cycle as suspect" in w for w in drift.warnings)
+    o = result.observations["RL"]
     wrong = replace(o, circle=replace(o.circle, view_median_px=(o.circle.view_median_px[0], 3.0)))
     with pytest.raises(MeasurementError, match="did not find the same rim"):
         wheel_pair.check_same_rim(wrong, cfg)
@@ -157,28 +158,28 @@ def test_a_pair_that_did_not_see_the_rim_where_the_epipolar_planes_touch_it_is_u
 
     monkeypatch.setattr(wheel_pair, "refine_circle", partial)
     result = measure_frames(images, world.cameras, cfg)
-    assert result["valid"], result["failure"]
-    assert {"kind": "unchecked", "wheel": "RL"} in result["warning_flags"]
-    assert {"kind": "drift", "wheel": "RL"} not in result["warning_flags"]
-    note = [w for w in result["warnings"] if w.startswith("pair RL")]
+    assert result.valid, result.failure
+    assert WarningFlag("unchecked", "RL") in result.warning_flags
+    assert WarningFlag("drift", "RL") not in result.warning_flags
+    note = [w for w in result.warnings if w.startswith("pair RL")]
     assert len(note) == 1 and "cam6 did not see the rim where the epipolar planes touch it" in note[0]
     assert "40 deg" in note[0] and "too little to check" in note[0]
     gap["cam6"] = 5.0
     seen = measure_frames(images, world.cameras, cfg)
-    assert {"kind": "drift", "wheel": "RL"} in seen["warning_flags"]
-    assert seen["wheels"]["RL"]["quality"]["arcs_left_out"] is False
-    assert all(isinstance(seen["wheels"][w]["quality"]["grazing_left_out"], bool) for w in seen["wheels"])
+    assert WarningFlag("drift", "RL") in seen.warning_flags
+    assert seen.wheels["RL"].quality.arcs_left_out is False
+    assert all(isinstance(seen.wheels[w].quality.grazing_left_out, bool) for w in seen.wheels)
 
 
 @pytest.mark.slow
 def test_a_wheel_less_certain_than_the_limit_warns_and_names_a_camera(sim, monkeypatch):
     cfg, world, scene, images = sim
     result = measure_frames(images, world.cameras, cfg)
-    assert not any("uncertainty limit" in w for w in result["warnings"]), result["warnings"]
+    assert not any("uncertainty limit" in w for w in result.warnings), result.warnings
     monkeypatch.setattr(cfg.measurement, "uncertainty_limit_deg", 0.001)  # every wheel is less certain
     uncertain = measure_frames(images, world.cameras, cfg)
-    warned = [w for w in uncertain["warnings"] if "uncertainty limit" in w]
-    flags = sorted(f["wheel"] for f in uncertain["warning_flags"] if f["kind"] == "uncertain")
+    warned = [w for w in uncertain.warnings if "uncertainty limit" in w]
+    flags = sorted(f.wheel for f in uncertain.warning_flags if f.kind == "uncertain")
     assert flags == ["FL", "FR", "RL", "RR"]                     # the PLC's warning_bits 0-3
     assert len(warned) == 4 and any(w.startswith("FR: ") and ("of cam1's" in w or "of cam2's" in w) for w in warned)
 
@@ -188,11 +189,11 @@ def test_cameras_that_found_different_rims_fail_the_wheel(sim):
     cfg, world, scene, images = sim
     swapped = dict(images, cam2=np.flipud(images["cam2"]).copy())  # a rim, but not where cam2 sees it
     result = measure_frames(swapped, world.cameras, cfg)
-    assert not result["valid"]
-    assert result["failure"]["wheel"] == "FR"
+    assert not result.valid
+    assert result.failure.wheel == "FR"
     # the fit from the paper's circle runs off; from the two ellipses both views fit one
     # circle, far too large for a rim (an upside-down view of a round rim is still an ellipse)
-    message = result["failure"]["message"]
+    message = result.failure.message
     assert "did not find the same rim" in message or ("not a rim flange" in message and "another contour" in message)
 
 
@@ -232,9 +233,9 @@ def test_an_axle_whose_rims_differ_in_size_fails_naming_the_odd_wheel(sim, monke
     monkeypatch.setattr(axle_rims, "resolve_pair", lambda *a, **k: None)  # no candidate pairing of that size
     monkeypatch.setattr(axle_rims, "_carried_pair", lambda *a, **k: None)  # nor a rim carried across
     result = measure_frames(images, world.cameras, cfg)
-    assert not result["valid"] and not result["wheels"]
-    assert result["failure"]["wheel"] == "RL" and "RR's" in result["failure"]["message"]
-    assert result["failure"]["camera"] == "cam5+cam6" and result["failure"]["hint"]
+    assert not result.valid and not result.wheels
+    assert result.failure.wheel == "RL" and "RR's" in result.failure.message
+    assert result.failure.camera == "cam5+cam6" and result.failure.hint
 
 
 def test_the_odd_wheel_of_an_axle_is_tried_again_at_its_partners_size(sim, monkeypatch):
@@ -252,10 +253,10 @@ def test_the_odd_wheel_of_an_axle_is_tried_again_at_its_partners_size(sim, monke
 
     monkeypatch.setattr(axle_rims, "resolve_pair", candidates_at_the_size)
     result = measure_frames(images, world.cameras, cfg)
-    assert result["valid"], result["failure"]
+    assert result.valid, result.failure
     assert asked and asked[0][0] == "RL" and asked[0][1] == pytest.approx(good["RL"].circle.radius_m, rel=0.05)
-    assert any("not the size of RR's" in w for w in result["warnings"])
-    assert {"kind": "runner_up", "wheel": "RL"} in result["warning_flags"]
+    assert any("not the size of RR's" in w for w in result.warnings)
+    assert WarningFlag("runner_up", "RL") in result.warning_flags
 
 
 def test_the_odd_wheel_is_found_again_from_one_cameras_rim_carried_to_the_other(sim, monkeypatch):
@@ -270,13 +271,13 @@ def test_the_odd_wheel_is_found_again_from_one_cameras_rim_carried_to_the_other(
     _rl_circle_scaled(monkeypatch, 1.3)
     monkeypatch.setattr(axle_rims, "resolve_pair", lambda *a, **k: None)
     result = measure_frames(images, world.cameras, cfg)
-    assert result["valid"], result["failure"]
-    assert any(w.startswith("RL (cam5, cam6)") and "searched again where" in w for w in result["warnings"])
-    assert {"kind": "runner_up", "wheel": "RL"} in result["warning_flags"]
-    rl, rl_plain = result["wheels"]["RL"], plain["wheels"]["RL"]
-    assert rl["rim_radius_m"] == pytest.approx(rl_plain["rim_radius_m"], rel=0.002)
+    assert result.valid, result.failure
+    assert any(w.startswith("RL (cam5, cam6)") and "searched again where" in w for w in result.warnings)
+    assert WarningFlag("runner_up", "RL") in result.warning_flags
+    rl, rl_plain = result.wheels["RL"], plain.wheels["RL"]
+    assert rl.rim_radius_m == pytest.approx(rl_plain.rim_radius_m, rel=0.002)
     for angle in ("toe_deg", "camber_deg"):
-        assert rl[angle] == pytest.approx(rl_plain[angle], abs=0.05)
+        assert getattr(rl, angle) == pytest.approx(getattr(rl_plain, angle), abs=0.05)
 
 
 def test_axle_rim_mismatch_tolerates_what_a_measurement_varies_by():
@@ -306,14 +307,14 @@ def test_a_rim_larger_than_its_axle_partners_is_warned_of_and_nothing_else_chang
     plain = measure_frames(images, world.cameras, cfg)
     _rl_circle_scaled(monkeypatch, 1.005)
     result = measure_frames(images, world.cameras, cfg)
-    assert result["valid"], result["failure"]
-    assert {"kind": "rim_size", "wheel": "RL"} in result["warning_flags"]
+    assert result.valid, result.failure
+    assert WarningFlag("rim_size", "RL") in result.warning_flags
     assert any(w.startswith("RL (cam5, cam6): its rim came out") and "larger in radius than RR's (0.50%)" in w
-               for w in result["warnings"])
-    assert not any(f["kind"] == "rim_size" for f in plain["warning_flags"])
+               for w in result.warnings)
+    assert not any(f.kind == "rim_size" for f in plain.warning_flags)
     for w in ("FL", "FR", "RR"):
-        assert result["wheels"][w]["toe_deg"] == plain["wheels"][w]["toe_deg"]
-    assert result["wheels"]["RL"]["camber_deg"] == plain["wheels"]["RL"]["camber_deg"]
+        assert result.wheels[w].toe_deg == plain.wheels[w].toe_deg
+    assert result.wheels["RL"].camber_deg == plain.wheels["RL"].camber_deg
 
 
 def test_result_json_to_an_unwritable_place_is_a_storage_error_and_leaves_no_file(tmp_path):
@@ -323,9 +324,9 @@ def test_result_json_to_an_unwritable_place_is_a_storage_error_and_leaves_no_fil
     blocker = tmp_path / "not-a-folder"
     blocker.write_text("x")
     with pytest.raises(StorageError, match="cannot write the result JSON"):
-        write_json({"valid": True}, blocker / "r.json")
-    out = write_json({"valid": True, "v": np.float64(0.5)}, tmp_path / "ok" / "r.json")
-    assert json.loads(out.read_text()) == {"valid": True, "v": 0.5}
+        write_json(Measurement(station="s"), blocker / "r.json")
+    out = write_json(Measurement(station="s", thrust_deg=np.float64(0.5)), tmp_path / "ok" / "r.json")
+    assert json.loads(out.read_text())["thrust_deg"] == 0.5
     assert [p.name for p in out.parent.iterdir()] == ["r.json"]
 
 
@@ -384,13 +385,13 @@ def test_the_calibrations_covariance_adds_to_the_stated_uncertainty(sim):
     cov = np.diag(np.tile(sd, 2) ** 2)
     plain = measure_frames(images, world.cameras, cfg)
     with_cal = measure_frames(images, world.cameras, cfg, calibration_cov={"FR": cov})
-    assert plain["valid"] and with_cal["valid"]
-    fr0, fr1 = plain["wheels"]["FR"], with_cal["wheels"]["FR"]
-    assert fr1["toe_deg"] == fr0["toe_deg"]  # the values do not move, their uncertainty grows
-    assert fr0["toe_std_deg"] < fr1["toe_std_deg"] < 10 * fr0["toe_std_deg"]
+    assert plain.valid and with_cal.valid
+    fr0, fr1 = plain.wheels["FR"], with_cal.wheels["FR"]
+    assert fr1.toe_deg == fr0.toe_deg  # the values do not move, their uncertainty grows
+    assert fr0.toe_std_deg < fr1.toe_std_deg < 10 * fr0.toe_std_deg
     # the car frame is built from all four centres, so the other wheels' angles move a little
-    rl0, rl1 = plain["wheels"]["RL"]["toe_std_deg"], with_cal["wheels"]["RL"]["toe_std_deg"]
-    assert rl1 / rl0 < fr1["toe_std_deg"] / fr0["toe_std_deg"]
+    rl0, rl1 = plain.wheels["RL"].toe_std_deg, with_cal.wheels["RL"].toe_std_deg
+    assert rl1 / rl0 < fr1.toe_std_deg / fr0.toe_std_deg
 
 
 @pytest.mark.slow
@@ -404,13 +405,13 @@ def test_the_uncertainty_floor_adds_in_quadrature_and_moves_no_value(sim, monkey
     monkeypatch.setattr(cfg.measurement, "uncertainty_floor_deg", 0.0)
     without = measure_frames(images, world.cameras, cfg)
     for w in ("FL", "FR", "RL", "RR"):
-        a, b = with_floor["wheels"][w], without["wheels"][w]
-        assert a["toe_deg"] == b["toe_deg"] and a["camber_deg"] == b["camber_deg"]
+        a, b = with_floor.wheels[w], without.wheels[w]
+        assert a.toe_deg == b.toe_deg and a.camber_deg == b.camber_deg
         for k in ("toe_std_deg", "camber_std_deg"):
-            assert a[k] == pytest.approx(np.hypot(b[k], floor), rel=0.05)  # the axis' two directions
+            assert getattr(a, k) == pytest.approx(np.hypot(getattr(b, k), floor), rel=0.05)  # the axis' two directions
     # two wheels' floors in a total toe
-    assert with_floor["axles"]["front"]["total_toe_std_deg"] ** 2 == pytest.approx(
-        without["axles"]["front"]["total_toe_std_deg"] ** 2 + 2 * floor ** 2, rel=0.1)
+    assert with_floor.axles["front"].total_toe_std_deg ** 2 == pytest.approx(
+        without.axles["front"].total_toe_std_deg ** 2 + 2 * floor ** 2, rel=0.1)
 
 
 def test_a_doubtful_rim_puts_the_other_wheels_toe_in_doubt():
@@ -420,20 +421,20 @@ def test_a_doubtful_rim_puts_the_other_wheels_toe_in_doubt():
     from station.measure import centreline_warnings
 
     def result(*flags):
-        return {"warnings": [], "warning_flags": [dict(f) for f in flags]}
+        return Measurement(station="test", warning_flags=list(flags))
 
-    r = result({"kind": "uncertain", "wheel": "FL"}, {"kind": "rim_size", "wheel": "FL"})
+    r = result(WarningFlag("uncertain", "FL"), WarningFlag("rim_size", "FL"))
     centreline_warnings(r)
-    assert [f["wheel"] for f in r["warning_flags"] if f["kind"] == "centreline"] == ["FR", "RL", "RR"]
-    assert len(r["warnings"]) == 1 and r["warnings"][0].startswith("FR, RL, RR: toe") and "FL's" in r["warnings"][0]
-    r = result({"kind": "rim_size", "wheel": "RL"}, {"kind": "uncertain", "wheel": "RR"})
+    assert [f.wheel for f in r.warning_flags if f.kind == "centreline"] == ["FR", "RL", "RR"]
+    assert len(r.warnings) == 1 and r.warnings[0].startswith("FR, RL, RR: toe") and "FL's" in r.warnings[0]
+    r = result(WarningFlag("rim_size", "RL"), WarningFlag("uncertain", "RR"))
     centreline_warnings(r)
-    assert [f["wheel"] for f in r["warning_flags"] if f["kind"] == "centreline"] == ["FL", "FR"]
-    for quiet in (result(), result({"kind": "runner_up", "wheel": "FL"}, {"kind": "focus", "wheel": "FL", "camera": "cam3"}),
-                  result({"kind": "uncertain", "wheel": "FL"}, {"kind": "drift", "wheel": "FR"})):
-        before = [dict(f) for f in quiet["warning_flags"]]
+    assert [f.wheel for f in r.warning_flags if f.kind == "centreline"] == ["FL", "FR"]
+    for quiet in (result(), result(WarningFlag("runner_up", "FL"), WarningFlag("focus", "FL", camera="cam3")),
+                  result(WarningFlag("uncertain", "FL"), WarningFlag("drift", "FR"))):
+        before = list(quiet.warning_flags)
         centreline_warnings(quiet)
-        assert quiet["warning_flags"] == before and quiet["warnings"] == []
+        assert quiet.warning_flags == before and quiet.warnings == []
 
 
 def test_the_unseen_variance_takes_its_toe_share_across_the_horizontal():
@@ -469,10 +470,10 @@ def test_the_toe_scale_shrinks_only_toes_unseen_share(sim, monkeypatch):
     monkeypatch.setattr(cfg.measurement, "uncertainty_toe_scale", scale)
     scaled = measure_frames(images, world.cameras, cfg)
     for w in ("FL", "FR", "RL", "RR"):
-        a, b = scaled["wheels"][w], plain["wheels"][w]
-        assert a["toe_deg"] == b["toe_deg"] and a["camber_deg"] == b["camber_deg"]
-        assert a["toe_std_deg"] == pytest.approx(np.hypot(b["toe_std_deg"], scale * floor), rel=0.05)
-        assert a["camber_std_deg"] == pytest.approx(np.hypot(b["camber_std_deg"], floor), rel=0.05)
+        a, b = scaled.wheels[w], plain.wheels[w]
+        assert a.toe_deg == b.toe_deg and a.camber_deg == b.camber_deg
+        assert a.toe_std_deg == pytest.approx(np.hypot(b.toe_std_deg, scale * floor), rel=0.05)
+        assert a.camber_std_deg == pytest.approx(np.hypot(b.camber_std_deg, floor), rel=0.05)
 
 
 @pytest.mark.slow
@@ -499,18 +500,18 @@ def test_the_unseen_error_grows_with_each_wheels_edge_noise(sim, monkeypatch):
     for name, frames in (("clean", images), ("noisy", noisy)):
         plain, gained = results[name] = without_and_with_gain(frames)
         for w in ("FL", "FR", "RL", "RR"):
-            o = gained["_observations"][w]
+            o = gained.observations[w]
             q = o.circle.reprojection_rms_px
             a = np.mean([np.sqrt(np.prod(d.ellipse.axes_px)) for d in o.detections])
             term = np.degrees(0.45 * q / a)
             assert unseen_axis_variance(o, cfg) == pytest.approx(np.radians(term) ** 2)
-            g, p = gained["wheels"][w], plain["wheels"][w]
-            assert g["toe_deg"] == p["toe_deg"] and g["camber_deg"] == p["camber_deg"]
+            g, p = gained.wheels[w], plain.wheels[w]
+            assert g.toe_deg == p.toe_deg and g.camber_deg == p.camber_deg
             for k in ("toe_std_deg", "camber_std_deg"):
-                assert g[k] == pytest.approx(np.hypot(p[k], term), rel=0.05)
-    q_rl = {name: r[1]["_observations"]["RL"].circle.reprojection_rms_px for name, r in results.items()}
+                assert getattr(g, k) == pytest.approx(np.hypot(getattr(p, k), term), rel=0.05)
+    q_rl = {name: r[1].observations["RL"].circle.reprojection_rms_px for name, r in results.items()}
     assert q_rl["noisy"] > 1.5 * q_rl["clean"]
-    assert results["noisy"][1]["wheels"]["RL"]["toe_std_deg"] > results["clean"][1]["wheels"]["RL"]["toe_std_deg"]
+    assert results["noisy"][1].wheels["RL"].toe_std_deg > results["clean"][1].wheels["RL"].toe_std_deg
 
 
 def test_a_camera_out_of_focus_warns_and_is_named(sim):
@@ -518,26 +519,26 @@ def test_a_camera_out_of_focus_warns_and_is_named(sim):
 
     cfg, world, scene, images = sim
     sharp = measure_frames(images, world.cameras, cfg)
-    assert not any("blurred" in w for w in sharp["warnings"]), sharp["warnings"]
+    assert not any("blurred" in w for w in sharp.warnings), sharp.warnings
     soft = dict(images, cam5=cv2.GaussianBlur(images["cam5"], (0, 0), 1.8))
     result = measure_frames(soft, world.cameras, cfg)
-    assert result["valid"], result["failure"]
-    blurred = [w for w in result["warnings"] if "blurred" in w]
+    assert result.valid, result.failure
+    blurred = [w for w in result.warnings if "blurred" in w]
     assert len(blurred) == 1 and blurred[0].startswith("RL cam5: ") and "refocus cam5" in blurred[0], blurred
-    add_truth(result, world.truth(scene))
-    assert abs(result["wheels"]["RL"]["toe_error_deg"]) < 0.4  # still measured
+    result.add_truth(world.truth(scene))
+    assert abs(result.errors["RL"]["toe_error_deg"]) < 0.4  # still measured
 
 
 def test_a_camera_whose_rim_reaches_the_white_warns_and_is_named(sim):
     cfg, world, scene, images = sim
     plain = measure_frames(images, world.cameras, cfg)
-    assert not any("sensor's white" in w for w in plain["warnings"]), plain["warnings"]
-    assert plain["detections"]["cam6"]["white_share"] < cfg.measurement.white_edge_limit
+    assert not any("sensor's white" in w for w in plain.warnings), plain.warnings
+    assert plain.detections["cam6"].white_share < cfg.measurement.white_edge_limit
     bright = dict(images, cam6=np.clip(images["cam6"].astype(np.float64) * 2.5, 0, 255).astype(np.uint8))
     result = measure_frames(bright, world.cameras, cfg)
-    white = [w for w in result["warnings"] if "sensor's white" in w]
+    white = [w for w in result.warnings if "sensor's white" in w]
     assert len(white) == 1 and white[0].startswith("RL cam6: ") and "shorten cam6's exposure" in white[0], white
-    assert result["detections"]["cam6"]["white_share"] > 0.5
+    assert result.detections["cam6"].white_share > 0.5
 
 
 @pytest.mark.slow
@@ -570,7 +571,7 @@ def test_a_circle_fit_that_ran_off_its_points_starts_again_from_the_image_ellips
 def test_a_rim_too_small_in_its_image_warns_and_names_the_camera(sim, monkeypatch):
     cfg, world, scene, images = sim
     result = measure_frames(images, world.cameras, cfg)  # 640x512: rims of 150-180 px
-    small = [w for w in result["warnings"] if "the rim spans only" in w]
-    assert small and all(w.split(" ")[1].startswith("cam") and "longer lens" in w for w in small), result["warnings"]
+    small = [w for w in result.warnings if "the rim spans only" in w]
+    assert small and all(w.split(" ")[1].startswith("cam") and "longer lens" in w for w in small), result.warnings
     monkeypatch.setattr(cfg.measurement, "min_rim_axis_px", 0.0)
-    assert not any("the rim spans only" in w for w in measure_frames(images, world.cameras, cfg)["warnings"])
+    assert not any("the rim spans only" in w for w in measure_frames(images, world.cameras, cfg).warnings)

@@ -14,6 +14,7 @@ from station.plc.handshake import (PLC_EVENTS, REFUSALS, TRANSITIONS, Event, Plc
 from station.plc.results import (result_angles, result_registers, result_station_warning_bits, result_verdicts,
                                  result_warning_bits)
 from station.plc.runner import CycleRequest, job_number, synthetic_result
+from station.result import Measurement, WarningFlag
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -139,13 +140,13 @@ def test_result_registers_round_trip_through_the_decoder():
         regs[i:i + len(values)] = values
     block = rm.decode_block(regs)
     f32, i16 = rm.angles_from_block(block, "f32"), rm.angles_from_block(block, "i16")
-    assert f32["RL.camber"] == pytest.approx(result["wheels"]["RL"]["camber_deg"], abs=1e-6)
-    assert f32["thrust"] == pytest.approx(result["thrust_deg"], abs=1e-6)
-    assert f32["front.total_toe"] == pytest.approx(result["axles"]["front"]["total_toe_deg"], abs=1e-6)
+    assert f32["RL.camber"] == pytest.approx(result.wheels["RL"].camber_deg, abs=1e-6)
+    assert f32["thrust"] == pytest.approx(result.thrust_deg, abs=1e-6)
+    assert f32["front.total_toe"] == pytest.approx(result.axles["front"].total_toe_deg, abs=1e-6)
     for name in rm.ANGLES:
         assert i16[name] == pytest.approx(round(f32[name] * 100) / 100, abs=1e-9)
     assert block["result_job_id"] == "JOB-000007"
-    verdict = result["pass"]
+    verdict = result.verdicts
     for i, name in enumerate(rm.ANGLES):
         assert (block["judged_bits"] >> i) & 1 == 1
         assert (block["pass_bits"] >> i) & 1 == verdict[name]
@@ -154,36 +155,36 @@ def test_result_registers_round_trip_through_the_decoder():
 
 def test_warning_bits_name_the_kind_and_the_wheel():
     result = synthetic_result(CycleRequest("measure", "JOB-000004", None, 1))
-    result["warnings"], result["warning_flags"] = [], []
+    result.warnings, result.warning_flags = [], []
     assert result_warning_bits(result) == 0
-    result["warnings"] = ["RL: toe +/-0.28 deg exceeds ...", "pair RR (cam7, cam8): ... could not check ..."]
-    result["warning_flags"] = [{"kind": "uncertain", "wheel": "RL"}, {"kind": "unchecked", "wheel": "RR"},
-                               {"kind": "drift", "wheel": "FL"}, {"kind": "no such kind", "wheel": "FL"}]
+    result.warnings = ["RL: toe +/-0.28 deg exceeds ...", "pair RR (cam7, cam8): ... could not check ..."]
+    result.warning_flags = [WarningFlag("uncertain", "RL"), WarningFlag("unchecked", "RR"),
+                               WarningFlag("drift", "FL"), WarningFlag("no such kind", "FL")]
     bits = result_warning_bits(result)
     assert bits == (1 << 2) | (1 << 11) | (1 << 4)
     regs = result_registers(result, "JOB-000004")
     assert regs[rm.FIELDS["warning_bits"].address] == [bits]
     assert regs[rm.FIELDS["station_warning_bits"].address] == [1 << rm.ANY_WARNING_BIT]
     # RR's runner-up is bit 15, and nothing else is (map version 2 also meant "any warning" there)
-    result["warning_flags"] = [{"kind": "runner_up", "wheel": "RR"}]
+    result.warning_flags = [WarningFlag("runner_up", "RR")]
     assert result_warning_bits(result) == 1 << 15
-    result["warning_flags"] = []                          # a warning text alone: "any warning" only
+    result.warning_flags = []                          # a warning text alone: "any warning" only
     assert result_warning_bits(result) == 0 and result_station_warning_bits(result) == 1 << rm.ANY_WARNING_BIT
-    result["warning_flags"] = [{"kind": "exposure", "wheel": "RL", "camera": "cam6"},
-                               {"kind": "small_rim", "wheel": "FR", "camera": "cam2"}]
+    result.warning_flags = [WarningFlag("exposure", "RL", camera="cam6"),
+                               WarningFlag("small_rim", "FR", camera="cam2")]
     assert result_warning_bits(result) == 0
     assert result_station_warning_bits(result) == (1 << rm.ANY_WARNING_BIT) | (1 << 1) | (1 << 3)
-    result["warning_flags"] = [{"kind": "rim_size", "wheel": "FL"}]   # a rim another size than its partner's
+    result.warning_flags = [WarningFlag("rim_size", "FL")]   # a rim another size than its partner's
     assert result_warning_bits(result) == 0
     assert result_station_warning_bits(result) == (1 << rm.ANY_WARNING_BIT) | (1 << 4)
-    result["warnings"], result["warning_flags"] = [], []
+    result.warnings, result.warning_flags = [], []
     assert result_station_warning_bits(result) == 0
 
 
 def test_verdicts_without_spec_are_unjudged_and_wheel_pass_is_read():
     result = synthetic_result(CycleRequest("measure", "JOB-000003", None, 1))
     assert result_verdicts(result) == (0, 0)
-    result["wheels"]["FR"]["pass"] = {"toe": True, "camber": False}
+    result.verdicts = {"FR.toe": True, "FR.camber": False}
     passed, judged = result_verdicts(result)
     fr_toe, fr_camber = rm.ANGLES.index("FR.toe"), rm.ANGLES.index("FR.camber")
     assert judged == (1 << fr_toe) | (1 << fr_camber) and passed == 1 << fr_toe
@@ -191,11 +192,11 @@ def test_verdicts_without_spec_are_unjudged_and_wheel_pass_is_read():
 
 def test_malformed_result_names_the_key():
     result = synthetic_result(CycleRequest("measure", "JOB-000003", None, 1))
-    del result["axles"]["rear"]["total_toe_deg"]
+    result.axles["rear"].total_toe_deg = None
     with pytest.raises(MeasurementError, match="axles.rear.total_toe_deg"):
         result_angles(result)
     result = synthetic_result(CycleRequest("measure", "JOB-000003", None, 1))
-    result["wheels"]["FL"]["toe_deg"] = "0.1"
+    result.wheels["FL"].toe_deg = "0.1"
     with pytest.raises(MeasurementError, match="wheels.FL.toe_deg"):
         result_angles(result)
 
@@ -204,7 +205,7 @@ def test_dry_run_is_deterministic_per_job_and_fails_on_purpose():
     a = synthetic_result(CycleRequest("measure", "JOB-000011", None, 1))
     b = synthetic_result(CycleRequest("measure", "JOB-000011", None, 99))
     c = synthetic_result(CycleRequest("measure", "JOB-000012", None, 1))
-    assert a["wheels"] == b["wheels"] and a["wheels"] != c["wheels"]
+    assert a.wheels == b.wheels and a.wheels != c.wheels
     with pytest.raises(RimNotFound) as info:
         synthetic_result(CycleRequest("measure", "JOB-000020", None, 1), fail_every=10)
     assert info.value.code == 401
@@ -226,18 +227,18 @@ def test_measurement_runner_keeps_one_station_and_passes_the_plc_request(monkeyp
             calls.append((job_id, vehicle_spec))
             if job_id == "BAD-CAL":
                 raise CalibrationError("calibration does not match")
-            return {"valid": True}
+            return Measurement(station="fake", valid=True, job_id=job_id)
 
         def calibration_check(self):
-            return {"valid": True, "check": True}
+            return Measurement(station="fake", valid=True, job_id="calibration-check")
 
     monkeypatch.setattr(station.cycle, "Station", FakeStation)
     run = measurement_runner("CONFIG", seed=5)
-    assert run(CycleRequest("measure", "VIN1", "spec-a", 12)) == {"valid": True}
-    assert run(CycleRequest("measure", "VIN2", None, 13)) == {"valid": True}
+    assert run(CycleRequest("measure", "VIN1", "spec-a", 12)).job_id == "VIN1"
+    assert run(CycleRequest("measure", "VIN2", None, 13)).job_id == "VIN2"
     assert calls == [("VIN1", "spec-a"), ("VIN2", None)]
     assert built == [("CONFIG", 5)], "the station is assembled once, not per cycle"
-    assert run(CycleRequest("calibration_check", None, None, 14))["check"]
+    assert run(CycleRequest("calibration_check", None, None, 14)).job_id == "calibration-check"
     with pytest.raises(CalibrationError):
         run(CycleRequest("measure", "BAD-CAL", None, 15))
     run(CycleRequest("measure", "VIN3", None, 16))

@@ -50,8 +50,7 @@ def drive_a_cycle(target: list[str]) -> None:
     want = synthetic_result(CycleRequest("measure", JOB, None, 0), fail_every=10)
     floats = parse(mbpoll(target[:-1] + ["-r", "120", "-c", "11", "-t", "4:float", "-B", target[-1]]).stdout)
     ints = parse(mbpoll(target[:-1] + ["-r", "142", "-c", "11", target[-1]]).stdout)
-    expected = [want["wheels"][w][f"{a}_deg"] for w in ("FL", "FR", "RL", "RR") for a in ("toe", "camber")]
-    expected += [want["axles"]["front"]["total_toe_deg"], want["axles"]["rear"]["total_toe_deg"], want["thrust_deg"]]
+    expected = [want.angle(name) for name in rm.ANGLES]
     assert [120 + 2 * i for i in range(11)] == sorted(floats)
     for i, x in enumerate(expected):
         assert float(floats[120 + 2 * i]) == pytest.approx(x, abs=2e-6), rm.ANGLES[i]

@@ -22,6 +22,7 @@ from station.plc import register_map as rm
 from station.plc.background import BackgroundServer
 from station.plc.device import PlcDevice
 from station.plc.runner import CycleRequest, dry_run_runner, synthetic_result
+from station.result import Failure, Measurement
 
 ROOT = Path(__file__).resolve().parent.parent
 PY = sys.executable
@@ -139,7 +140,7 @@ def test_trigger_while_busy_is_refused_and_the_running_result_is_kept(station):
     assert len(runner.calls) == 1  # not queued
     assert b["result_job_id"] == "JOB-000001" and b["reject_count"] == 4
     want = synthetic_result(CycleRequest("measure", "JOB-000001", "spec-a", 1), 0)
-    assert b["RR_toe_f32"] == pytest.approx(want["wheels"]["RR"]["toe_deg"], abs=1e-6)
+    assert b["RR_toe_f32"] == pytest.approx(want.wheels["RR"].toe_deg, abs=1e-6)
     r = trigger(client, "JOB-000003")  # done but not acknowledged: the result would be lost
     assert r.isError() and r.exception_code == 3 and block(client)["reject_code"] == 502
     assert block(client)["result_job_id"] == "JOB-000001"
@@ -173,10 +174,10 @@ def test_failed_cycles_set_code_and_reason_and_the_next_command_works(station):
         if n == 2:
             raise ValueError("bug in the pipeline")
         if n == 3:
-            return {"valid": False, "failure": {"code": 401, "message": "RR cam7: no closed rim contour"}}
+            return Measurement(station="test", failure=Failure(401, "RR cam7: no closed rim contour"))
         if n == 4:
             bad = synthetic_result(request, 0)
-            del bad["thrust_deg"]
+            bad.thrust_deg = None
             return bad
         return synthetic_result(request, 0)
 
@@ -198,8 +199,8 @@ def test_failed_cycles_set_code_and_reason_and_the_next_command_works(station):
 
 
 def test_calibration_check_reports_done_without_angles_or_a_calibration_fault(station):
-    outcomes = iter([{"valid": True, "warnings": []},
-                     {"valid": False, "failure": {"code": 301, "message": "cam5 moved by 0.8 px"}}])
+    outcomes = iter([Measurement(station="test", valid=True),
+                     Measurement(station="test", failure=Failure(301, "cam5 moved by 0.8 px"))])
     _, client, _ = station(lambda request: next(outcomes))
     assert not trigger(client, "", command=2).isError()
     b = wait_state(client, {DONE, FAULT})
@@ -264,10 +265,7 @@ def test_results_are_never_visible_half_written(station):
                 want = synthetic_result(CycleRequest("measure", b["result_job_id"], None, 0), 0)
                 got = rm.angles_from_block(b, "f32")
                 for name in rm.ANGLES:
-                    where = name.split(".")
-                    w = (want["thrust_deg"] if name == "thrust" else
-                         want["axles"][where[0]][f"{where[1]}_deg"] if where[0] in ("front", "rear") else
-                         want["wheels"][where[0]][f"{where[1]}_deg"])
+                    w = want.angle(name)
                     if abs(got[name] - w) > 1e-5:
                         seen["bad"].append((b["result_job_id"], name, got[name], w))
         reader.close()

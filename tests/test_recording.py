@@ -5,6 +5,7 @@ import shutil
 import subprocess
 import sys
 import textwrap
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -12,12 +13,12 @@ import pytest
 import rerun as rr
 
 from calibration.camera_model import CameraModel, look_at
+from calibration.station_frame import WHEELS
 from result_builder import make_result
 from station.errors import StorageError
 from station.records.recording import CycleRecorder, read_recording_summary
 
 TESTS = Path(__file__).resolve().parent
-WHEELS = ("FL", "FR", "RL", "RR")
 CAM_WHEEL = {"cam1": "FR", "cam2": "FR", "cam3": "FL", "cam4": "FL",
              "cam5": "RL", "cam6": "RL", "cam7": "RR", "cam8": "RR"}
 
@@ -56,13 +57,13 @@ def record_cycle(path, result, *, image_shape=(1024, 1280), **kw):
             ell = np.c_[640 + 300 * np.cos(t), 512 + 280 * np.sin(t)]
             rec.log_detection(cam_id, ell, ell[::2] + rng.normal(0, 0.3, (100, 2)))
         for w in WHEELS:
-            d = result["wheels"][w]
-            c, ax = np.array(d["center_station_m"]), np.array(d["axis_station"])
+            d = result.wheels[w]
+            c, ax = np.array(d.center_station_m), np.array(d.axis_station)
             rim = c + 0.2159 * np.c_[np.zeros(50), np.cos(t[:50]), np.sin(t[:50])]
-            rec.log_wheel(w, rim, c, ax, d["rim_radius_m"])
+            rec.log_wheel(w, rim, c, ax, d.rim_radius_m)
         rec.log_car_frame([0, 0, 0.33], np.eye(3))
         rec.log_result(result)
-        for w in result.get("warnings", []):  # as station/cycle.py does: not repeated in the log
+        for w in result.warnings:  # as a cycle's own events: not repeated in the log
             rec.log_event(w, level="WARN")
         rec.log_event("cycle done", level="INFO")
     return rec
@@ -80,8 +81,8 @@ def column(path, entity, name):
 @pytest.fixture(scope="module")
 def recorded(tmp_path_factory):
     d = tmp_path_factory.mktemp("rec")
-    result = make_result(11, cycle=7) | {"pass": {"overall": False, "FL.toe": False}, "warnings": ["pair FR drift?"]}
-    path = d / f"{result['cycle_id']}.rrd"
+    result = make_result(11, cycle=7, verdicts={"overall": False, "FL.toe": False}, warnings=["pair FR drift?"])
+    path = d / f"{result.cycle_id}.rrd"
     rec = record_cycle(path, result, recording_id="job-42")
     return path, result, rec
 
@@ -100,10 +101,10 @@ def test_entities_images_and_scalars(recorded):
     assert "/vehicle/car_frame" in ents and "/result" in ents
     assert s["images"] == 8
     assert {"cycle", "time"} <= set(s["timelines"])
-    assert s["scalars"]["FL.toe"] == [pytest.approx(result["wheels"]["FL"]["toe_deg"])]
-    assert s["scalars"]["RR.camber"] == [pytest.approx(result["wheels"]["RR"]["camber_deg"])]
-    assert s["scalars"]["thrust"] == [pytest.approx(result["thrust_deg"])]
-    assert s["scalars"]["front.total_toe"] == [pytest.approx(result["axles"]["front"]["total_toe_deg"])]
+    assert s["scalars"]["FL.toe"] == [pytest.approx(result.wheels["FL"].toe_deg)]
+    assert s["scalars"]["RR.camber"] == [pytest.approx(result.wheels["RR"].camber_deg)]
+    assert s["scalars"]["thrust"] == [pytest.approx(result.thrust_deg)]
+    assert s["scalars"]["front.total_toe"] == [pytest.approx(result.axles["front"].total_toe_deg)]
     texts = [t for _, t in s["events"]]
     assert texts[0] == "cycle start" and texts[-1] == "cycle done"
     assert "FAIL: FL.toe" in texts and texts.count("pair FR drift?") == 1
@@ -125,7 +126,7 @@ def test_cycle_timeline_and_poses(recorded):
     K = np.array(column(path, "/station/cam3", "Pinhole:image_from_camera")[0][0]).reshape(3, 3).T
     assert K[0, 0] == pytest.approx(1802.0) and K[0, 2] == pytest.approx(640.0) and K[2, 2] == 1.0
     doc = column(path, "/result", "TextDocument:text")[0][0]
-    assert json.loads(doc)["cycle_id"] == result["cycle_id"]
+    assert json.loads(doc)["cycle_id"] == result.cycle_id
 
 
 def test_rerun_cli_verifies_the_file(recorded):
@@ -231,7 +232,7 @@ FAULT = textwrap.dedent("""
         out["error"] = None
     except StorageError as e:
         out["error"] = str(e)
-    out["result_kept"] = result["wheels"]["FL"]["toe_deg"] is not None
+    out["result_kept"] = result.wheels["FL"].toe_deg is not None
     out["left"] = sorted(os.path.relpath(os.path.join(r, f), d) for r, _, fs in os.walk(d) for f in fs)
     print(json.dumps(out))
 """)
@@ -278,17 +279,17 @@ def test_review_without_display_prints_contents_and_how(tmp_path, monkeypatch, c
     path = rec_dir / src.name
     path.write_bytes(src.read_bytes())
     with History(tmp_path / "history.sqlite") as h:
-        h.store(result | {"recording": str(path)})
+        h.store(replace(result, recording=str(path)))
     monkeypatch.setenv("STATION_DATA_DIR", str(tmp_path))
     monkeypatch.delenv("DISPLAY", raising=False)
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
-    assert main(["review", result["cycle_id"]]) == 0
+    assert main(["review", result.cycle_id]) == 0
     out = capsys.readouterr().out
     assert "8 image(s)" in out and "no display here" in out and f"rerun {path}" in out
-    assert f"{result['wheels']['FL']['toe_deg']:+.3f}" in out
+    assert f"{result.wheels['FL'].toe_deg:+.3f}" in out
     assert main(["review"]) == 0  # the newest recording
     assert str(path) in capsys.readouterr().out
-    assert main(["review", "--job", result["job_id"], "--summary"]) == 0
+    assert main(["review", "--job", result.job_id, "--summary"]) == 0
     assert "no display" not in capsys.readouterr().out
     assert main(["review", "no-such-cycle"]) == 2
     assert "no recording found" in capsys.readouterr().err

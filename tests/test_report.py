@@ -118,7 +118,7 @@ def test_off_scale_angles_are_clamped_and_dashed():
 
 def test_warnings_listed_once_with_their_cycle():
     results = job_results()
-    results[0]["warnings"] = ["pair FR drift", "glare on cam3"]
-    results[-1]["warnings"] = ["pair FR drift"]
+    results[0].warnings = ["pair FR drift", "glare on cam3"]
+    results[-1].warnings = ["pair FR drift"]
     html = build_report("J", results, CARAVAN)
     assert html.count("pair FR drift") == 1 and "before: glare on cam3" in html

@@ -7,7 +7,8 @@ import yaml
 
 from result_builder import make_result
 from station.errors import ConfigError
-from station.records.vehicle_specs import ANGLE_NAMES, apply_spec, evaluate, get_spec, load_vehicle_specs
+from station.records.vehicle_specs import apply_spec, evaluate, get_spec, load_vehicle_specs
+from station.result import ANGLE_NAMES
 
 SHIPPED = Path(__file__).resolve().parent.parent / "config" / "vehicles.yaml"
 
@@ -113,6 +114,6 @@ def test_apply_spec_writes_schema_keys(specs):
     r = make_result(3, toe={"FL": 0.05, "FR": 0.05, "RL": 0.0, "RR": 0.0},
                     camber={"FL": 0.1, "FR": 0.1, "RL": 0.0, "RR": 0.0})
     apply_spec(r, specs["dodge-caravan-2007"])
-    assert r["pass"]["overall"] is True
-    assert r["wheels"]["FL"]["pass"] == {"toe": True, "camber": True}
-    assert r["vehicle_spec"] == "dodge-caravan-2007"
+    assert r.verdicts["overall"] is True
+    assert r.to_json()["wheels"]["FL"]["pass"] == {"toe": True, "camber": True}
+    assert r.vehicle_spec == "dodge-caravan-2007"

@@ -55,7 +55,7 @@ def run(args) -> int:
         with LiveSession(config, axle=args.axle, seed=args.seed, cache_dir=args.cache) as session:
             print(f"live {args.axle} axle: first a full measurement of all four wheels (the car frame)",
                   flush=True)
-            for warning in session.baseline()["warnings"]:  # they hold for every update that follows
+            for warning in session.baseline().warnings:  # they hold for every update that follows
                 print(f"warning: {warning}", flush=True)
             summary = session.run(args.seconds, show, max_updates=args.max_updates)
     except KeyboardInterrupt:  # during setup: nothing measured yet, nothing to lose

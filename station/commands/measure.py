@@ -5,7 +5,9 @@ from __future__ import annotations
 import random
 import sys
 
-from station.config import WHEELS, load_config
+from calibration.station_frame import AXLES, WHEELS
+from station.config import load_config
+from station.result import Measurement
 
 HELP = "measure toe and camber of all four wheels (one cycle on the configured station)"
 
@@ -32,34 +34,35 @@ def run(args) -> int:
     with Station(config, seed=seed) as station:
         result = station.measure(job_id=args.job, vehicle_spec=args.vehicle, method=args.method,
                                  record=not args.no_record)
-    if "truth" in result:
-        result["simulation_seed"] = seed
+    if result.truth is not None:
+        result.simulation_seed = seed
     print_result(result)
     if args.json:
         write_json(result, args.json)
         print(f"result written to {args.json}")
-    return 0 if result["valid"] else 1
+    return 0 if result.valid else 1
 
 
 def _pm(value, std):
     return f"{value:+7.3f} +/- {std:.3f}"
 
 
-def print_result(result: dict, out=sys.stdout) -> None:
+def print_result(result: Measurement, out=sys.stdout) -> None:
     p = lambda *a: print(*a, file=out)  # noqa: E731
-    p(f"cycle {result.get('cycle_id')}  station {result.get('station')}  calibration {result.get('calibration_id')}"
-      + (f"  simulated vehicle seed {result['simulation_seed']}" if "simulation_seed" in result else ""))
-    if not result["valid"]:
-        f = result.get("failure") or {}
-        p(f"MEASUREMENT FAILED (error {f.get('code')}): {f.get('message')}")
-        if f.get("hint"):
-            p(f"  what to do: {f['hint']}")
+    p(f"cycle {result.cycle_id}  station {result.station}  calibration {result.calibration_id}"
+      + (f"  simulated vehicle seed {result.simulation_seed}" if result.simulation_seed is not None else ""))
+    if not result.valid:
+        f = result.failure
+        p(f"MEASUREMENT FAILED (error {f and f.code}): {f and f.message}")
+        if f and f.hint:
+            p(f"  what to do: {f.hint}")
         p("no angle of this cycle is valid.")
-        if result.get("captures_dir"):
-            p(f"the images are kept for review in {result['captures_dir']}")
+        if result.captures_dir:
+            p(f"the images are kept for review in {result.captures_dir}")
         return
-    spec = result.get("vehicle_spec")
-    sim = "errors" in result
+    spec = result.vehicle_spec
+    verdicts = result.verdicts or {}
+    sim = result.errors is not None
     head = f"{'wheel':<6}{'toe (deg)':>20}{'camber (deg)':>20}"
     if spec:
         head += f"{'toe':>7}{'camber':>8}"
@@ -67,30 +70,29 @@ def print_result(result: dict, out=sys.stdout) -> None:
         head += f"{'toe err':>10}{'camber err':>12}"
     p(head)
     for w in WHEELS:
-        d = result["wheels"][w]
-        line = f"{w:<6}{_pm(d['toe_deg'], d['toe_std_deg']):>20}{_pm(d['camber_deg'], d['camber_std_deg']):>20}"
+        d = result.wheels[w]
+        line = f"{w:<6}{_pm(d.toe_deg, d.toe_std_deg):>20}{_pm(d.camber_deg, d.camber_std_deg):>20}"
         if spec:
-            ok = d.get("pass", {})
-            line += f"{_verdict(ok.get('toe')):>7}{_verdict(ok.get('camber')):>8}"
+            line += f"{_verdict(verdicts.get(f'{w}.toe')):>7}{_verdict(verdicts.get(f'{w}.camber')):>8}"
         if sim:
-            line += f"{d['toe_error_deg']:>+10.4f}{d['camber_error_deg']:>+12.4f}"
+            e = result.errors[w]
+            line += f"{e['toe_error_deg']:>+10.4f}{e['camber_error_deg']:>+12.4f}"
         p(line)
-    for axle in ("front", "rear"):
-        a = result["axles"][axle]
-        verdict = f"  {_verdict(result['pass'].get(axle + '.total_toe'))}" if spec else ""
-        p(f"{axle} total toe {_pm(a['total_toe_deg'], a['total_toe_std_deg'])} deg{verdict}   "
-          f"setback {a['setback_m'] * 1000:+.1f} mm   track {a['track_m']:.3f} m")
-    verdict = f"  {_verdict(result['pass'].get('thrust'))}" if spec else ""
-    p(f"thrust angle {_pm(result['thrust_deg'], result['thrust_std_deg'])} deg{verdict}   "
-      f"wheelbase L {result['wheelbase_m']['left']:.3f} m  R {result['wheelbase_m']['right']:.3f} m")
+    for axle in AXLES:
+        a = result.axles[axle]
+        verdict = f"  {_verdict(verdicts.get(axle + '.total_toe'))}" if spec else ""
+        p(f"{axle} total toe {_pm(a.total_toe_deg, a.total_toe_std_deg)} deg{verdict}   "
+          f"setback {a.setback_m * 1000:+.1f} mm   track {a.track_m:.3f} m")
+    verdict = f"  {_verdict(verdicts.get('thrust'))}" if spec else ""
+    p(f"thrust angle {_pm(result.thrust_deg, result.thrust_std_deg)} deg{verdict}   "
+      f"wheelbase L {result.wheelbase_m['left']:.3f} m  R {result.wheelbase_m['right']:.3f} m")
     if spec:
-        p(f"vehicle {spec}: {'PASS' if result['pass'].get('overall') else 'FAIL'}")
-    for w in result.get("warnings", []):
+        p(f"vehicle {spec}: {'PASS' if verdicts.get('overall') else 'FAIL'}")
+    for w in result.warnings:
         p(f"warning: {w}")
-    t = result.get("timing_s", {})
-    p("time: " + ", ".join(f"{k} {v * 1000:.0f} ms" for k, v in t.items()))
-    if result.get("recording"):
-        p(f"recording: {result['recording']}")
+    p("time: " + ", ".join(f"{k} {v * 1000:.0f} ms" for k, v in result.timing_s.items()))
+    if result.recording:
+        p(f"recording: {result.recording}")
 
 
 def _verdict(v):

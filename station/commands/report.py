@@ -27,7 +27,7 @@ def run(args) -> int:
                                hint="the newest jobs are: " + ", ".join(known) if known
                                else "no job has been measured yet")
     spec = None
-    key = next((r.get("vehicle_spec") for r in reversed(results) if r.get("vehicle_spec")), None)
+    key = next((r.vehicle_spec for r in reversed(results) if r.vehicle_spec), None)
     if key:
         try:
             spec = load_vehicle_specs(config.vehicle_specs_path).get(key)

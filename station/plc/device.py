@@ -23,6 +23,7 @@ from station.plc.handshake import (Event, PlcBadJobId, PlcCycleTimeout, State, e
                                    modbus_exception, next_state)
 from station.plc.results import cleared_registers, result_registers
 from station.plc.runner import CycleRequest, CycleRunner
+from station.result import Measurement
 
 log = logging.getLogger("station.plc")
 
@@ -41,7 +42,7 @@ class PlcDevice:
         self.state = State.IDLE
         self.cycle_number = 0  # cycles started
         self.stats = {"started": 0, "done": 0, "fault": 0, "acknowledged": 0, "refused": 0}
-        self.last_result: dict | None = None
+        self.last_result: Measurement | None = None
         self._regs: list[int] | None = None
         self._start = 0
         self._task: asyncio.Task | None = None
@@ -170,12 +171,12 @@ class PlcDevice:
         elapsed = time.perf_counter() - t0
         self.last_result = result
         try:
-            if not isinstance(result, dict):
+            if not isinstance(result, Measurement):
                 raise MeasurementError(f"the measurement returned {type(result).__name__}, not a result")
-            if not result.get("valid"):
-                failure = result.get("failure") or {}
-                code = failure.get("code") if isinstance(failure.get("code"), int) else MeasurementError.code
-                return self._fault(request, code, str(failure.get("message") or "invalid result"), elapsed)
+            if not result.valid:
+                failure = result.failure
+                code = failure.code if failure is not None and isinstance(failure.code, int) else MeasurementError.code
+                return self._fault(request, code, str((failure and failure.message) or "invalid result"), elapsed)
             values = result_registers(result, request.job_id, request.command == "measure")
         except StationError as e:
             return self._fault(request, e.code, str(e), elapsed)

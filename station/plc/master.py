@@ -83,7 +83,7 @@ class PlcSimulator:
     # --- one cycle ------------------------------------------------------------------------------
     def run_cycle(self, job_id: str, spec: str | None = None, command: int = 1,
                   expect=None) -> CycleReport:
-        """One full handshake. ``expect(job_id, spec, command)`` -> ("done", result dict) or
+        """One full handshake. ``expect(job_id, spec, command)`` -> ("done", result) or
         ("fault", code), to check the values too."""
         rep = CycleReport(job_id, spec, command)
         before = self.read_block(status_only=True)
@@ -159,7 +159,7 @@ class PlcSimulator:
             p.append(f"expected fault code {want}, got {rep.fault_code}")
         elif kind == "done":
             for name, v in rep.angles.items():
-                w = _angle(want, name)
+                w = want.angle(name)
                 if v is None or not math.isclose(v, w, rel_tol=1e-6, abs_tol=1e-6):
                     p.append(f"{name}: got {v}, expected {w:.6f}")
 
@@ -171,15 +171,6 @@ class PlcSimulator:
             problems.append(f"acknowledge refused: {r}")
         if b["state"] != rm.STATE_CODES["idle"] or b["fault_code"]:
             problems.append(f"after acknowledge: state {rm.STATES.get(b['state'])}, fault {b['fault_code']}")
-
-
-def _angle(result: dict, name: str) -> float:
-    if "." not in name:
-        return result[f"{name}_deg"]
-    where, what = name.split(".")
-    if where in ("front", "rear"):
-        return result["axles"][where][f"{what}_deg"]
-    return result["wheels"][where][f"{what}_deg"]
 
 
 def dry_run_expectation(fail_every: int = 10):

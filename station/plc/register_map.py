@@ -29,9 +29,11 @@ import math
 import struct
 from dataclasses import dataclass
 
+from calibration.station_frame import WHEELS
+from station.result import ANGLE_NAMES
+
 # --- angles, in the order of docs/result-schema.md ----------------------------------------------
-ANGLES = ("FL.toe", "FL.camber", "FR.toe", "FR.camber", "RL.toe", "RL.camber", "RR.toe",
-          "RR.camber", "front.total_toe", "rear.total_toe", "thrust")
+ANGLES = ANGLE_NAMES
 OVERALL_BIT = 15  # bit of pass_bits / judged_bits that holds the overall verdict
 INT16_SCALE = 100  # counts per degree
 INT16_MISSING = -32768
@@ -46,9 +48,8 @@ MAP_VERSION = 4  # 2: warning_bits (113) added; 3: station_warning_bits (114), a
                  # warning_bits is RR's runner-up alone (it also meant "any warning" in 2);
                  # 4: bit 4 of station_warning_bits (a rim another size than its axle partner's)
 # bits of warning_bits: (first bit, kind of the result's warning_flags); bit first + i for wheel i
-# of FL, FR, RL, RR
+# of WHEELS (FL, FR, RL, RR)
 WARNING_KINDS = ((0, "uncertain"), (4, "drift"), (8, "unchecked"), (12, "runner_up"))
-WARNING_WHEELS = ("FL", "FR", "RL", "RR")
 # bits of station_warning_bits: any warning at all, the kinds of the cameras' own warnings, and
 # a wheel whose rim came out another size than its axle partner's (the texts name them)
 ANY_WARNING_BIT = 0

@@ -1,4 +1,4 @@
-"""A measurement result (docs/result-schema.md) -> the values of the result registers.
+"""A measurement result (station.result.Measurement) -> the values of the result registers.
 
 The server writes what :func:`result_registers` returns in one step on the event loop, so a
 PLC never reads a half-written result.
@@ -8,53 +8,49 @@ from __future__ import annotations
 
 import math
 
+from calibration.station_frame import WHEELS
 from station.errors import MeasurementError
 from station.plc import register_map as rm
+from station.result import Measurement
 
 
-def result_angles(result: dict, required: bool = True) -> dict[str, float | None]:
+def _angle_path(name: str) -> str:
+    """Where a named angle lives in the result's JSON (docs/result-schema.md), for messages."""
+    head, _, kind = name.partition(".")
+    if head in WHEELS:
+        return f"wheels.{head}.{kind}_deg"
+    if kind:
+        return f"axles.{head}.{kind}_deg"
+    return f"{head}_deg"
+
+
+def result_angles(result: Measurement, required: bool = True) -> dict[str, float | None]:
     """{angle name: degrees or None} in :data:`register_map.ANGLES` order. Raises
     MeasurementError naming the key when a valid result lacks an angle (unless not
     ``required``: a calibration check reports no angles) or holds a non-number."""
-    def get(path: tuple[str, ...]):
-        node = result
-        for key in path:
-            if not isinstance(node, dict) or key not in node:
-                if not required:
-                    return None
-                raise MeasurementError(f"the measurement result lacks {'.'.join(path)}; "
-                                       "it does not follow docs/result-schema.md")
-            node = node[key]
-        if node is None:
-            return None
-        if isinstance(node, bool) or not isinstance(node, (int, float)) or not math.isfinite(node):
-            raise MeasurementError(f"the measurement result has {'.'.join(path)} = {node!r}, "
-                                   "not a finite number of degrees")
-        return float(node)
-
     out = {}
     for name in rm.ANGLES:
-        where, what = name.split(".") if "." in name else (None, name)
-        if where in ("FL", "FR", "RL", "RR"):
-            out[name] = get(("wheels", where, f"{what}_deg"))
-        elif where in ("front", "rear"):
-            out[name] = get(("axles", where, f"{what}_deg"))
-        else:
-            out[name] = get((f"{what}_deg",))
+        value = result.angle(name)
+        if value is None:
+            if required:
+                raise MeasurementError(f"the measurement result lacks {_angle_path(name)}; "
+                                       "it does not follow docs/result-schema.md")
+            out[name] = None
+            continue
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise MeasurementError(f"the measurement result has {_angle_path(name)} = {value!r}, "
+                                   "not a finite number of degrees")
+        out[name] = float(value)
     return out
 
 
-def result_verdicts(result: dict) -> tuple[int, int]:
+def result_verdicts(result: Measurement) -> tuple[int, int]:
     """(pass_bits, judged_bits): bit i for angle i, bit 15 overall. An angle is judged when
     the result holds a pass/fail for it (only with a vehicle spec)."""
-    verdict = result.get("pass") or {}
-    wheels = result.get("wheels") or {}
+    verdict = result.verdicts or {}
     passed = judged = 0
     for i, name in enumerate(rm.ANGLES):
         v = verdict.get(name)
-        if v is None and name.split(".")[0] in wheels:
-            w, what = name.split(".")
-            v = ((wheels.get(w) or {}).get("pass") or {}).get(what)
         if isinstance(v, bool):
             judged |= 1 << i
             passed |= int(v) << i
@@ -64,27 +60,27 @@ def result_verdicts(result: dict) -> tuple[int, int]:
     return passed, judged
 
 
-def result_warning_bits(result: dict) -> int:
+def result_warning_bits(result: Measurement) -> int:
     """warning_bits (register_map.WARNING_KINDS, per wheel) from the result's ``warning_flags``."""
     first = dict((kind, bit) for bit, kind in rm.WARNING_KINDS)
     bits = 0
-    for flag in result.get("warning_flags") or []:
-        if isinstance(flag, dict) and flag.get("kind") in first and flag.get("wheel") in rm.WARNING_WHEELS:
-            bits |= 1 << (first[flag["kind"]] + rm.WARNING_WHEELS.index(flag["wheel"]))
+    for flag in result.warning_flags:
+        if flag.kind in first and flag.wheel in WHEELS:
+            bits |= 1 << (first[flag.kind] + WHEELS.index(flag.wheel))
     return bits
 
 
-def result_station_warning_bits(result: dict) -> int:
+def result_station_warning_bits(result: Measurement) -> int:
     """station_warning_bits: ANY_WARNING_BIT for any warning (text or flag), and the bit of each
     kind of register_map.STATION_WARNING_KINDS among the ``warning_flags``."""
-    kinds = {flag.get("kind") for flag in result.get("warning_flags") or [] if isinstance(flag, dict)}
+    kinds = {flag.kind for flag in result.warning_flags}
     bits = sum(1 << bit for bit, kind in rm.STATION_WARNING_KINDS if kind in kinds)
-    if bits or kinds or result.get("warnings"):
+    if bits or kinds or result.warnings:
         bits |= 1 << rm.ANY_WARNING_BIT
     return bits
 
 
-def result_registers(result: dict, job_id: str | None, angles_required: bool = True) -> dict[int, list[int]]:
+def result_registers(result: Measurement, job_id: str | None, angles_required: bool = True) -> dict[int, list[int]]:
     """{address: register values} for a finished, valid result."""
     angles = result_angles(result, angles_required)
     passed, judged = result_verdicts(result)

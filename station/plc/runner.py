@@ -1,7 +1,6 @@
 """How a PLC command runs a cycle: an injected callable, chosen once where the station is built.
 
-``CycleRunner = Callable[[CycleRequest], dict]`` returns a result in the schema of
-docs/result-schema.md or raises :class:`station.errors.StationError` (its ``code`` becomes the
+``CycleRunner = Callable[[CycleRequest], Measurement]`` returns a result (station/result.py) or raises :class:`station.errors.StationError` (its ``code`` becomes the
 PLC's fault code, its sentence the fault reason). The server runs it in a worker thread, so
 the heartbeat and Modbus serving go on during a cycle.
 
@@ -23,9 +22,10 @@ import zlib
 from dataclasses import dataclass
 from typing import Callable
 
+from calibration.station_frame import AXLES, WHEELS
 from station.errors import CalibrationError, PlcError, RimNotFound
+from station.result import ANGLE_NAMES, AxleResult, Measurement, WheelResult
 
-WHEELS = ("FL", "FR", "RL", "RR")
 
 
 @dataclass(frozen=True)
@@ -36,7 +36,7 @@ class CycleRequest:
     cycle: int  # the station's running cycle number (1, 2, ...), also the simulation seed
 
 
-CycleRunner = Callable[[CycleRequest], dict]
+CycleRunner = Callable[[CycleRequest], Measurement]
 
 
 # --- the real station ---------------------------------------------------------------------------
@@ -56,7 +56,7 @@ def measurement_runner(config, seed: int | None = None) -> CycleRunner:
             holder["station"] = Station(config, seed=seed, progress=lambda msg: None)
         return holder["station"]
 
-    def run(request: CycleRequest) -> dict:
+    def run(request: CycleRequest) -> Measurement:
         if request.command == "calibration_check":
             return station().calibration_check()
         try:
@@ -76,7 +76,7 @@ def job_number(job_id: str | None) -> int:
     return int(m.group(1)) if m else zlib.crc32((job_id or "").encode())
 
 
-def synthetic_result(request: CycleRequest, fail_every: int = 10) -> dict:
+def synthetic_result(request: CycleRequest, fail_every: int = 10) -> Measurement:
     """A deterministic result for ``request``: the angles depend only on the job id, so a PLC
     simulator can check that it got the result of *its* job. Raises RimNotFound for every
     ``fail_every``-th job number (the cycle number when there is no job id; 0: never)."""
@@ -86,28 +86,20 @@ def synthetic_result(request: CycleRequest, fail_every: int = 10) -> dict:
     rng = random.Random(zlib.crc32(f"{request.job_id}|{request.command}".encode()))
     toe = {w: round(rng.uniform(-0.3, 0.3), 4) for w in WHEELS}
     camber = {w: round(rng.uniform(-1.5, 0.5), 4) for w in WHEELS}
-    wheels = {w: {"toe_deg": toe[w], "camber_deg": camber[w]} for w in WHEELS}
     thrust = (toe["RL"] - toe["RR"]) / 2
-    wheels["FL"]["toe_thrust_deg"] = toe["FL"] - thrust
-    wheels["FR"]["toe_thrust_deg"] = toe["FR"] + thrust
-    result = {
-        "schema_version": 1, "cycle_id": f"dry-run-{request.cycle:06d}", "station": "dry run",
-        "job_id": request.job_id, "vehicle_spec": request.vehicle_spec, "valid": True,
-        "failure": None, "warnings": ["dry run: synthetic result, no cameras"], "wheels": wheels,
-        "axles": {"front": {"total_toe_deg": toe["FL"] + toe["FR"]},
-                  "rear": {"total_toe_deg": toe["RL"] + toe["RR"]}},
-        "thrust_deg": thrust,
-    }
+    wheels = {w: WheelResult(toe[w], camber[w]) for w in WHEELS}
+    wheels["FL"].toe_thrust_deg = toe["FL"] - thrust
+    wheels["FR"].toe_thrust_deg = toe["FR"] + thrust
+    result = Measurement(station="dry run", valid=True, cycle_id=f"dry-run-{request.cycle:06d}",
+                         job_id=request.job_id, vehicle_spec=request.vehicle_spec,
+                         warnings=["dry run: synthetic result, no cameras"], wheels=wheels,
+                         axles={axle: AxleResult(toe[left] + toe[right]) for axle, (left, right) in AXLES.items()},
+                         thrust_deg=thrust)
     if request.vehicle_spec:
         limits = {"toe": 0.3, "camber": 1.2, "total_toe": 0.5, "thrust": 0.25}
-        values = {f"{w}.toe": toe[w] for w in WHEELS} | {f"{w}.camber": camber[w] for w in WHEELS}
-        values |= {"front.total_toe": toe["FL"] + toe["FR"], "rear.total_toe": toe["RL"] + toe["RR"],
-                   "thrust": thrust}
-        verdict = {k: abs(v) <= limits[k.split(".")[-1]] for k, v in values.items()}
+        verdict = {name: abs(result.angle(name)) <= limits[name.split(".")[-1]] for name in ANGLE_NAMES}
         verdict["overall"] = all(verdict.values())
-        result["pass"] = verdict
-        for w in WHEELS:
-            wheels[w]["pass"] = {"toe": verdict[f"{w}.toe"], "camber": verdict[f"{w}.camber"]}
+        result.verdicts = verdict
     return result
 
 
@@ -116,7 +108,7 @@ def dry_run_runner(fail_every: int = 10, delay_s: float = 0.0) -> CycleRunner:
     measurement time)."""
     import time
 
-    def run(request: CycleRequest) -> dict:
+    def run(request: CycleRequest) -> Measurement:
         if delay_s:
             time.sleep(delay_s)
         return synthetic_result(request, fail_every)

@@ -23,9 +23,8 @@ from pathlib import Path
 
 from station.records.atomic_file import write_atomic
 from station.errors import StorageError
+from station.result import ANGLE_NAMES, Measurement
 
-ANGLE_NAMES = ("FL.toe", "FL.camber", "FR.toe", "FR.camber", "RL.toe", "RL.camber",
-               "RR.toe", "RR.camber", "front.total_toe", "rear.total_toe", "thrust")
 SCHEMA_VERSION = 1
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS cycles (
@@ -109,22 +108,20 @@ def time_bound(value, *, end: bool) -> str:
     return normalize_time(t)
 
 
-def _angle_rows(result: dict) -> list[tuple[str, float | None, float | None, int | None]]:
-    wheels = result.get("wheels") or {}
-    axles = result.get("axles") or {}
-    passes = result.get("pass") or {}
+def _angle_rows(result: Measurement) -> list[tuple[str, float | None, float | None, int | None]]:
+    """(name, value deg, std deg, passed) of every named angle of a result."""
+    passes = result.verdicts or {}
     rows = []
     for name in ANGLE_NAMES:
+        head, _, kind = name.partition(".")
         if name == "thrust":
-            d, key = result, "thrust"
-        elif name.endswith(".total_toe"):
-            d, key = axles.get(name.split(".")[0]) or {}, "total_toe"
+            std = result.thrust_std_deg
+        elif head in result.axles:
+            std = result.axles[head].total_toe_std_deg
         else:
-            wheel, key = name.split(".")
-            d = wheels.get(wheel) or {}
-        value, std = finite_number(d.get(f"{key}_deg")), finite_number(d.get(f"{key}_std_deg"))
+            std = getattr(result.wheels.get(head), f"{kind}_std_deg", None)
         p = passes.get(name)
-        rows.append((name, value, std, None if p is None else int(bool(p))))
+        rows.append((name, finite_number(result.angle(name)), finite_number(std), None if p is None else int(bool(p))))
     return rows
 
 
@@ -175,19 +172,20 @@ class History:
         return StorageError(f"{self.path}: {doing}: {text}")
 
     # -- writing -----------------------------------------------------------------------------------
-    def store(self, result: dict) -> int:
-        """Store one cycle and its angles in one transaction. Returns the row id."""
+    def store(self, result: Measurement) -> int:
+        """Store one cycle (its JSON, docs/result-schema.md) and its angles in one transaction.
+        Returns the row id."""
         try:
-            cycle_id = str(result["cycle_id"])
-            time_utc = normalize_time(result["time_utc"])
+            if result.cycle_id is None:
+                raise KeyError("cycle_id")
+            cycle_id = str(result.cycle_id)
+            time_utc = normalize_time(result.time_utc)
         except (KeyError, TypeError, ValueError) as e:
             raise StorageError(f"cannot store a result without a valid cycle_id and time_utc ({e})") from None
-        passed = (result.get("pass") or {}).get("overall")
-        passed = None if passed is None else bool(passed)
-        row = (cycle_id, time_utc, result.get("job_id"), result.get("vehicle_spec"),
-               int(bool(result.get("valid", False))), None if passed is None else int(bool(passed)),
-               result.get("calibration_id"), result.get("recording"), result.get("software_version"),
-               result.get("station"), json.dumps(jsonable(result), allow_nan=False))
+        passed = (result.verdicts or {}).get("overall")
+        row = (cycle_id, time_utc, result.job_id, result.vehicle_spec, int(bool(result.valid)),
+               None if passed is None else int(bool(passed)), result.calibration_id, result.recording,
+               result.software_version, result.station, json.dumps(jsonable(result.to_json()), allow_nan=False))
         try:
             c = self._conn
             self._lock.acquire()
@@ -262,9 +260,9 @@ class History:
                 angles[a["cycle"]][a["name"]] = a["value_deg"]
         return rows, angles
 
-    def jobs(self, job_id: str) -> list[dict]:
-        """The results (full dicts) of one job, in time order."""
-        return [r["result"] for r in self.query(job=job_id)]
+    def jobs(self, job_id: str) -> list[Measurement]:
+        """The results of one job, in time order."""
+        return [Measurement.from_json(r["result"]) for r in self.query(job=job_id)]
 
     def get(self, cycle_id: str) -> dict | None:
         """One cycle's row (as :meth:`query` returns), or None."""

@@ -41,37 +41,35 @@ import cv2
 import numpy as np
 import rerun as rr
 
+from calibration.station_frame import AXLES, WHEELS
 from station.errors import StorageError
 from station.records.history import finite_number, jsonable
+from station.result import Measurement
 
-WHEELS = ("FL", "FR", "RL", "RR")
-ANGLE_NAMES = ("FL.toe", "FL.camber", "FR.toe", "FR.camber", "RL.toe", "RL.camber",
-               "RR.toe", "RR.camber", "front.total_toe", "rear.total_toe", "thrust")
 _LEVELS = {"TRACE", "DEBUG", "INFO", "WARN", "ERROR", "CRITICAL"}
 _WHEEL_COLORS = {"FL": (230, 160, 40), "FR": (60, 170, 230), "RL": (200, 90, 200), "RR": (90, 200, 110)}
 
 
-def angle_values(result: dict) -> dict[str, float]:
+def angle_values(result: Measurement) -> dict[str, float]:
     """The named angles of a result (deg), ``{"FL.toe": ..., "thrust": ...}``; missing ones left out.
 
     Also ``FL.toe_thrust`` / ``FR.toe_thrust`` (front toe against the thrust line) and the
     axles' ``setback_deg`` when present.
     """
     out: dict[str, float] = {}
-    wheels = result.get("wheels") or {}
     for w in WHEELS:
-        d = wheels.get(w) or {}
+        r = result.wheels.get(w)
         for key in ("toe", "camber", "toe_thrust"):
-            v = finite_number(d.get(f"{key}_deg"))
+            v = finite_number(getattr(r, f"{key}_deg", None))
             if v is not None:
                 out[f"{w}.{key}"] = v
-    for axle in ("front", "rear"):
-        d = (result.get("axles") or {}).get(axle) or {}
+    for axle in AXLES:
+        r = result.axles.get(axle)
         for key in ("total_toe", "setback"):
-            v = finite_number(d.get(f"{key}_deg"))
+            v = finite_number(getattr(r, f"{key}_deg", None))
             if v is not None:
                 out[f"{axle}.{key}"] = v
-    v = finite_number(result.get("thrust_deg"))
+    v = finite_number(result.thrust_deg)
     if v is not None:
         out["thrust"] = v
     return out
@@ -286,25 +284,26 @@ class CycleRecorder:
             origins=np.repeat(o[None], 3, axis=0), vectors=R.T * 0.5,
             colors=[(255, 0, 0), (0, 200, 0), (0, 80, 255)], labels=["x'", "y'", "z'"]))
 
-    def log_result(self, result: dict) -> None:
+    def log_result(self, result: Measurement) -> None:
         """Every angle (deg) as a scalar on the ``cycle`` timeline, pass/fail and the full JSON."""
-        when = _parse_time(result.get("time_utc"))
+        when = _parse_time(result.time_utc)
         if when is not None:
             self._set_time(when)
-        if result.get("valid", True):
+        if result.valid:
             for name, value in angle_values(result).items():
                 self._log(f"/angles/{name}", rr.Scalars(value))
         else:
-            failure = result.get("failure") or {}
-            self._result_event(str(failure.get("message") or f"cycle failed (error {failure.get('code')})"), "ERROR")
-        passes = result.get("pass") or {}
+            failure = result.failure
+            code = None if failure is None else failure.code
+            self._result_event(str((failure and failure.message) or f"cycle failed (error {code})"), "ERROR")
+        passes = result.verdicts or {}
         if passes:
             bad = [k for k, v in passes.items() if k != "overall" and v is False]
             text = "PASS" if passes.get("overall") else "FAIL" + (f": {', '.join(bad)}" if bad else "")
             self._log("/events", rr.TextLog(text, level="INFO" if passes.get("overall") else "WARN"))
-        for w in result.get("warnings") or []:
+        for w in result.warnings:
             self._result_event(str(w), "WARN")
-        self._log("/result", rr.TextDocument(json.dumps(jsonable(result), indent=1), media_type="text/plain"))
+        self._log("/result", rr.TextDocument(json.dumps(jsonable(result.to_json()), indent=1), media_type="text/plain"))
 
     def _result_event(self, text: str, level: str) -> None:
         """A warning or failure of the result: logged once even if also sent through log_event."""

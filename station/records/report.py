@@ -21,7 +21,8 @@ from pathlib import Path
 from station.records.atomic_file import write_text_atomic
 from station.errors import StorageError
 from station.records.report_svg import top_view_svg
-from station.records.vehicle_specs import ANGLE_NAMES, VehicleSpec, angle_value, evaluate
+from station.records.vehicle_specs import VehicleSpec, angle_value, evaluate
+from station.result import ANGLE_NAMES, Measurement
 
 _LABELS = {"toe": "toe", "camber": "camber", "total_toe": "total toe"}
 _CSS = """
@@ -53,14 +54,14 @@ def _status(v: bool | None) -> tuple[str, str]:
     return {True: ("pass", "in tolerance"), False: ("fail", "OUT"), None: ("none", "no spec")}[v]
 
 
-def _values(result: dict) -> dict:
+def _values(result: Measurement) -> dict:
     return {name: angle_value(result, name) for name in ANGLE_NAMES}
 
 
-def _verdicts(result: dict, spec: VehicleSpec | None) -> dict:
+def _verdicts(result: Measurement, spec: VehicleSpec | None) -> dict:
     if spec is not None:
         return evaluate(result, spec)
-    stored = result.get("pass") or {}
+    stored = result.verdicts or {}
     return {name: stored.get(name) for name in (*ANGLE_NAMES, "overall")} | {"overall": stored.get("overall")}
 
 
@@ -71,18 +72,18 @@ def _cell(v: float | None, ok: bool | None) -> str:
     return f'<td class="num {cls}">{v:+.2f}&deg;</td>'
 
 
-def build_report(job_id: str, results: list[dict], spec: VehicleSpec | None = None) -> str:
+def build_report(job_id: str, results: list[Measurement], spec: VehicleSpec | None = None) -> str:
     """The HTML report of a job from its results in time order (at least one)."""
     if not results:
         raise StorageError(f"job {job_id!r}: no cycles in the history", hint="`station history` lists the jobs")
-    valid = [r for r in results if r.get("valid")]
+    valid = [r for r in results if r.valid]
     before = valid[0] if valid else results[0]
     after = valid[-1] if valid else results[-1]
     same = before is after
     vb, va = _verdicts(before, spec), _verdicts(after, spec)
     xb, xa = _values(before), _values(after)
     e = escape
-    vehicle = spec.name if spec else (after.get("vehicle_spec") or "no vehicle spec")
+    vehicle = spec.name if spec else (after.vehicle_spec or "no vehicle spec")
     overall = va.get("overall")
     vcls, vtext = {True: ("pass", "PASS"), False: ("fail", "FAIL"), None: ("none", "NOT CHECKED")}[overall]
 
@@ -98,19 +99,19 @@ def build_report(job_id: str, results: list[dict], spec: VehicleSpec | None = No
                     + ("" if same else _cell(xb[name], vb.get(name)))
                     + f'{_cell(xa[name], va.get(name))}<td class="{cls}">{word}</td></tr>')
 
-    def meta(r: dict) -> str:
-        return (f"{e(str(r.get('time_utc', '')))} &middot; cycle {e(str(r.get('cycle_id', '')))}")
+    def meta(r: Measurement) -> str:
+        return f"{e(str(r.time_utc or ''))} &middot; cycle {e(str(r.cycle_id or ''))}"
 
     warnings = []  # (which cycle, text), each text once
     for which, r in ((("before", before), ("after", after)) if not same else (("", after),)):
-        for w in r.get("warnings") or []:
+        for w in r.warnings:
             if str(w) not in {t for _, t in warnings}:
                 warnings.append((which, str(w)))
-    failed = [r for r in results if not r.get("valid")]
+    failed = [r for r in results if not r.valid]
     drawings = ("" if same else top_view_svg(xb, vb, "Before")) + top_view_svg(xa, va, "After" if not same else "Measured")
     cycles = "".join(
-        f"<tr><td>{e(str(r.get('cycle_id')))}</td><td>{e(str(r.get('time_utc')))}</td>"
-        f"<td>{'valid' if r.get('valid') else 'failed: ' + e(str((r.get('failure') or {}).get('message', '')))}</td></tr>"
+        f"<tr><td>{e(str(r.cycle_id))}</td><td>{e(str(r.time_utc))}</td>"
+        f"<td>{'valid' if r.valid else 'failed: ' + e(str(r.failure.message if r.failure else ''))}</td></tr>"
         for r in results)
     html = f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8">
@@ -123,8 +124,8 @@ def build_report(job_id: str, results: list[dict], spec: VehicleSpec | None = No
 <tr><td>Vehicle</td><td>{e(vehicle)}</td></tr>
 <tr><td>{'Measured' if same else 'Before'}</td><td>{meta(before)}</td></tr>
 {'' if same else f'<tr><td>After</td><td>{meta(after)}</td></tr>'}
-<tr><td>Station</td><td>{e(str(after.get('station', '')))} &middot; calibration {e(str(after.get('calibration_id', '')))}
- &middot; software {e(str(after.get('software_version', '')))}</td></tr>
+<tr><td>Station</td><td>{e(str(after.station or ''))} &middot; calibration {e(str(after.calibration_id or ''))}
+ &middot; software {e(str(after.software_version or ''))}</td></tr>
 </table>
 <p>Result{'' if same else ' after adjustment'}: <span class="verdict {vcls}">{vtext}</span></p>
 <h2>Angles (degrees)</h2>

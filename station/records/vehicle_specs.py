@@ -19,9 +19,8 @@ from pathlib import Path
 import yaml
 
 from station.errors import ConfigError
+from station.result import ANGLE_NAMES, Measurement
 
-ANGLE_NAMES = ("FL.toe", "FL.camber", "FR.toe", "FR.camber", "RL.toe", "RL.camber",
-               "RR.toe", "RR.camber", "front.total_toe", "rear.total_toe", "thrust")
 # the keys a vehicle's entry in the file must have, and the angle names each one sets
 FILE_KEYS = {
     "front.camber": ("FL.camber", "FR.camber"),
@@ -156,21 +155,15 @@ def get_spec(specs: dict[str, VehicleSpec], key: str, path: str | os.PathLike = 
                       hint=f"known vehicles: {', '.join(sorted(specs))}")
 
 
-def angle_value(result: dict, name: str) -> float | None:
-    """The value (deg) of one named angle in a result, or None."""
-    if name == "thrust":
-        v = result.get("thrust_deg")
-    elif name.endswith(".total_toe"):
-        v = ((result.get("axles") or {}).get(name.split(".")[0]) or {}).get("total_toe_deg")
-    else:
-        wheel, kind = name.split(".")
-        v = ((result.get("wheels") or {}).get(wheel) or {}).get(f"{kind}_deg")
+def angle_value(result: Measurement, name: str) -> float | None:
+    """The value (deg) of one named angle in a result, or None (none, or not a finite number)."""
+    v = result.angle(name)
     if isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(v):
         return None
     return float(v)
 
 
-def evaluate(result: dict, spec: VehicleSpec) -> dict:
+def evaluate(result: Measurement, spec: VehicleSpec) -> dict:
     """Pass/fail of every angle against ``spec``: ``{name: True|False|None, ..., "overall": bool}``.
 
     None: no figure in the spec, or no value in the result. Overall is True only for a valid
@@ -188,17 +181,15 @@ def evaluate(result: dict, spec: VehicleSpec) -> dict:
             complete = False
         else:
             out[name] = s.check(value)
-    out["overall"] = bool(result.get("valid", True) and complete
+    out["overall"] = bool(result.valid and complete
                           and all(v is not False for k, v in out.items()))
     return out
 
 
-def apply_spec(result: dict, spec: VehicleSpec) -> dict:
-    """Write the pass/fail into ``result`` as docs/result-schema.md says; returns the verdicts."""
+def apply_spec(result: Measurement, spec: VehicleSpec) -> dict:
+    """The pass/fail of ``result`` against ``spec``, kept on it (``verdicts``; "pass" in its
+    JSON, per angle and per wheel); returns the verdicts."""
     verdict = evaluate(result, spec)
-    result["vehicle_spec"] = spec.key
-    result["pass"] = verdict
-    for wheel, d in (result.get("wheels") or {}).items():
-        if isinstance(d, dict) and d:
-            d["pass"] = {"toe": verdict.get(f"{wheel}.toe"), "camber": verdict.get(f"{wheel}.camber")}
+    result.vehicle_spec = spec.key
+    result.verdicts = verdict
     return verdict

@@ -7,10 +7,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from calibration.station_frame import AXLE_PARTNER
 from station.config import StationConfig
 from station.errors import MeasurementError, StationError
-from station.wheel.rim_size import AXLE_PARTNER, AXLE_RIM_TOLERANCE, odd_rims
+from station.result import Failure, Measurement, WarningFlag
 from station.wheel.pair import WheelObservation, check_same_rim, reconstruct_wheel, resolve_pair
+from station.wheel.rim_size import AXLE_RIM_TOLERANCE, odd_rims
 
 
 def _rescued_to_size(wheel: str, observations: dict, outcomes: list, images: dict, cameras: dict,
@@ -79,8 +81,8 @@ def _carried_pair(wheel: str, cams: tuple[str, str], detection_sets: list[dict],
                f"again where {src}'s rim, at its axle partner's size, must appear")
 
 
-def settle_axles(result: dict, observations: dict, outcomes: list, images: dict, cameras: dict,
-                 config: StationConfig, calibration_cov: dict | None) -> dict | None:
+def settle_axles(result: Measurement, observations: dict, outcomes: list, images: dict, cameras: dict,
+                 config: StationConfig, calibration_cov: dict | None) -> Failure | None:
     """Where :func:`axle_rim_mismatch` finds an odd wheel, pair it again at its partner's size
     (``observations`` and the result's warnings updated); the cycle's failure if that fails."""
     mismatch = axle_rim_mismatch(observations)
@@ -91,18 +93,17 @@ def settle_axles(result: dict, observations: dict, outcomes: list, images: dict,
     if rescued is not None:
         observations[wheel], note = rescued
         stale = next(o.note for o in outcomes if o.wheel == wheel)  # (a runner-up pairing of the wheel's own)
-        result["warnings"] = [w for w in result["warnings"] if w != stale] + [note]
-        if {"kind": "runner_up", "wheel": wheel} not in result["warning_flags"]:
-            result["warning_flags"].append({"kind": "runner_up", "wheel": wheel})
+        result.warnings = [w for w in result.warnings if w != stale] + [note]
+        if not result.has_flag("runner_up", wheel):
+            result.warning_flags.append(WarningFlag("runner_up", wheel))
         mismatch = axle_rim_mismatch(observations)
         if mismatch is None:
             return None
         wheel, text = mismatch
     cams = observations[wheel].cams
-    return {"code": MeasurementError.code, "wheel": wheel, "camera": f"{cams[0]}+{cams[1]}",
-            "message": f"{wheel} ({cams[0]}, {cams[1]}): {text}",
-            "hint": f"look at both cameras' images of {wheel} (station review); if another wheel is fitted "
-                    "there (a spare), fit the matching one before aligning"}
+    return Failure(MeasurementError.code, f"{wheel} ({cams[0]}, {cams[1]}): {text}",
+                   f"look at both cameras' images of {wheel} (station review); if another wheel is fitted "
+                   "there (a spare), fit the matching one before aligning", wheel, f"{cams[0]}+{cams[1]}")
 
 
 def axle_rim_mismatch(observations: dict) -> tuple[str, str] | None:

@@ -22,7 +22,6 @@ import statistics
 AXLE_RIM_TOLERANCE = 0.015  # the two rims of an axle agree in radius to 0.7 % on every benchmark set (dark
                             # rims; 0.05 % at sigma 2); another contour differs by 2-6 % (a lip's inner edge,
                             # a ring inside the barrel) to 30 % and more (the tyre)
-AXLE_PARTNER = {"FL": "FR", "FR": "FL", "RL": "RR", "RR": "RL"}
 RIM_SIZE_WARNING = 0.002  # relative radius difference between the rims of an axle that warns
 
 

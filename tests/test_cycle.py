@@ -1,0 +1,59 @@
+"""station/cycle.py: a cycle on the assembled (small, simulated) station goes through the
+sequencer's states, and a failed capture is kept and leaves the station ready for the next."""
+
+from __future__ import annotations
+
+import pytest
+
+from station.cycle import Station
+from station.records.history import History
+from tests.station_fixtures import small_station_config, truth_calibration
+
+
+@pytest.fixture(scope="module")
+def station(tmp_path_factory):
+    config = small_station_config(tmp_path_factory.mktemp("cycle"), capture__frames_averaged=1,
+                                  recording__enabled=False)
+    truth_calibration(config)
+    with Station(config, seed=3, progress=lambda msg: None, workers=0) as s:
+        yield s
+
+
+@pytest.mark.slow
+def test_a_cycle_passes_through_the_sequencer_and_is_kept(station):
+    events = []
+    station.sequencer.listeners.append(lambda old, event, new: events.append(event))
+    result = station.measure(job_id="JOB-C1")
+    assert result.valid, result.failure
+    assert events == ["start", "captured", "measured", "reported"] and station.sequencer.state == "done"
+    assert result.cycle_id and result.job_id == "JOB-C1" and result.errors is not None  # simulated: truth attached
+    assert {"capture", "wheels", "total", "record_and_store"} <= set(result.timing_s)
+    with History(station.config.data_path("history.sqlite")) as h:
+        row = h.get(result.cycle_id)
+    assert row["valid"] and row["result"]["wheels"]["FL"]["toe_deg"] == result.wheels["FL"].toe_deg
+
+
+@pytest.mark.slow
+def test_a_failed_capture_is_a_kept_invalid_result_and_the_next_cycle_runs(station, monkeypatch):
+    cam = station.cameras["cam5"]
+    monkeypatch.setattr(cam, "_grab", lambda timeout_s: None)   # the camera sends nothing
+    failed = station.measure(job_id="JOB-C2")
+    assert not failed.valid and failed.failure.code == 201 and "cam5" in failed.failure.message
+    assert station.sequencer.state == "fault" and station.sequencer.fault.code == 201
+    with History(station.config.data_path("history.sqlite")) as h:
+        assert h.get(failed.cycle_id)["valid"] is False   # nothing lost: the failure is in the history
+    monkeypatch.undo()
+    again = station.measure(job_id="JOB-C3")
+    assert again.valid and station.sequencer.state == "done" and station.sequencer.fault is None
+
+
+@pytest.mark.slow
+def test_an_unknown_vehicle_spec_is_raised_after_the_cycle_is_kept(station):
+    from station.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="no-such-car"):
+        station.measure(job_id="JOB-C4", vehicle_spec="no-such-car")
+    assert station.sequencer.state == "done"
+    with History(station.config.data_path("history.sqlite")) as h:
+        kept = h.jobs("JOB-C4")
+    assert len(kept) == 1 and any("no-such-car" in w for w in kept[0].warnings)
