@@ -16,13 +16,14 @@ from pathlib import Path
 from typing import Callable
 
 from calibration.calib_file import StationCalibration, load_calibration
+from calibration.errors import CalibrationMismatch
 from drivers.registry import build_context
 from station.capture.cameras import close_cameras, open_station_cameras, open_trigger_board
 from station.capture.saving import capture_and_save, new_cycle_id
 from station.capture.sync import capture_averaged
 from station.config import StationConfig
 from station.records.atomic_file import write_text_atomic
-from station.errors import StationError, StorageError
+from station.errors import CODED_ERRORS, StationError, StorageError
 from station.measure import add_truth, measure_frames
 from station.compute.workers import WorkerPool, default_workers
 
@@ -39,7 +40,7 @@ def open_capture(config: StationConfig, context: dict):
     cameras = open_station_cameras(config, context)
     try:
         board = open_trigger_board(config, context)
-    except StationError:
+    except CODED_ERRORS:
         close_cameras(cameras)
         raise
     return cameras, board, max(config.capture.timeout_s, float(context.get("capture_timeout_s", 0)))
@@ -98,7 +99,7 @@ class Station:
                                                      frames_averaged=n)
             else:
                 frames = capture_averaged(self.cameras, self.timeout_s, self.trigger_board, frames=n)
-        except StationError as e:
+        except CODED_ERRORS as e:
             saved = getattr(e, "saved_to", None)
             result = self._base(cycle_id, job_id, vehicle_spec)
             result["failure"] = {"code": e.code, "message": str(e), "hint": e.hint}
@@ -135,7 +136,6 @@ class Station:
         result = self.measure(job_id="calibration-check", record=True, store=True)
         drift = [w for w in result.get("warnings", []) if "epipolar residual" in w]
         if result["valid"] and drift:
-            from station.errors import CalibrationMismatch
             raise CalibrationMismatch("; ".join(drift), hint="recalibrate with `station calibrate`")
         return result
 

@@ -10,8 +10,8 @@ import pytest
 from calibration.box_linear import default_triplets, paper_box_calibration, triplet_system
 from calibration.box_target import box_pose_on_floor
 from calibration.camera_model import CameraModel, look_at
+from calibration.errors import CalibrationError
 from station.config import load_box
-from station.errors import CalibrationError
 
 BOX_YAML = Path(__file__).resolve().parent.parent / "config" / "box.yaml"
 

@@ -1,8 +1,8 @@
 """How a PLC command runs a cycle: an injected callable, chosen once where the station is built.
 
 ``CycleRunner = Callable[[CycleRequest], dict]`` returns a result in the schema of
-docs/result-schema.md or raises :class:`station.errors.StationError` (its ``code`` becomes the
-PLC's fault code, its sentence the fault reason). The server runs it in a worker thread, so
+docs/result-schema.md or raises one of :data:`station.errors.CODED_ERRORS` (its ``code`` becomes
+the PLC's fault code, its sentence the fault reason). The server runs it in a worker thread, so
 the heartbeat and Modbus serving go on during a cycle.
 
 Two runners:
@@ -23,7 +23,8 @@ import zlib
 from dataclasses import dataclass
 from typing import Callable
 
-from station.errors import CalibrationError, PlcError, RimNotFound
+from calibration.errors import CalibrationError
+from station.errors import PlcError, RimNotFound
 
 WHEELS = ("FL", "FR", "RL", "RR")
 
