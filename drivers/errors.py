@@ -2,8 +2,8 @@
 
 A sentence (``str(e)``), a ``code`` the PLC sees in its fault register, an ``area`` and an
 optional ``hint`` saying what to do. The drivers import nothing of the station, so their
-errors live here; ``station.errors.CODED_ERRORS`` names this root beside the station's and
-the calibration's, and ``station errors`` lists every code of the three.
+errors live here; the station reports them beside its own and the calibration's, and
+``station errors`` lists every code.
 """
 
 from __future__ import annotations
