@@ -34,13 +34,12 @@ sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__)
 import numpy as np  # noqa: E402
 
 from calibration.box_detect import BoxDetector  # noqa: E402
-from calibration.box_target import load_box  # noqa: E402
 from calibration.camera_model import CameraModel  # noqa: E402
 from calibration.station_calibration import calibrate_pair, fixture_poses  # noqa: E402
 from calibration.stereo import StereoPair  # noqa: E402
 from simulators.sim_operator import SimOperator, projected_detection  # noqa: E402
 from simulators.world import SimWorld  # noqa: E402
-from station.config import load_config  # noqa: E402
+from station.config import load_box, load_config  # noqa: E402
 
 
 def wheel_grid(config, wheel: str, n=(5, 9, 9)) -> np.ndarray:

@@ -33,13 +33,13 @@ sys.path.insert(0, str(REPO / "tests"))
 
 def run_cycles(cams, cycles: int, timeout_s: float) -> dict:
     from station.capture.sync import capture_cycle
-    from station.errors import StationError
+    from station.errors import CODED_ERRORS
     times, lost, failed = [], 0, 0
     for _ in range(cycles):
         t = time.monotonic()
         try:
             capture_cycle(cams, timeout_s)
-        except StationError as e:
+        except CODED_ERRORS as e:
             failed += 1
             lost += len(getattr(e, "failures", cams))
             continue

@@ -43,7 +43,7 @@ from itertools import combinations
 
 import numpy as np
 
-from station.errors import CalibrationError
+from calibration.errors import CalibrationError
 
 
 @dataclass(frozen=True)

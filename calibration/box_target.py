@@ -21,13 +21,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
-from pathlib import Path
 
 import cv2
 import numpy as np
-import yaml
-
-from station.errors import ConfigError
 
 FACE_ORDER = ("px", "py", "nx", "ny", "top")
 # outward normal and texture axes (u right, v down, seen from outside) of each face
@@ -88,7 +84,7 @@ def _dictionary(name: str):
 
 
 class BoxTarget:
-    """The calibration box described by config/box.yaml (see :func:`load_box`)."""
+    """The calibration box described by config/box.yaml (read by :func:`station.config.load_box`)."""
 
     def __init__(self, size_m, dictionary: str, square_m: float, marker_m: float,
                  faces: dict, texel_m: float = 0.0005, source: str = "box"):
@@ -217,25 +213,3 @@ def box_pose_on_floor(position_m, yaw_deg: float) -> tuple[np.ndarray, np.ndarra
     a = np.radians(float(yaw_deg))
     R = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1.0]])
     return R, np.asarray(position_m, float).reshape(3).copy()
-
-
-def load_box(path: str | Path) -> BoxTarget:
-    """Read config/box.yaml. Raises ConfigError naming the file and the problem."""
-    path = Path(path)
-    try:
-        raw = yaml.safe_load(path.read_text())
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: box description not found",
-                          hint="calibration.box in station.yaml must name the box file") from None
-    except (OSError, yaml.YAMLError) as e:
-        raise ConfigError(f"{path}: cannot read the box description: {e}") from None
-    if not isinstance(raw, dict):
-        raise ConfigError(f"{path}: expected a mapping with size_m, dictionary, square_m, marker_m, faces")
-    missing = [k for k in ("size_m", "dictionary", "square_m", "marker_m", "faces") if k not in raw]
-    if missing:
-        raise ConfigError(f"{path}: missing key {missing[0]!r}")
-    try:
-        return BoxTarget(raw["size_m"], raw["dictionary"], raw["square_m"], raw["marker_m"],
-                         raw["faces"], raw.get("texel_m", 0.0005), source=str(path))
-    except (ValueError, TypeError, KeyError) as e:
-        raise ConfigError(f"{path}: {e}") from None

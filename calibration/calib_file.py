@@ -23,8 +23,8 @@ import cv2
 import numpy as np
 
 from calibration.camera_model import CameraModel
+from calibration.errors import CalibrationError, CalibrationMismatch
 from calibration.stereo import StereoPair
-from station.errors import CalibrationError, CalibrationMismatch
 
 FORMAT = "wheel-alignment-station/calibration"
 FORMAT_VERSION = 1

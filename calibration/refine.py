@@ -29,7 +29,7 @@ from scipy.optimize import least_squares
 from scipy.sparse import coo_matrix
 
 from calibration.camera_model import distort_normalized
-from station.errors import CalibrationError
+from calibration.errors import CalibrationError
 
 INTRINSIC_NAMES = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
 

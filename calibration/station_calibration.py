@@ -31,9 +31,9 @@ from calibration.box_linear import paper_box_calibration
 from calibration.box_target import BoxTarget, box_pose_on_floor
 from calibration.calib_file import CameraCalibration, StationCalibration
 from calibration.camera_model import CameraModel, matrix_to_rodrigues
+from calibration.errors import CalibrationError, CalibrationRejected
 from calibration.refine import (INTRINSIC_NAMES, BundleProblem, BundleResult, Observation, intrinsics_vector,
                                rotations)
-from station.errors import CalibrationError, CalibrationRejected
 
 MIN_VIEW_POINTS = 12      # a view with fewer corners is not used
 MIN_INTRINSIC_VIEWS = 3

@@ -30,7 +30,7 @@ import cv2
 import numpy as np
 
 from drivers.base import CameraIdentity, CameraSettings, Frame, Camera
-from station.errors import CameraMissing, CameraTimeout, DriverError, FrameError
+from drivers.errors import CameraMissing, CameraTimeout, DriverError, FrameError
 
 log = logging.getLogger("station.drivers.aravis")
 

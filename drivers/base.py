@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from station.errors import CameraTimeout, DriverError, FrameError
+from drivers.errors import CameraTimeout, DriverError, FrameError
 
 log = logging.getLogger("station.drivers")
 

@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 
 from drivers.base import Frame
-from station.errors import FrameError
+from drivers.errors import FrameError
 
 FORMAT_VERSION = 1
 

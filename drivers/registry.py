@@ -11,7 +11,7 @@ import os
 from urllib.parse import urlparse
 
 from drivers.base import Camera, CameraSettings
-from station.errors import DriverError
+from drivers.errors import DriverError
 
 DRIVERS = {
     "sim": "simulators.sim_camera:SimCamera",

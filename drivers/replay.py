@@ -22,8 +22,8 @@ from pathlib import Path
 from urllib.parse import parse_qs
 
 from drivers.base import Camera, CameraIdentity, CameraSettings, Frame
+from drivers.errors import CameraMissing, DriverError, FrameError
 from drivers.frame_store import read_image
-from station.errors import CameraMissing, DriverError, FrameError
 
 
 def parse_replay_uri(uri: str) -> tuple[Path, dict[str, str]]:

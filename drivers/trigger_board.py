@@ -20,7 +20,7 @@ import logging
 import time
 from dataclasses import dataclass
 
-from station.errors import DriverError, TriggerBoardError
+from drivers.errors import DriverError, TriggerBoardError
 
 log = logging.getLogger("station.drivers.trigger_board")
 

@@ -26,7 +26,7 @@ import cv2
 import numpy as np
 
 from drivers.base import Camera, CameraIdentity, CameraSettings, Frame
-from station.errors import CameraMissing, DriverError, FrameError
+from drivers.errors import CameraMissing, DriverError, FrameError
 
 VIDIOC_QUERYCAP = 0x80685600  # _IOR('V', 0, struct v4l2_capability), 104 bytes
 V4L2_CAP_VIDEO_CAPTURE = 0x00000001

@@ -17,12 +17,13 @@ Wheels are traced only inside the bounding box of their projection.
 
 from __future__ import annotations
 
+import functools
+
 import cv2
 import numpy as np
 
 from calibration.camera_model import CameraModel
 from calibration.station_frame import WHEELS
-from station.compute.bounded_cache import BoundedCache
 from simulators.rays import grid_start, normalized_to_rays_station, pixel_grid_normalized, sample_rays_station
 from simulators.render_body import floor_shadow, trace_body
 from simulators.render_wheel import BARREL, FLANGE, trace_wheel, wheel_outline_points
@@ -35,20 +36,36 @@ CLUTTER_SAMPLES = 13        # samples per edge pixel away from measured features
 PRECISE_PARTS = (FLANGE, BARREL)  # wheel parts next to the measured edge: full supersampling
 
 
-_RAY_CACHE = BoundedCache(8)
+class _RayKey:
+    """A camera as the ray cache sees it: equal to any camera of the same intrinsics, size and
+    orientation (what its pixel rays depend on), and carrying the camera to compute them."""
+
+    __slots__ = ("camera", "_key")
+
+    def __init__(self, camera: CameraModel):
+        self.camera = camera
+        self._key = camera.K.tobytes() + camera.dist.tobytes() + camera.R_cam_station.tobytes() + bytes(
+            str((camera.width, camera.height)), "ascii")
+
+    def __hash__(self) -> int:
+        return hash(self._key)
+
+    def __eq__(self, other) -> bool:
+        return isinstance(other, _RayKey) and self._key == other._key
 
 
-def _pixel_rays(camera: CameraModel, grid: np.ndarray) -> np.ndarray:
+# lru_cache is thread-safe (the capture threads render cameras in parallel); like any pure
+# cache, two threads missing the same camera may both compute its rays, and either is kept.
+@functools.lru_cache(maxsize=8)
+def _rays_of(key: _RayKey) -> np.ndarray:
+    rays = normalized_to_rays_station(key.camera, pixel_grid_normalized(key.camera).reshape(-1, 2))
+    rays.flags.writeable = False
+    return rays
+
+
+def _pixel_rays(camera: CameraModel) -> np.ndarray:
     """(H*W, 3) station-frame rays of the pixel centres, cached per camera (pose + intrinsics)."""
-    key = camera.K.tobytes() + camera.dist.tobytes() + camera.R_cam_station.tobytes() + bytes(
-        str((camera.width, camera.height)), "ascii")
-
-    def make():
-        rays = normalized_to_rays_station(camera, grid.reshape(-1, 2))
-        rays.flags.writeable = False
-        return rays
-
-    return _RAY_CACHE.get(key, make)
+    return _rays_of(_RayKey(camera))
 
 
 def lattice_offsets(n: int) -> np.ndarray:
@@ -223,7 +240,7 @@ def render_radiance(camera: CameraModel, scene: Scene, lighting: Lighting | None
     H, W = camera.height, camera.width
     o = camera.center_station
     grid = pixel_grid_normalized(camera)
-    d = _pixel_rays(camera, grid)
+    d = _pixel_rays(camera)
     masks = wheel_masks(camera, scene)
     cand = {i: np.flatnonzero(m) for i, m in masks.items()}
     qmasks = quad_masks(camera, scene)

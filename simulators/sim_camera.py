@@ -24,7 +24,7 @@ from urllib.parse import parse_qs
 import numpy as np
 
 from drivers.base import Camera, CameraIdentity, CameraSettings, Frame
-from station.errors import CameraMissing, DriverError
+from drivers.errors import CameraMissing, DriverError
 
 
 class SimCamera(Camera):

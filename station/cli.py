@@ -1,8 +1,9 @@
 """The `station` command line: a thin dispatcher over station/commands/<name>.py.
 
 Each command module provides ``HELP`` (one line), ``add_arguments(parser)`` and
-``run(args) -> int``. Errors the station knows (StationError) print one clear message and exit
-non-zero; anything unexpected is logged with its traceback to a file, never to the terminal.
+``run(args) -> int``. Errors the station knows (station.errors.CODED_ERRORS: the station's,
+the drivers', the calibration's) print one clear message and exit non-zero; anything
+unexpected is logged with its traceback to a file, never to the terminal.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ import time  # noqa: E402
 import traceback  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-from station.errors import StationError  # noqa: E402
+from station.errors import CODED_ERRORS, user_message  # noqa: E402
 
 # command name -> module under station.commands (listed only when the module exists)
 COMMANDS = {
@@ -82,8 +83,8 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_ERROR
     try:
         return int(args._run(args) or 0)
-    except StationError as e:
-        print(e.user_message(), file=sys.stderr)
+    except CODED_ERRORS as e:
+        print(user_message(e), file=sys.stderr)
         return EXIT_ERROR
     except BrokenPipeError:  # output piped into `head` and closed early: not an error
         return 0

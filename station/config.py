@@ -12,12 +12,16 @@ import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 import yaml
 
 from calibration.station_frame import WHEELS
 from station.errors import ConfigError
+
+
+if TYPE_CHECKING:
+    from calibration.box_target import BoxTarget
 
 DEFAULT_CONFIG = Path(__file__).resolve().parent.parent / "config" / "station.yaml"
 URI_SCHEMES = ("sim", "replay", "aravis", "v4l2")
@@ -363,3 +367,28 @@ def _check_station(path: Path, tree: Section) -> None:
             raise ConfigError(f"{path}: cameras.{cam_id}.uri: {c.uri!r} is already used by {seen[c.uri]}; "
                               "two cameras cannot share an address")
         seen[c.uri] = cam_id
+
+
+# --- the calibration box's description (config/box.yaml) -------------------------------------
+def load_box(path: str | os.PathLike) -> BoxTarget:
+    """Read config/box.yaml. Raises ConfigError naming the file and the problem."""
+    from calibration.box_target import BoxTarget  # OpenCV, loaded only when a box is read
+
+    path = Path(path)
+    try:
+        raw = yaml.safe_load(path.read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: box description not found",
+                          hint="calibration.box in station.yaml must name the box file") from None
+    except (OSError, yaml.YAMLError) as e:
+        raise ConfigError(f"{path}: cannot read the box description: {e}") from None
+    if not isinstance(raw, dict):
+        raise ConfigError(f"{path}: expected a mapping with size_m, dictionary, square_m, marker_m, faces")
+    missing = [k for k in ("size_m", "dictionary", "square_m", "marker_m", "faces") if k not in raw]
+    if missing:
+        raise ConfigError(f"{path}: missing key {missing[0]!r}")
+    try:
+        return BoxTarget(raw["size_m"], raw["dictionary"], raw["square_m"], raw["marker_m"],
+                         raw["faces"], raw.get("texel_m", 0.0005), source=str(path))
+    except (ValueError, TypeError, KeyError) as e:
+        raise ConfigError(f"{path}: {e}") from None

@@ -17,13 +17,14 @@ from pathlib import Path
 from typing import Callable
 
 from calibration.calib_file import StationCalibration, load_calibration, software_version
+from calibration.errors import CalibrationMismatch
 from drivers.registry import build_context
 from station.capture.cameras import close_cameras, open_station_cameras, open_trigger_board
 from station.capture.saving import capture_and_save, new_cycle_id
 from station.capture.sync import capture_averaged
 from station.compute.workers import WorkerPool, default_workers
 from station.config import StationConfig
-from station.errors import CalibrationMismatch, StationError, StorageError
+from station.errors import CODED_ERRORS, StationError, StorageError
 from station.measure import measure_frames
 from station.records.atomic_file import write_text_atomic
 from station.result import Failure, Measurement
@@ -40,7 +41,7 @@ def open_capture(config: StationConfig, context: dict):
     cameras = open_station_cameras(config, context)
     try:
         board = open_trigger_board(config, context)
-    except StationError:
+    except CODED_ERRORS:
         close_cameras(cameras)
         raise
     return cameras, board, max(config.capture.timeout_s, float(context.get("capture_timeout_s", 0)))
@@ -93,7 +94,7 @@ class Station:
             result = self.sequencer.run_cycle(capture=lambda: self._capture(cycle),
                                               measure=lambda frames: self._measure(cycle, frames, method),
                                               report=lambda measured: self._report(cycle, measured))
-        except StationError:
+        except CODED_ERRORS:
             if cycle.failed is None:
                 raise
             return cycle.failed
@@ -116,7 +117,7 @@ class Station:
                                              frames_averaged=n)
             else:
                 frames = capture_averaged(self.cameras, self.timeout_s, self.trigger_board, frames=n)
-        except StationError as e:
+        except CODED_ERRORS as e:
             saved = getattr(e, "saved_to", None)
             result = Measurement(station=cfg.name, failure=Failure(e.code, str(e), e.hint))
             self._stamp(result, cycle)

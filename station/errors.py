@@ -2,10 +2,16 @@
 
 The code is what the PLC sees in its fault register and what the technician sees beside a
 sentence. Codes are grouped by area (hundreds); never renumber one, only add.
+The drivers (2xx, ``drivers/errors.py``) and the calibration (3xx, ``calibration/errors.py``)
+own their errors, since they import nothing of the station; :data:`CODED_ERRORS` names the
+three roots for the places that report any of them, :func:`user_message` formats any of them.
 The full table is printed by ``station errors`` and documented in docs/plc.md.
 """
 
 from __future__ import annotations
+
+from calibration import errors as calibration_errors
+from drivers import errors as driver_errors
 
 
 class StationError(Exception):
@@ -20,11 +26,18 @@ class StationError(Exception):
             self.code = code
         self.hint = hint
 
-    def user_message(self) -> str:
-        text = f"error {self.code} ({self.area}): {self}"
-        if self.hint:
-            text += f"\n  what to do: {self.hint}"
-        return text
+
+# Every error with a code, a sentence and a hint: the station's, the drivers', the calibration's.
+CODED_ERRORS = (StationError, driver_errors.DriverError, calibration_errors.CalibrationError)
+CodedError = StationError | driver_errors.DriverError | calibration_errors.CalibrationError
+
+
+def user_message(error: CodedError) -> str:
+    """The error as the terminal shows it: code, area, sentence, and what to do if known."""
+    text = f"error {error.code} ({error.area}): {error}"
+    if error.hint:
+        text += f"\n  what to do: {error.hint}"
+    return text
 
 
 class IllegalCommand(StationError):
@@ -36,42 +49,6 @@ class IllegalCommand(StationError):
 class ConfigError(StationError):
     code = 100
     area = "config"
-
-
-class DriverError(StationError):
-    code = 200
-    area = "camera"
-
-
-class CameraTimeout(DriverError):
-    code = 201
-
-
-class CameraMissing(DriverError):
-    code = 202
-
-
-class FrameError(DriverError):
-    code = 203
-
-
-class TriggerBoardError(DriverError):
-    """A trigger-board fault (code 204: the camera area, next free code)."""
-
-    code = 204
-
-
-class CalibrationError(StationError):
-    code = 300
-    area = "calibration"
-
-
-class CalibrationMismatch(CalibrationError):
-    code = 301
-
-
-class CalibrationRejected(CalibrationError):
-    code = 302
 
 
 class MeasurementError(StationError):
@@ -143,10 +120,11 @@ class OdometryError(StationError):
     area = "odometry"
 
 
-def all_error_classes() -> list[type[StationError]]:
-    """Every error class, sorted by code (for documentation and the PLC fault table)."""
-    seen: list[type[StationError]] = []
-    stack = [StationError]
+def all_error_classes() -> list[type[Exception]]:
+    """Every error class of the three roots, sorted by code (for documentation and the PLC
+    fault table)."""
+    seen: list[type[Exception]] = []
+    stack = list(CODED_ERRORS)
     while stack:
         cls = stack.pop()
         seen.append(cls)

@@ -8,7 +8,8 @@
 
 Anything else is an :class:`IllegalCommand` naming the state, the command and what is allowed
 there; the state does not change. ``Sequencer.run_cycle`` drives one cycle through the table
-and turns any StationError into the fault state, so the station is ready for the next command.
+and turns any coded error (the station's, a driver's, the calibration's) into the fault state,
+so the station is ready for the next command.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
-from station.errors import StationError, IllegalCommand
+from station.errors import CODED_ERRORS, CodedError, StationError, IllegalCommand
 
 log = logging.getLogger("station.sequencer")
 
@@ -72,7 +73,7 @@ class Sequencer:
         state = state or self.state
         return [e for (s, e) in TRANSITIONS if s == state]
 
-    def fire(self, event: str, error: StationError | None = None) -> str:
+    def fire(self, event: str, error: CodedError | None = None) -> str:
         """Apply ``event``; the new state, or IllegalCommand (state unchanged)."""
         with self._lock:
             if event not in EVENTS:
@@ -109,8 +110,9 @@ class Sequencer:
                   report: Callable[[Any], Any]) -> Any:
         """start -> capture() -> measure(frames) -> report(result) -> done; the report's value.
 
-        A StationError in any step moves to ``fault`` (kept in ``self.fault``) and is re-raised;
-        the next ``start`` is accepted. Other exceptions do the same, as an internal error.
+        A coded error (station.errors.CODED_ERRORS) in any step moves to ``fault`` (kept in
+        ``self.fault``) and is re-raised; the next ``start`` is accepted. Other exceptions do the
+        same, as an internal error.
         """
         self.fire("start")
         try:
@@ -121,7 +123,7 @@ class Sequencer:
             out = report(result)
             self.fire("reported")
             return out
-        except StationError as e:
+        except CODED_ERRORS as e:
             if self.busy:
                 self.fire("fail", e)
             raise

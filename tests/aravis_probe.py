@@ -204,7 +204,7 @@ def scenario_sync8(fakes: FakeCameras, cycles: str = "10") -> dict:
     from station.capture.cameras import close_cameras, open_station_cameras
     from station.capture.saving import save_capture
     from station.capture.sync import capture_cycle
-    from station.errors import StationError
+    from station.errors import CODED_ERRORS
     out = {}
     uris = {f"cam{i}": f"aravis://127.0.0.{i + 1}" for i in range(1, 9)}
     tmp = Path(tempfile.mkdtemp())
@@ -218,7 +218,7 @@ def scenario_sync8(fakes: FakeCameras, cycles: str = "10") -> dict:
         t = time.monotonic()
         try:
             frames = capture_cycle(cams, config.capture.timeout_s)
-        except StationError:
+        except CODED_ERRORS:
             lost += 1
             continue
         times.append(time.monotonic() - t)

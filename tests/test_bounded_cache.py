@@ -1,4 +1,4 @@
-"""station/compute/bounded_cache.py: the caches the detector and the renderer share between threads."""
+"""station/compute/bounded_cache.py: the caches the rim detector and the wheel fit share between threads."""
 
 from __future__ import annotations
 

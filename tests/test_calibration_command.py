@@ -79,7 +79,7 @@ def test_box_print_writes_true_scale_faces(tmp_path, capsys):
     data = (tmp_path / "print" / "box-px.png").read_bytes()
     assert b"pHYs" in data[:64]
     from calibration.box_detect import BoxDetector
-    from calibration.box_target import load_box
+    from station.config import load_box
     box = load_box(CONFIG.parent / "box.yaml")
     padded = cv2.copyMakeBorder(img, 30, 30, 30, 30, cv2.BORDER_CONSTANT, value=255)
     det = BoxDetector(box).detect(padded)

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from calibration.box_detect import BoxDetector
-from calibration.box_target import load_box
 from calibration.camera_model import rodrigues_to_matrix
+from station.config import load_box
 
 BOX_YAML = Path(__file__).resolve().parent.parent / "config" / "box.yaml"
 K = np.array([[1800.0, 0, 639.5], [0, 1800.0, 511.5], [0, 0, 1]])

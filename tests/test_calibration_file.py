@@ -10,9 +10,9 @@ import pytest
 from calibration.calib_file import (CameraCalibration, StationCalibration, export_opencv, import_opencv,
                                     load_calibration, save_calibration)
 from calibration.camera_model import CameraModel, look_at
+from calibration.errors import CalibrationError, CalibrationMismatch
 from calibration.stereo import StereoPair, epipolar_distance, pair_extrinsics
 from station.config import load_config
-from station.errors import CalibrationError, CalibrationMismatch
 
 
 def _calibration(config) -> StationCalibration:

@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 
 from calibration.box_linear import default_triplets, paper_box_calibration, triplet_system
-from calibration.box_target import box_pose_on_floor, load_box
+from calibration.box_target import box_pose_on_floor
 from calibration.camera_model import CameraModel, look_at
-from station.errors import CalibrationError
+from calibration.errors import CalibrationError
+from station.config import load_box
 
 BOX_YAML = Path(__file__).resolve().parent.parent / "config" / "box.yaml"
 

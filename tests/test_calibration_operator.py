@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from calibration.box_detect import BoxDetector
-from calibration.box_target import box_pose_on_floor, load_box
-from station.config import load_config
+from calibration.box_target import box_pose_on_floor
+from station.config import load_box, load_config
 from station.operator import TerminalOperator
 
 

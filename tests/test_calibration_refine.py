@@ -11,12 +11,11 @@ import numpy as np
 import pytest
 
 from calibration.box_detect import BoxDetector
-from calibration.box_target import load_box
 from calibration.camera_model import CameraModel, rodrigues_to_matrix
+from calibration.errors import CalibrationError
 from calibration.refine import BundleProblem, Observation, intrinsics_vector
 from calibration.station_calibration import calibrate_intrinsics, calibrate_pair, check_limits, fixture_poses, assemble
-from station.config import load_config
-from station.errors import CalibrationError
+from station.config import load_box, load_config
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_calibration_detect import render_box  # noqa: E402  (the small exact renderer)

@@ -10,13 +10,13 @@ import pytest
 
 from camera_fakes import IDS, FakeWorld, station_config
 from drivers.base import Camera, Frame
+from drivers.errors import CameraMissing, CameraTimeout, DriverError, FrameError
 from drivers.registry import create_camera
 from drivers.trigger_board import TriggerBoard
 from simulators.trigger_board_sim import TriggerBoardSim
 from station.capture.cameras import close_cameras, open_station_cameras
 from station.capture.saving import capture_and_save, new_cycle_id, save_capture
 from station.capture.sync import capture_cycle
-from station.errors import CameraMissing, CameraTimeout, DriverError, FrameError
 
 
 @pytest.fixture

@@ -7,7 +7,7 @@ import pytest
 
 from drivers.aravis import PFNC, AravisCamera
 from drivers.base import CameraSettings
-from station.errors import FrameError
+from drivers.errors import FrameError
 
 
 class _Buf:

@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 
 from drivers.aravis import make_linear
-from station.errors import DriverError
+from drivers.errors import DriverError
 
 
 class _Cam:

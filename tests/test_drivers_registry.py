@@ -9,8 +9,8 @@ import pytest
 
 import drivers.aravis as aravis
 from drivers.base import CameraSettings
+from drivers.errors import DriverError
 from drivers.registry import build_context, create_camera
-from station.errors import DriverError
 
 
 def test_missing_pygobject_is_reported_only_when_an_aravis_camera_opens(monkeypatch):

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from drivers.base import CameraSettings, Frame
+from drivers.errors import CameraMissing, CameraTimeout, DriverError, FrameError
 from drivers.frame_store import save_cycle
 from drivers.registry import create_camera, driver_class, uri_address
-from station.errors import CameraMissing, CameraTimeout, DriverError, FrameError
 
 W, H = 48, 32
 

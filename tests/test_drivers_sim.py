@@ -9,10 +9,10 @@ import pytest
 
 from camera_fakes import FakeWorld, station_config
 from drivers.base import CameraSettings
+from drivers.errors import CameraMissing, CameraTimeout, DriverError
 from drivers.registry import create_camera
 from drivers.trigger_board import TriggerBoard
 from simulators.trigger_board_sim import TriggerBoardSim, TriggerLines
-from station.errors import CameraMissing, CameraTimeout, DriverError
 
 S = CameraSettings(40, 30)
 

@@ -10,8 +10,8 @@ import pytest
 
 import drivers.v4l2 as v4l2
 from drivers.base import CameraSettings
+from drivers.errors import CameraMissing, DriverError
 from drivers.registry import create_camera
-from station.errors import CameraMissing, DriverError
 
 DEVICES = sorted(glob.glob("/dev/video*"))
 

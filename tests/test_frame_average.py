@@ -9,11 +9,12 @@ import pytest
 
 from camera_fakes import IDS, station_config
 from drivers.base import AVERAGED_FRAMES_KEY, CameraSettings, Frame
+from drivers.errors import FrameError
 from drivers.registry import create_camera
 from station.capture.cameras import open_station_cameras
 from station.capture.saving import capture_and_save
 from station.capture.sync import capture_averaged
-from station.errors import ConfigError, FrameError
+from station.errors import ConfigError
 from station.capture.frame_average import averaged_frames, mean_image
 from station.rim.preprocess import noise_grey, to_grey
 

@@ -214,7 +214,7 @@ def test_dry_run_is_deterministic_per_job_and_fails_on_purpose():
 
 def test_measurement_runner_keeps_one_station_and_passes_the_plc_request(monkeypatch):
     import station.cycle
-    from station.errors import CalibrationError
+    from calibration.errors import CalibrationError
     from station.plc.runner import measurement_runner
 
     built, calls = [], []

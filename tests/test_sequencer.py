@@ -7,7 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from station.errors import CameraTimeout, StationError
+from drivers.errors import CameraTimeout
+from station.errors import StationError
 from station.sequencer import (EVENTS, STATES, TRANSITIONS, IllegalCommand, Sequencer,
                                transition_table_markdown)
 

@@ -11,9 +11,10 @@ from __future__ import annotations
 import time
 
 from drivers.base import Camera, CameraSettings
+from drivers.errors import DriverError
 from drivers.registry import create_camera, uri_address
 from station.capture.sync import failure_error, run_parallel
-from station.errors import DriverError, StationError
+from station.errors import CODED_ERRORS
 
 OPEN_TIMEOUT_S = 15.0  # a GigE camera that does not answer takes ~2.5 s to give up
 
@@ -48,7 +49,7 @@ def open_cameras(specs: dict[str, tuple[str, CameraSettings]], context: dict | N
     for cam_id, (uri, settings) in specs.items():
         try:
             cams[cam_id] = create_camera(cam_id, uri, settings, context)
-        except StationError as e:
+        except CODED_ERRORS as e:
             failures[cam_id] = e
     _, open_fail = run_parallel({cid: c.open for cid, c in cams.items()},
                                  time.monotonic() + timeout_s, "open")

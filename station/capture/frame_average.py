@@ -17,7 +17,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from drivers.base import AVERAGED_FRAMES_KEY, Frame
-from station.errors import FrameError
+from drivers.errors import FrameError
 
 SCALE_8_TO_16 = 257  # 65535 / 255
 

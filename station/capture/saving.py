@@ -15,7 +15,7 @@ from pathlib import Path
 from drivers.base import Camera, Frame
 from drivers.frame_store import save_cycle
 from station.capture.sync import capture_averaged
-from station.errors import StationError
+from station.errors import CODED_ERRORS
 
 log = logging.getLogger("station.capture")
 
@@ -49,7 +49,7 @@ def capture_and_save(cameras: dict[str, Camera], timeout_s: float, out_dir, *, t
     out_dir = Path(out_dir)
     try:
         frames = capture_averaged(cameras, timeout_s, trigger_board, max_skew_s, frames_averaged)
-    except StationError as e:
+    except CODED_ERRORS as e:
         partial = getattr(e, "frames", {})
         if partial:
             e.saved_to = save_capture(partial, out_dir, failures=getattr(e, "failures", {}),

@@ -21,8 +21,9 @@ import time
 from typing import Callable
 
 from drivers.base import Camera, Frame
+from drivers.errors import CameraMissing, CameraTimeout, DriverError, FrameError
 from station.capture.frame_average import averaged_frames
-from station.errors import CameraMissing, CameraTimeout, DriverError, FrameError, StationError
+from station.errors import CODED_ERRORS, CodedError
 
 log = logging.getLogger("station.capture")
 
@@ -30,10 +31,10 @@ STALE_TOLERANCE_NS = 5_000_000  # a frame stamped >5 ms before the trigger is a 
 
 
 # --- errors that carry what is known ----------------------------------------------------------
-def failure_error(what: str, failures: dict[str, BaseException], frames: dict | None = None) -> StationError:
+def failure_error(what: str, failures: dict[str, BaseException], frames: dict | None = None) -> CodedError:
     """One error naming every failed camera; its class follows the kind of failure."""
     kinds = [type(e) for e in failures.values()]
-    if len(set(kinds)) == 1 and issubclass(kinds[0], StationError):
+    if len(set(kinds)) == 1 and issubclass(kinds[0], CODED_ERRORS):
         cls = kinds[0]
     elif any(issubclass(k, CameraMissing) for k in kinds):
         cls = CameraMissing
@@ -67,7 +68,7 @@ def run_parallel(items: dict[str, Callable[[], object]], deadline: float, what: 
         try:
             results[key] = fn()
         except BaseException as e:  # noqa: BLE001 - reported per camera below
-            failures[key] = e if isinstance(e, StationError) else DriverError(f"{key}: {what}: {e}")
+            failures[key] = e if isinstance(e, CODED_ERRORS) else DriverError(f"{key}: {what}: {e}")
 
     threads = {k: threading.Thread(target=work, args=(k, fn), daemon=True, name=f"{what}-{k}")
                for k, fn in items.items()}
@@ -136,7 +137,7 @@ def capture_cycle(cameras: dict[str, Camera], timeout_s: float, trigger_board=No
     if trigger_board is not None:
         try:
             board_report = trigger_board.fire()
-        except StationError as e:
+        except CODED_ERRORS as e:
             dead = getattr(e, "dead_lines", None)
             hw = {cid: c for cid, c in ready.items() if c.settings.trigger == "hardware"}
             if dead is None:  # the board did not fire at all: every hardware-triggered camera

@@ -12,8 +12,7 @@ from pathlib import Path
 
 import cv2
 
-from calibration.box_target import load_box
-from station.config import load_config
+from station.config import load_box, load_config
 from station.errors import ConfigError, StorageError
 
 HELP = "write the calibration box's faces as PNG images at true scale for manufacturing"

@@ -16,15 +16,14 @@ from pathlib import Path
 import numpy as np
 
 from calibration.box_detect import BoxDetector
-from calibration.box_target import load_box
 from calibration.calib_file import save_calibration
+from calibration.errors import CalibrationError, CalibrationRejected
 from calibration.refine import INTRINSIC_NAMES
 from calibration.station_calibration import assemble, calibrate_pair, check_limits, fixture_poses
 from drivers.registry import build_context
 from station.capture.cameras import close_cameras, open_station_cameras
 from station.capture.sync import capture_averaged
-from station.config import load_config
-from station.errors import CalibrationError, CalibrationRejected
+from station.config import load_box, load_config
 from station.operator import TerminalOperator
 
 HELP = "calibrate the eight cameras and four pairs with the calibration box"

@@ -35,12 +35,12 @@ def run(args) -> int:
     from drivers.registry import build_context
     from station.capture.cameras import close_cameras, open_cameras, settings_for
     from station.config import load_config
-    from station.errors import StationError
+    from station.errors import CODED_ERRORS
 
     config = load_config(args.config)
     try:
         context = build_context([c.uri for c in config.cameras.values()], config)
-    except StationError as e:
+    except CODED_ERRORS as e:
         context, context_error = {}, str(e)
     else:
         context_error = None
@@ -56,7 +56,7 @@ def run(args) -> int:
                 if args.snap:
                     try:
                         cam.snap(max(config.capture.timeout_s, context.get("capture_timeout_s", 0)))
-                    except StationError as e:
+                    except CODED_ERRORS as e:
                         row["error"] = str(e)
                 st = cam.state()
                 if "identity" in st:

@@ -23,7 +23,7 @@ def run(args) -> int:
     from station.capture.cameras import close_cameras, open_station_cameras, open_trigger_board
     from station.capture.saving import capture_and_save, new_cycle_id
     from station.config import load_config
-    from station.errors import StationError
+    from station.errors import CODED_ERRORS, StationError
 
     config = load_config(args.config)
     n_frames = config.capture.frames_averaged if args.frames is None else args.frames
@@ -46,7 +46,7 @@ def run(args) -> int:
         try:
             frames, path = capture_and_save(cameras, timeout, out, trigger_board=board, truth=truth,
                                             extra={"station": config.name}, frames_averaged=n_frames)
-        except StationError as e:
+        except CODED_ERRORS as e:
             if getattr(e, "saved_to", None):
                 print(f"partial set ({len(e.frames)} of {len(cameras)} frames) kept in {e.saved_to}")
             raise

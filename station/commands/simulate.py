@@ -5,7 +5,8 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from station.errors import ConfigError, FrameError
+from drivers.errors import FrameError
+from station.errors import ConfigError
 
 HELP = "render the simulated station with a random vehicle and save it as a replay set (+ truth)"
 

@@ -1,5 +1,5 @@
 """A small cache of computed arrays keyed by their inputs, oldest entry out when full, safe to
-share between threads (the capture threads render simulated frames; `station live` detects the
+share between threads (a cycle's wheels are measured in threads; `station live` detects the
 rims of one update in threads)."""
 
 from __future__ import annotations

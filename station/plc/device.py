@@ -17,7 +17,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pymodbus.constants import ExcCodes
 from pymodbus.simulator import DataType, SimData, SimDevice
 
-from station.errors import MeasurementError, PlcError, StationError
+from station.errors import CODED_ERRORS, MeasurementError, PlcError, StationError
 from station.plc import register_map as rm
 from station.plc.handshake import (Event, PlcBadJobId, PlcCycleTimeout, State, event_for_command,
                                    modbus_exception, next_state)
@@ -157,7 +157,7 @@ class PlcDevice:
         try:
             work = asyncio.get_running_loop().run_in_executor(self._executor, self.runner, request)
             result = await asyncio.wait_for(work, self.cycle_timeout_s)
-        except StationError as e:
+        except CODED_ERRORS as e:  # a camera or calibration fault too: its code is the fault code
             return self._fault(request, e.code, str(e), time.perf_counter() - t0)
         except asyncio.TimeoutError:
             self._executor.shutdown(wait=False)

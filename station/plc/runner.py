@@ -1,7 +1,8 @@
 """How a PLC command runs a cycle: an injected callable, chosen once where the station is built.
 
-``CycleRunner = Callable[[CycleRequest], Measurement]`` returns a result (station/result.py) or raises :class:`station.errors.StationError` (its ``code`` becomes the
-PLC's fault code, its sentence the fault reason). The server runs it in a worker thread, so
+``CycleRunner = Callable[[CycleRequest], Measurement]`` returns a result (station/result.py) or
+raises one of :data:`station.errors.CODED_ERRORS` (its ``code`` becomes the PLC's fault code, its
+sentence the fault reason). The server runs it in a worker thread, so
 the heartbeat and Modbus serving go on during a cycle.
 
 Two runners:
@@ -22,8 +23,9 @@ import zlib
 from dataclasses import dataclass
 from typing import Callable
 
+from calibration.errors import CalibrationError
 from calibration.station_frame import AXLES, WHEELS
-from station.errors import CalibrationError, PlcError, RimNotFound
+from station.errors import PlcError, RimNotFound
 from station.result import ANGLE_NAMES, AxleResult, Measurement, WheelResult
 
 
