@@ -89,6 +89,7 @@ class _CachedWorld:
 
 
 def bench_sim(cycles: int, real_renderer: bool) -> dict:
+    from simulators.sim_station import SimulatedStation
     from simulators.world import SimWorld
     from station.capture.cameras import close_cameras, open_station_cameras
     from station.config import load_config
@@ -98,7 +99,7 @@ def bench_sim(cycles: int, real_renderer: bool) -> dict:
     if not real_renderer:
         first = np.clip(world.render("cam1", np.random.default_rng(0)), 2, 253).astype(np.uint8)
         world = _CachedWorld(world, {cid: first for cid in world.cameras})
-    cams = open_station_cameras(config, {"sim_world": world})
+    cams = open_station_cameras(config, SimulatedStation(world).context())
     try:
         return run_cycles(cams, cycles, 600.0 if real_renderer else config.capture.timeout_s)
     finally:

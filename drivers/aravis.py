@@ -30,6 +30,7 @@ import cv2
 import numpy as np
 
 from drivers.base import CameraIdentity, CameraSettings, Frame, Camera
+from drivers.context import DriverContext
 from drivers.errors import CameraMissing, CameraTimeout, DriverError, FrameError
 
 log = logging.getLogger("station.drivers.aravis")
@@ -160,7 +161,7 @@ class AravisCamera(Camera):
     scheme = "aravis"
 
     def __init__(self, camera_id: str, uri: str, settings: CameraSettings | None = None,
-                 context: dict | None = None):
+                 context: DriverContext | None = None):
         super().__init__(camera_id, uri, settings, context)
         self.address, opts = parse_aravis_uri(uri)
         self.trigger_line = opts.get("line", "Line0")

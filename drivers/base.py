@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from drivers.context import DriverContext
 from drivers.errors import CameraTimeout, DriverError, FrameError
 
 log = logging.getLogger("station.drivers")
@@ -73,11 +74,11 @@ class Camera(ABC):
     exposes = True  # each frame is a new exposure (False: a replay of saved frames, never averaged again)
 
     def __init__(self, camera_id: str, uri: str, settings: CameraSettings | None = None,
-                 context: dict | None = None):
+                 context: DriverContext | None = None):
         self.camera_id = camera_id
         self.uri = uri
         self.settings = settings or CameraSettings()
-        self.context = context or {}
+        self.context = context or DriverContext()
         self.is_open = False
         self.last_frame: Frame | None = None
         self._armed = False

@@ -11,6 +11,7 @@ import os
 from urllib.parse import urlparse
 
 from drivers.base import Camera, CameraSettings
+from drivers.context import DriverContext, Simulation
 from drivers.errors import DriverError
 
 DRIVERS = {
@@ -35,7 +36,7 @@ def driver_class(uri: str) -> type[Camera]:
 
 
 def create_camera(camera_id: str, uri: str, settings: CameraSettings | None = None,
-                  context: dict | None = None) -> Camera:
+                  context: DriverContext | None = None) -> Camera:
     """Instantiate (not open) the driver for ``uri``."""
     return driver_class(uri)(camera_id, uri, settings, context)
 
@@ -63,17 +64,23 @@ def uri_address(uri: str, camera_id: str | None = None) -> str:
     return f"{scheme}://{rest}"
 
 
-def build_context(uris, config, **options) -> dict:
-    """What the drivers in use need from the assembled station, built once.
+def build_context(uris, config, **options) -> DriverContext:
+    """What the drivers in use bring to the assembled station (drivers/context.py), built once.
 
-    A driver module may define ``build_context(config, **options) -> dict`` (the sim:// driver
-    builds the simulated world there); it is called only if a camera uses that scheme, so the
-    station never imports a simulator unless its configuration names one.
+    A driver module may define ``build_context(config, **options) -> DriverContext`` (the sim://
+    driver builds the simulated station there); it is called only if a camera uses that scheme,
+    so the station never imports a simulator unless its configuration names one.
     """
-    context: dict = {}
+    context = DriverContext()
     for scheme in sorted({urlparse(u).scheme for u in uris}):
         module = importlib.import_module(driver_class(f"{scheme}://x").__module__)
         provider = getattr(module, "build_context", None)
         if provider is not None:
-            context.update(provider(config, **options))
+            context.add(provider(config, **options))
     return context
+
+
+def simulation(config, vehicle_seed: int | None = None) -> Simulation:
+    """The simulated station of ``config`` (the sim:// driver's), whatever its cameras are:
+    for commands that render it (``station simulate``)."""
+    return build_context(["sim://"], config, seed=vehicle_seed).simulation

@@ -22,6 +22,7 @@ from pathlib import Path
 from urllib.parse import parse_qs
 
 from drivers.base import Camera, CameraIdentity, CameraSettings, Frame
+from drivers.context import DriverContext
 from drivers.errors import CameraMissing, DriverError, FrameError
 from drivers.frame_store import read_image
 
@@ -40,7 +41,7 @@ class ReplayCamera(Camera):
     exposes = False  # the saved frames, as they were kept (a kept burst is already averaged)
 
     def __init__(self, camera_id: str, uri: str, settings: CameraSettings | None = None,
-                 context: dict | None = None):
+                 context: DriverContext | None = None):
         super().__init__(camera_id, uri, settings, context)
         self.directory, opts = parse_replay_uri(uri)
         self.source_id = opts.get("camera", camera_id)

@@ -26,6 +26,7 @@ import cv2
 import numpy as np
 
 from drivers.base import Camera, CameraIdentity, CameraSettings, Frame
+from drivers.context import DriverContext
 from drivers.errors import CameraMissing, DriverError, FrameError
 
 VIDIOC_QUERYCAP = 0x80685600  # _IOR('V', 0, struct v4l2_capability), 104 bytes
@@ -52,7 +53,7 @@ class V4L2Camera(Camera):
     scheme = "v4l2"
 
     def __init__(self, camera_id: str, uri: str, settings: CameraSettings | None = None,
-                 context: dict | None = None):
+                 context: DriverContext | None = None):
         super().__init__(camera_id, uri, settings, context)
         self.path = uri.split("://", 1)[1].partition("?")[0]
         self._cap = None

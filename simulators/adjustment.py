@@ -12,8 +12,8 @@ adjustment is simulated honestly in two parts:
    turned in and out), plus fresh Gaussian sensor noise, so the live loop detects and measures
    every frame for real, through the normal camera and capture path.
 
-:func:`install` swaps the AdjustmentWorld into a sim:// context (``context["sim_world"]``)
-before the cameras are opened.
+``SimulatedStation.start_toe_adjustment`` (simulators/sim_station.py) puts the AdjustmentWorld
+behind the sim:// cameras before they are opened.
 """
 
 from __future__ import annotations
@@ -133,14 +133,3 @@ class AdjustmentWorld:
         served = [c for c in live if c in self._calls]
         return self.world.truth(scene or self.scenes[self.current_step(served[0]) if served else 0])
 
-
-def install(context: dict, config, seed: int, wheel: str, toe_steps_deg, live_cams: list[str],
-            cache_dir: Path, progress: Callable[[str], None] = print, hold: int = 5) -> AdjustmentWorld:
-    """Replace ``context["sim_world"]`` (built by the sim:// driver) by the adjustment; call it
-    before the cameras are opened. Returns the AdjustmentWorld."""
-    world = context["sim_world"]
-    steps = prerender(world, seed, wheel, toe_steps_deg, live_cams, cache_dir, progress)
-    adj = AdjustmentWorld(world, adjustment_scenes(world, seed, wheel, toe_steps_deg), steps, hold=hold, seed=seed)
-    context["sim_world"] = adj
-    context["truth"] = adj.truth
-    return adj

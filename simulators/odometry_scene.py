@@ -3,7 +3,11 @@
 The room (floor, ceiling, four walls, windows, posters, furniture-like boxes) is a set of
 textured rectangles; images are ray cast, vectorised over pixels, with mip-mapped textures so
 that far surfaces do not alias. Everything is deterministic by seed. The sequence writer at the
-end needs no ``station`` code; the format is described in docs/odometry.md:
+end needs no ``station`` code; the format is described in docs/odometry.md. Render one with
+
+    .venv/bin/python -m simulators.odometry_scene DIR --kind short|long [--seed N]
+
+then measure it with ``station odometry DIR``. What it writes:
 
     DIR/sequence.json   what was simulated (seed, path, rig)
     DIR/stereo.json     the two cameras (calibration.camera_model dicts, rig frame = left camera)
@@ -17,8 +21,10 @@ z forward).
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -396,3 +402,25 @@ def write_sequence(directory: str | os.PathLike, kind: str = "short", seed: int 
             "pitch_deg": rig.pitch_deg, "robot_xy_yaw_world": poses.tolist()}
     (directory / "sequence.json").write_text(json.dumps(meta, indent=1))
     return directory
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m simulators.odometry_scene",
+                                 description="render a simulated stereo sequence for `station odometry DIR`")
+    ap.add_argument("directory", metavar="DIR", help="a new or empty folder")
+    ap.add_argument("--kind", choices=("short", "long"), default="short",
+                    help="'short' (11 steps, like the paper's) or 'long' (243 steps round a room)")
+    ap.add_argument("--seed", type=int, default=0, help="seed of the scene and the sensor noise (default 0)")
+    args = ap.parse_args(argv)
+    directory = Path(args.directory)
+    if directory.exists() and (not directory.is_dir() or any(directory.iterdir())):
+        print(f"{directory}: not a new or empty folder; a sequence is never written over another",
+              file=sys.stderr)
+        return 2
+    print(f"rendering the {args.kind} simulated sequence into {directory} ...", file=sys.stderr)
+    write_sequence(directory, args.kind, seed=args.seed)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,16 +1,16 @@
 """SimCamera: a camera of the simulated station, behind the same interface as real ones.
 
-URI: ``sim://camN[?line=K&fps=F]``. The simulated world comes from ``context["sim_world"]``
-(a simulators.world.SimWorld); the camera renders ``world.render(camN, rng)`` of the world's
-current scene. Trigger modes behave as on the station:
+URI: ``sim://camN[?line=K&fps=F]``. The simulated station comes from the driver context
+(``context.simulation``, a simulators.sim_station.SimulatedStation); the camera renders
+``world.render(camN, rng)`` of its world's current scene. Trigger modes behave as on the station:
 
 - software: one frame per ``trigger()``;
-- hardware: one frame per pulse on trigger line K (default N-1) of ``context["trigger_lines"]``
+- hardware: one frame per pulse on trigger line K (default N-1) of the station's trigger wires
   (simulators.trigger_board_sim.TriggerLines, driven by the simulated trigger board);
 - free-run: a frame every 1/F s (default 10 fps), stamped on that grid.
 
 Frames are deterministic: frame n of camera camN is rendered with the noise stream
-``default_rng([seed, N, n])``, seed = ``context["sim_seed"]`` (default the station seed),
+``default_rng([seed, N, n])``, seed = the simulated station's (default the station seed),
 so the same world, scene and seed give bit-identical frames.
 """
 
@@ -24,6 +24,7 @@ from urllib.parse import parse_qs
 import numpy as np
 
 from drivers.base import Camera, CameraIdentity, CameraSettings, Frame
+from drivers.context import DriverContext
 from drivers.errors import CameraMissing, DriverError
 
 
@@ -31,7 +32,7 @@ class SimCamera(Camera):
     scheme = "sim"
 
     def __init__(self, camera_id: str, uri: str, settings: CameraSettings | None = None,
-                 context: dict | None = None):
+                 context: DriverContext | None = None):
         super().__init__(camera_id, uri, settings, context)
         rest = uri.split("://", 1)[1]
         name, _, query = rest.partition("?")
@@ -49,16 +50,17 @@ class SimCamera(Camera):
         self._t_open_ns = 0
 
     def _open(self) -> None:
-        world = self.context.get("sim_world")
+        sim = self.context.simulation
+        world = getattr(sim, "world", None)
         if world is None:
             raise DriverError(f"{self.camera_id}: sim:// cameras need the simulated station "
-                              "(context['sim_world'], a simulators.world.SimWorld)",
+                              "(a simulators.sim_station.SimulatedStation in the driver context)",
                               hint="assemble the station with its simulator, or use real camera URIs")
         if self.sim_id not in world.cameras:
             raise CameraMissing(f"{self.camera_id}: the simulated station has no camera {self.sim_id!r} "
                                 f"(it has {', '.join(world.cameras)})")
         self.world = world
-        self.seed = int(self.context.get("sim_seed", world.config.simulation.station_seed))
+        self.seed = sim.seed
         self._n = 0
         self._t_open_ns = time.monotonic_ns()
 
@@ -70,10 +72,7 @@ class SimCamera(Camera):
             raise DriverError(f"{self.camera_id}: the simulated sensor is {model.width}x{model.height}, "
                               f"configured for {s.width}x{s.height}")
         if s.trigger == "hardware":
-            self.lines = self.context.get("trigger_lines")
-            if self.lines is None:
-                raise DriverError(f"{self.camera_id}: hardware trigger needs the simulated trigger wires "
-                                  "(context['trigger_lines'])", hint="start the simulated trigger board")
+            self.lines = self.context.simulation.trigger_lines
             if not 0 <= self.line < self.lines.n_lines:
                 raise DriverError(f"{self.camera_id}: trigger line {self.line} does not exist on the board")
 
@@ -128,31 +127,27 @@ class SimCamera(Camera):
         return CameraIdentity("simulated", "SimCamera", f"SIM-{self.sim_id}", model.width, model.height)
 
 
-def build_context(config, seed: int | None = None, **_) -> dict:
+def build_context(config, seed: int | None = None, **_) -> DriverContext:
     """The simulated station for sim:// cameras (called through drivers.registry.build_context).
 
     ``seed``: a random vehicle (SimWorld.vehicle_scene(seed)) stands on the lift; None: empty.
     ``trigger_board.port: sim`` in the configuration starts the simulated trigger board on a
-    pty wired to the cameras' trigger lines (``context["trigger_board_port"]``; stop it with
-    ``context["close"]()``).
-    Rendering a 1280x1024 frame takes seconds on a slow machine, so the simulated cameras ask
-    for a capture deadline of their own (``capture_timeout_s``), used instead of a shorter one.
+    pty wired to the cameras' trigger lines (its port in ``trigger_board_port``; the context's
+    ``close()`` stops it). Rendering a 1280x1024 frame takes seconds on a slow machine, so the
+    simulated cameras ask for a capture deadline of their own (``capture_timeout_s``), used
+    instead of a shorter one.
     """
-    from simulators.trigger_board_sim import TriggerBoardSim, TriggerLines
+    from simulators.sim_station import SimulatedStation
+    from simulators.trigger_board_sim import TriggerBoardSim
     from simulators.world import SimWorld
 
     world = SimWorld.from_config(config)
     if seed is not None:
         world.set_scene(world.vehicle_scene(seed))
-    def calibration_operator(box, operator_seed: int = 0):
-        from simulators.sim_operator import SimOperator  # places the box in the simulated world
-        return SimOperator(world, box, config, seed=operator_seed)
-
-    context = {"sim_world": world, "truth": world.truth, "capture_timeout_s": 600.0,
-               "trigger_lines": TriggerLines(), "close": lambda: None,
-               "calibration_operator": calibration_operator}
+    context = SimulatedStation(world, vehicle_seed=seed).context(capture_timeout_s=600.0)
     board = getattr(getattr(config, "trigger_board", None), "port", None)
     if board == "sim":  # trigger_board.port: sim -> the simulated board on a pty, wired to the cameras
-        sim = TriggerBoardSim(context["trigger_lines"])
-        context.update(trigger_board_port=sim.port, close=sim.close)
+        sim = TriggerBoardSim(context.simulation.trigger_lines)
+        context.trigger_board_port = sim.port
+        context.closers.append(sim.close)
     return context

@@ -1,7 +1,7 @@
 """The `station` command line: a thin dispatcher over station/commands/<name>.py.
 
-Each command module provides ``HELP`` (one line), ``add_arguments(parser)`` and
-``run(args) -> int``. Errors the station knows (station.errors.CODED_ERRORS: the station's,
+Each command module provides ``add_arguments(parser)`` and ``run(args) -> int``; its one-line
+help is in :data:`COMMANDS`, and only the command that runs is imported. Errors the station knows (station.errors.CODED_ERRORS: the station's,
 the drivers', the calibration's) print one clear message and exit non-zero; anything
 unexpected is logged with its traceback to a file, never to the terminal.
 """
@@ -16,7 +16,6 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
 import importlib  # noqa: E402
-import importlib.util  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 import traceback  # noqa: E402
@@ -24,22 +23,23 @@ from pathlib import Path  # noqa: E402
 
 from station.errors import CODED_ERRORS, user_message  # noqa: E402
 
-# command name -> module under station.commands (listed only when the module exists)
+# command name -> (module under station.commands, what it does in one line). Only the command
+# that runs is imported: `station --help` needs none of them.
 COMMANDS = {
-    "measure": "measure",
-    "calibrate": "calibrate",
-    "simulate": "simulate",
-    "detect": "detect",
-    "box-print": "box_print",
-    "cameras": "cameras",
-    "capture": "capture",
-    "serve": "serve",
-    "live": "live",
-    "review": "review",
-    "history": "history",
-    "report": "report",
-    "odometry": "odometry",
-    "errors": "errors",
+    "measure": ("measure", "measure toe and camber of all four wheels (one cycle on the configured station)"),
+    "calibrate": ("calibrate", "calibrate the eight cameras and four pairs with the calibration box"),
+    "simulate": ("simulate", "render the simulated station with a random vehicle and save it as a replay set (+ truth)"),
+    "detect": ("detect", "find the rim ellipse in one photograph of a wheel (PNG or JPEG, colour or grey, any size)"),
+    "box-print": ("box_print", "write the calibration box's faces as PNG images at true scale for manufacturing"),
+    "cameras": ("cameras", "list the configured cameras and their state (open, model, serial, resolution, last frame)"),
+    "capture": ("capture", "capture one synchronised set from all cameras and save it (lossless PNG + metadata)"),
+    "serve": ("serve", "serve the station to the shop PLC over Modbus TCP or RTU (register map: docs/plc.md)"),
+    "live": ("live", "live toe and camber of one axle while a wheel is adjusted (Ctrl-C to stop)"),
+    "review": ("review", "open a cycle's recording in the Rerun viewer (default: the newest cycle)"),
+    "history": ("history", "list the stored measurement cycles (filter by job, date, vehicle, pass/fail; export CSV)"),
+    "report": ("report", "write the printable before/after report (HTML, optionally PDF) of a job"),
+    "odometry": ("odometry", "stereo visual odometry of an image sequence (paper section 3.3)"),
+    "errors": ("errors", "list the station's error codes (the PLC's fault codes)"),
 }
 
 EXIT_ERROR = 2
@@ -47,21 +47,28 @@ EXIT_INTERNAL = 3
 EXIT_INTERRUPTED = 130
 
 
-def _available() -> dict[str, str]:
-    return {name: mod for name, mod in COMMANDS.items()
-            if importlib.util.find_spec(f"station.commands.{mod}") is not None}
-
-
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The parser of every command's name and help line; ``command``'s arguments too (its
+    module imported, its ``run`` the parsed arguments' ``_run``)."""
     parser = argparse.ArgumentParser(prog="station", description="Wheel alignment station.")
     parser.add_argument("--config", metavar="PATH", help="station configuration (default: config/station.yaml, or $STATION_CONFIG)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for name, mod in _available().items():
-        module = importlib.import_module(f"station.commands.{mod}")
-        p = sub.add_parser(name, help=module.HELP, description=module.HELP)
-        module.add_arguments(p)
-        p.set_defaults(_run=module.run)
+    for name, (mod, text) in COMMANDS.items():
+        p = sub.add_parser(name, help=text, description=text, add_help=name == command)
+        if name == command:
+            module = importlib.import_module(f"station.commands.{mod}")
+            module.add_arguments(p)
+            p.set_defaults(_run=module.run)
     return parser
+
+
+def _command_of(argv: list[str]) -> str | None:
+    """The command named in ``argv`` (the first argument that is one), else None."""
+    probe = argparse.ArgumentParser(add_help=False)
+    probe.add_argument("--config")
+    probe.add_argument("command", nargs="?")
+    known, _ = probe.parse_known_args(argv)
+    return known.command if known.command in COMMANDS else None
 
 
 def _crash_log(exc: BaseException) -> Path:
@@ -76,7 +83,8 @@ def _crash_log(exc: BaseException) -> Path:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser(_command_of(argv))
     args = parser.parse_args(argv)
     if not getattr(args, "_run", None):
         parser.print_help()

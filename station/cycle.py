@@ -2,7 +2,8 @@
 
 :class:`Station` is assembled once from the configuration (cameras through the driver
 registry, the calibration file); nothing below asks whether it is simulated: the sim://
-driver brings its world through ``drivers.registry.build_context``. Everything a cycle
+driver brings its simulated station through ``drivers.registry.build_context``, and the
+truth it adds reaches the cycle through ``drivers.context.Simulation``. Everything a cycle
 produces is kept: the frames (even of a failed cycle), the result JSON, the Rerun
 recording and the history row; a failure to record or store becomes a warning on the
 result, never a lost measurement.
@@ -18,6 +19,7 @@ from typing import Callable
 
 from calibration.calib_file import StationCalibration, load_calibration, software_version
 from calibration.errors import CalibrationMismatch
+from drivers.context import DriverContext
 from drivers.registry import build_context
 from station.capture.cameras import close_cameras, open_station_cameras, open_trigger_board
 from station.capture.saving import capture_and_save, new_cycle_id
@@ -35,7 +37,7 @@ def _say(msg: str) -> None:
     print(msg, flush=True)
 
 
-def open_capture(config: StationConfig, context: dict):
+def open_capture(config: StationConfig, context: DriverContext):
     """Open the cameras and the trigger board: (cameras, board or None, capture deadline s).
     The simulated cameras may ask for a longer deadline than the configured one."""
     cameras = open_station_cameras(config, context)
@@ -44,7 +46,7 @@ def open_capture(config: StationConfig, context: dict):
     except CODED_ERRORS:
         close_cameras(cameras)
         raise
-    return cameras, board, max(config.capture.timeout_s, float(context.get("capture_timeout_s", 0)))
+    return cameras, board, max(config.capture.timeout_s, context.capture_timeout_s)
 
 
 class Station:
@@ -79,7 +81,7 @@ class Station:
         close_cameras(self.cameras)
         if self.trigger_board is not None:
             self.trigger_board.close()
-        self.context.get("close", lambda: None)()
+        self.context.close()
 
     # --- one cycle --------------------------------------------------------------------------
     def measure(self, *, job_id: str | None = None, vehicle_spec: str | None = None,
@@ -105,7 +107,7 @@ class Station:
     def _capture(self, cycle: _Cycle) -> dict:
         """The cycle's frames. A failed capture's result is kept (``cycle.failed``) and its error raised."""
         cfg = self.config
-        cycle.truth = self.context.get("truth", lambda: None)()
+        cycle.truth = self.context.simulation.truth() if self.context.simulation else None
         captures_dir = cfg.data_path("captures", cycle.cycle_id)
         n = cfg.capture.frames_averaged
         self.progress(f"cycle {cycle.cycle_id}: capturing {len(self.cameras)} cameras"

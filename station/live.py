@@ -8,9 +8,9 @@ camera's previous ellipse as the prior (the detector's fast path; it falls back 
 search by itself), the 3-D circle of each live wheel, and the angles in the car frame with the
 other wheels' last measured centres and axes.
 
-Nothing here asks whether the station is simulated, except one place: on a sim:// station the
-simulated toe adjustment (simulators/adjustment.py) is swapped into the driver context before
-the cameras open.
+Nothing here asks whether the station is simulated, except one place: on a sim:// station
+(``drivers.context.Simulation``) a simulated technician turns the live wheel's tie rod while the
+loop runs, and each reading carries the true toe.
 """
 
 from __future__ import annotations
@@ -76,15 +76,11 @@ class LiveSession:
         self.pairs = {w: (config.pairs[w].precision, config.pairs[w].reference) for w in WHEELS}
         self.live_cams = [c for w in self.live_wheels for c in self.pairs[w]]
         self.context = build_context([c.uri for c in config.cameras.values()], config, seed=seed)
-        self.adjustment = None
-        if "sim_world" in self.context:  # the simulated station: a simulated tie-rod adjustment
-            from simulators.adjustment import install
-            wheel = self.live_wheels[0]
-            toe0 = self.context["sim_world"].scene.vehicle.toe_deg[wheel]
-            steps = toe0 + np.linspace(0.0, toe_span_deg, n_steps)
+        self.simulation = self.context.simulation
+        if self.simulation is not None:  # the simulated station: a simulated tie-rod adjustment
             cache = Path(cache_dir) if cache_dir else config.data_path("live-cache")
-            self.adjustment = install(self.context, config, seed, wheel, steps, self.live_cams, cache,
-                                      progress=progress, hold=hold)
+            self.simulation.start_toe_adjustment(self.live_wheels[0], toe_span_deg, n_steps, self.live_cams, cache,
+                                                 progress, hold)
         self.cameras, self.trigger_board, self.timeout_s = open_capture(config, self.context)
         self.previous: dict = {}  # cam id -> its last RimDetection (tracking)
         self.circles: dict = {}   # wheel -> its last 3-D circle (WheelFit), the next fit's start
@@ -108,7 +104,7 @@ class LiveSession:
         close_cameras(self.cameras)
         if self.trigger_board is not None:
             self.trigger_board.close()
-        self.context.get("close", lambda: None)()
+        self.context.close()
 
     # --- the car frame: one full cycle --------------------------------------------------------
     def baseline(self) -> Measurement:
@@ -169,8 +165,8 @@ class LiveSession:
                     reading.total_toe_deg[axle] = float(angles["axles"][axle]["total_toe_deg"])
         t4 = time.perf_counter()
         reading.timing_s = {"capture": t1 - t0, "wheels": t2 - t1, **work, "angles": t4 - t3, "total": t4 - t0}
-        if self.adjustment is not None:
-            truth = self.adjustment.truth()
+        if self.simulation is not None:
+            truth = self.simulation.truth()
             reading.truth_toe_deg = {w: truth["wheels"][w]["toe_deg"] for w in self.live_wheels}
         self.n += 1
         return reading

@@ -13,6 +13,7 @@ from drivers.base import Camera, Frame
 from drivers.errors import CameraMissing, CameraTimeout, DriverError, FrameError
 from drivers.registry import create_camera
 from drivers.trigger_board import TriggerBoard
+from simulators.sim_station import SimulatedStation
 from simulators.trigger_board_sim import TriggerBoardSim
 from station.capture.cameras import close_cameras, open_station_cameras
 from station.capture.saving import capture_and_save, new_cycle_id, save_capture
@@ -30,7 +31,7 @@ def world():
 
 
 def test_eight_software_triggered_cameras(config, world):
-    cams = open_station_cameras(config, {"sim_world": world})
+    cams = open_station_cameras(config, SimulatedStation(world).context())
     assert list(cams) == IDS and all(c.is_open for c in cams.values())
     t = time.monotonic()
     frames = capture_cycle(cams, 3.0)
@@ -46,7 +47,7 @@ def test_eight_software_triggered_cameras(config, world):
 
 def test_hardware_trigger_through_the_board(config, world):
     with TriggerBoardSim() as sim, TriggerBoard(sim.port, timeout_s=2.0) as board:
-        cams = open_station_cameras(config, {"sim_world": world, "trigger_lines": sim.lines})
+        cams = open_station_cameras(config, SimulatedStation(world, trigger_lines=sim.lines).context())
         for c in cams.values():
             c.configure(trigger="hardware")
         frames = capture_cycle(cams, 3.0, trigger_board=board)
@@ -69,7 +70,7 @@ def test_hardware_trigger_through_the_board(config, world):
 
 
 def test_missing_and_late_cameras_are_named_and_the_deadline_holds(config, world):
-    cams = open_station_cameras(config, {"sim_world": world})
+    cams = open_station_cameras(config, SimulatedStation(world).context())
     world.delay["cam3"] = 1.6  # late
     world.dead.add("cam6")  # broken
     t = time.monotonic()
@@ -98,7 +99,7 @@ class _LateCam(Camera):
 
 
 def test_max_skew_names_the_slow_camera(config, world):
-    cams = open_station_cameras(config, {"sim_world": world})
+    cams = open_station_cameras(config, SimulatedStation(world).context())
     cams["cam8"] = _LateCam("cam8", "late://", cams["cam1"].settings).open()
     frames = capture_cycle(cams, 3.0)  # without a skew limit only the deadline counts
     assert frames["cam8"].metadata["latency_ms"] >= 110
@@ -119,7 +120,7 @@ def test_stale_and_repeated_frames_are_refused(config, world):
         def _grab(self, timeout_s):
             return Frame(self.camera_id, np.zeros((30, 40), np.uint8), time.monotonic_ns(), 5)
 
-    cams = open_station_cameras(config, {"sim_world": world})
+    cams = open_station_cameras(config, SimulatedStation(world).context())
     s = cams["cam1"].settings
     cams["cam2"] = Stale("cam2", "x://", s).open()
     cams["cam4"] = Repeat("cam4", "y://", s).open()
@@ -134,7 +135,7 @@ def test_opening_fails_once_listing_every_camera(tmp_path, world):
     uris = {"cam2": f"replay://{tmp_path / 'nowhere'}", "cam5": "v4l2:///dev/video98"}
     config = station_config(tmp_path, uris)
     with pytest.raises(CameraMissing) as e:
-        open_station_cameras(config, {"sim_world": world})
+        open_station_cameras(config, SimulatedStation(world).context())
     assert set(e.value.failures) == {"cam2", "cam5"}
     assert "(cam2, cam5)" in str(e.value) and "/dev/video98" in str(e.value)
     # sim cameras without a world: every one is named, in one error
@@ -147,11 +148,11 @@ def test_two_cameras_with_one_address(tmp_path, world):
     uris = {"cam1": "aravis://10.0.0.7", "cam2": "aravis://10.0.0.7/"}  # the loader sees two URIs
     config = station_config(tmp_path, uris)
     with pytest.raises(DriverError, match="cam2 and cam1 both use aravis://10.0.0.7"):
-        open_station_cameras(config, {"sim_world": world})
+        open_station_cameras(config, SimulatedStation(world).context())
 
 
 def test_saved_cycle_replays_bit_for_bit(config, world, tmp_path):
-    cams = open_station_cameras(config, {"sim_world": world})
+    cams = open_station_cameras(config, SimulatedStation(world).context())
     frames, path = capture_and_save(cams, 3.0, config.data_path("captures", new_cycle_id()),
                                     truth={"toe_deg": 0.1})
     meta = json.loads((path / "cycle.json").read_text())
@@ -164,7 +165,7 @@ def test_saved_cycle_replays_bit_for_bit(config, world, tmp_path):
 
 
 def test_a_failed_cycle_keeps_what_arrived(config, world, tmp_path):
-    cams = open_station_cameras(config, {"sim_world": world})
+    cams = open_station_cameras(config, SimulatedStation(world).context())
     world.dead.add("cam7")
     with pytest.raises(DriverError) as e:
         capture_and_save(cams, 3.0, tmp_path / "cycle-x")
@@ -235,7 +236,7 @@ def test_station_cameras_lists_failures_without_a_traceback(tmp_path, capsys):
 def test_station_cycle_saves_under_data_dir_unless_told_not_to(tmp_path, world):
     from station.capture.saving import capture_station_cycle
     config = station_config(tmp_path)
-    cams = open_station_cameras(config, {"sim_world": world})
+    cams = open_station_cameras(config, SimulatedStation(world).context())
     frames, path = capture_station_cycle(cams, config, truth={"x": 1})
     assert path.parent == config.data_path("captures") and len(frames) == 8
     assert json.loads((path / "cycle.json").read_text())["station"] == config.name

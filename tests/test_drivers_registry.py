@@ -10,6 +10,7 @@ import pytest
 import drivers.aravis as aravis
 from drivers.base import CameraSettings
 from drivers.errors import DriverError
+from drivers.context import DriverContext
 from drivers.registry import build_context, create_camera
 
 
@@ -40,11 +41,11 @@ def test_sim_context_builds_the_world_once(tmp_path):
     from camera_fakes import station_config
     config = station_config(tmp_path, width=32, height=24)
     ctx = build_context([c.uri for c in config.cameras.values()], config, seed=3)
-    world = ctx["sim_world"]
+    world = ctx.simulation.world
     assert set(world.cameras) == set(config.cameras) and world.scene.vehicle is not None
-    truth = ctx["truth"]()
+    truth = ctx.simulation.truth()
     assert set(truth["wheels"]) == {"FL", "FR", "RL", "RR"} and set(truth["cameras"]) == set(config.cameras)
-    assert "trigger_board_port" not in ctx  # no board configured
+    assert ctx.trigger_board_port is None  # no board configured
 
 
 def test_sim_station_with_a_simulated_trigger_board(tmp_path):
@@ -59,7 +60,7 @@ def test_sim_station_with_a_simulated_trigger_board(tmp_path):
     config = load_config(config.path)
     from station.capture.cameras import open_trigger_board
     with pytest.raises(DriverError, match="no simulated board was started"):
-        open_trigger_board(config, {})
+        open_trigger_board(config, DriverContext())
     ctx = build_context([c.uri for c in config.cameras.values()], config)
     try:
         cams = open_station_cameras(config, ctx)
@@ -70,4 +71,4 @@ def test_sim_station_with_a_simulated_trigger_board(tmp_path):
         assert len(frames) == 8 and len({f.timestamp_ns for f in frames.values()}) == 1
         close_cameras(cams)
     finally:
-        ctx["close"]()
+        ctx.close()

@@ -10,16 +10,22 @@ import pytest
 from camera_fakes import FakeWorld, station_config
 from drivers.base import CameraSettings
 from drivers.errors import CameraMissing, CameraTimeout, DriverError
+from drivers.context import DriverContext
 from drivers.registry import create_camera
 from drivers.trigger_board import TriggerBoard
+from simulators.sim_station import SimulatedStation
 from simulators.trigger_board_sim import TriggerBoardSim, TriggerLines
 
 S = CameraSettings(40, 30)
 
 
-def _cam(world, uri="sim://cam3", trigger="software", **ctx):
+def _ctx(world, **station):
+    return SimulatedStation(world, **station).context()
+
+
+def _cam(world, uri="sim://cam3", trigger="software", **station):
     from dataclasses import replace
-    return create_camera("cam3", uri, replace(S, trigger=trigger), {"sim_world": world, **ctx}).open()
+    return create_camera("cam3", uri, replace(S, trigger=trigger), _ctx(world, **station)).open()
 
 
 def test_software_trigger_and_determinism():
@@ -35,7 +41,7 @@ def test_software_trigger_and_determinism():
     assert np.array_equal(f1.image, expect)
     again = _cam(FakeWorld())
     assert np.array_equal(again.snap(1.0).image, f0.image)  # same world/seed -> same frames
-    other = _cam(FakeWorld(), sim_seed=8)
+    other = _cam(FakeWorld(), seed=8)
     assert not np.array_equal(other.snap(1.0).image, f0.image)
     ident = cam.identity()
     assert (ident.vendor, ident.serial, ident.width, ident.height) == ("simulated", "SIM-cam3", 40, 30)
@@ -75,23 +81,21 @@ def test_free_run_frames_on_a_clock():
 
 def test_errors_name_the_camera():
     with pytest.raises(DriverError, match="cam3: sim:// cameras need the simulated station"):
-        create_camera("cam3", "sim://cam3", S, {}).open()
+        create_camera("cam3", "sim://cam3", S, DriverContext()).open()
     with pytest.raises(CameraMissing, match="no camera 'cam9'"):
         _cam(FakeWorld(), uri="sim://cam9")
     with pytest.raises(DriverError, match="40x30, configured for 64x48"):
-        create_camera("cam3", "sim://cam3", CameraSettings(64, 48), {"sim_world": FakeWorld()}).open()
-    with pytest.raises(DriverError, match="hardware trigger needs the simulated trigger wires"):
-        _cam(FakeWorld(), trigger="hardware")
+        create_camera("cam3", "sim://cam3", CameraSettings(64, 48), _ctx(FakeWorld())).open()
     with pytest.raises(DriverError, match="BayerRG8"):
-        create_camera("cam3", "sim://cam3", CameraSettings(40, 30, "BayerRG8"), {"sim_world": FakeWorld()}).open()
+        create_camera("cam3", "sim://cam3", CameraSettings(40, 30, "BayerRG8"), _ctx(FakeWorld())).open()
     with pytest.raises(DriverError, match="unknown trigger mode 'external'"):
-        create_camera("cam3", "sim://cam3", CameraSettings(40, 30, trigger="external"), {"sim_world": FakeWorld()}).open()
+        create_camera("cam3", "sim://cam3", CameraSettings(40, 30, trigger="external"), _ctx(FakeWorld())).open()
 
 
 def test_mono16_and_roi():
     from dataclasses import replace
     cam = create_camera("cam3", "sim://cam3", replace(S, pixel_format="Mono16", roi=(4, 2, 16, 8)),
-                        {"sim_world": FakeWorld()}).open()
+                        _ctx(FakeWorld())).open()
     f = cam.snap(1.0)
     assert f.image.dtype == np.uint16 and f.image.shape == (8, 16)
     full = FakeWorld().render("cam3", np.random.default_rng([7, 3, 0]))
@@ -103,7 +107,7 @@ def test_real_sim_world_small(tmp_path):
     from simulators.world import SimWorld
     config = station_config(tmp_path, width=64, height=48)
     world = SimWorld.from_config(config)
-    cam = create_camera("cam1", "sim://cam1", CameraSettings(64, 48), {"sim_world": world}).open()
+    cam = create_camera("cam1", "sim://cam1", CameraSettings(64, 48), _ctx(world)).open()
     f = cam.snap(30.0)
     assert f.image.shape == (48, 64) and f.image.dtype == np.uint8
     assert np.array_equal(f.image, world.render("cam1", np.random.default_rng([7, 1, 0])))

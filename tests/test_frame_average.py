@@ -11,6 +11,7 @@ from camera_fakes import IDS, station_config
 from drivers.base import AVERAGED_FRAMES_KEY, CameraSettings, Frame
 from drivers.errors import FrameError
 from drivers.registry import create_camera
+from simulators.sim_station import SimulatedStation
 from station.capture.cameras import open_station_cameras
 from station.capture.saving import capture_and_save
 from station.capture.sync import capture_averaged
@@ -80,7 +81,7 @@ def test_averaged_frames_name_their_burst():
 def test_a_cycle_captures_the_burst_and_a_replay_serves_it_once(tmp_path):
     config = station_config(tmp_path, width=64, height=48)
     world = CleanWorld()
-    cams = open_station_cameras(config, {"sim_world": world})
+    cams = open_station_cameras(config, SimulatedStation(world).context())
     frames, path = capture_and_save(cams, 3.0, tmp_path / "cycle", frames_averaged=6)
     assert set(frames) == set(IDS)
     f = frames["cam3"]
@@ -100,7 +101,7 @@ def test_a_cycle_captures_the_burst_and_a_replay_serves_it_once(tmp_path):
 
 def test_one_frame_is_the_raw_frame(tmp_path):
     config = station_config(tmp_path, width=64, height=48)
-    cams = open_station_cameras(config, {"sim_world": CleanWorld()})
+    cams = open_station_cameras(config, SimulatedStation(CleanWorld()).context())
     frames = capture_averaged(cams, 3.0, frames=1)
     assert frames["cam1"].image.dtype == np.uint8 and AVERAGED_FRAMES_KEY not in frames["cam1"].metadata
 

@@ -146,10 +146,12 @@ def test_missing_calibration_and_folders(seq_copy, tmp_path):
         open_sequence(seq_copy)
 
 
-def test_simulate_refuses_a_non_empty_folder(small_seq, capsys):
-    rc = cli.main(["odometry", str(small_seq), "--simulate", "short"])
-    assert rc == cli.EXIT_ERROR
-    assert "not empty" in capsys.readouterr().err
+def test_the_sequence_renderer_refuses_a_non_empty_folder(small_seq, capsys):
+    from simulators.odometry_scene import main
+
+    rc = main([str(small_seq), "--kind", "short"])
+    assert rc == 2
+    assert "not a new or empty folder" in capsys.readouterr().err
 
 
 def test_unwritable_output_is_a_clear_error(small_seq, tmp_path, capsys):

@@ -11,6 +11,7 @@ from __future__ import annotations
 import time
 
 from drivers.base import Camera, CameraSettings
+from drivers.context import DriverContext
 from drivers.errors import DriverError
 from drivers.registry import create_camera, uri_address
 from station.capture.sync import failure_error, run_parallel
@@ -40,7 +41,7 @@ def check_unique_addresses(uris: dict[str, str]) -> None:
                           hint="give every camera its own URI in the station configuration")
 
 
-def open_cameras(specs: dict[str, tuple[str, CameraSettings]], context: dict | None = None,
+def open_cameras(specs: dict[str, tuple[str, CameraSettings]], context: DriverContext | None = None,
                  timeout_s: float = OPEN_TIMEOUT_S) -> tuple[dict[str, Camera], dict[str, str]]:
     """Open cameras concurrently: (the open ones, {camera id: why it failed}). Never raises."""
     check_unique_addresses({cid: uri for cid, (uri, _) in specs.items()})
@@ -59,12 +60,12 @@ def open_cameras(specs: dict[str, tuple[str, CameraSettings]], context: dict | N
     return cams, failures
 
 
-def open_station_cameras(config, context: dict | None = None,
+def open_station_cameras(config, context: DriverContext | None = None,
                          ids: list[str] | None = None) -> dict[str, Camera]:
     """Open the configured cameras (all, or ``ids``); ONE error listing every camera that failed.
 
-    ``context`` reaches the drivers: ``{"sim_world": world}`` for sim://, plus
-    ``{"trigger_lines": lines}`` for simulated hardware triggers.
+    ``context`` reaches the drivers (drivers/context.py: sim:// cameras find their simulated
+    station there).
     """
     ids = list(ids or config.cameras)
     specs = {cid: (config.cameras[cid].uri, settings_for(config.cameras[cid])) for cid in ids}
@@ -76,11 +77,12 @@ def open_station_cameras(config, context: dict | None = None,
     return {cid: cams[cid] for cid in ids}
 
 
-def open_trigger_board(config, context: dict | None = None):
+def open_trigger_board(config, context: DriverContext | None = None):
     """The configured trigger board, open (drivers.trigger_board.TriggerBoard), or None when the
     cameras trigger themselves (``trigger_board.port: null``). ``trigger_board.port: sim`` uses
-    the simulated board that ``build_context`` started (``context["trigger_board_port"]``)."""
-    port = (context or {}).get("trigger_board_port", config.trigger_board.port)
+    the simulated board that ``build_context`` started (``context.trigger_board_port``)."""
+    started = context.trigger_board_port if context is not None else None
+    port = started or config.trigger_board.port
     if not port:
         return None
     if port == "sim":

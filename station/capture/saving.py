@@ -13,6 +13,7 @@ import logging
 from pathlib import Path
 
 from drivers.base import Camera, Frame
+from drivers.context import DriverContext
 from drivers.frame_store import save_cycle
 from station.capture.sync import capture_averaged
 from station.errors import CODED_ERRORS
@@ -59,12 +60,12 @@ def capture_and_save(cameras: dict[str, Camera], timeout_s: float, out_dir, *, t
     return frames, save_capture(frames, out_dir, truth=truth, extra=extra)
 
 
-def capture_station_cycle(cameras: dict[str, Camera], config, *, trigger_board=None, context: dict | None = None,
+def capture_station_cycle(cameras: dict[str, Camera], config, *, trigger_board=None, context: DriverContext | None = None,
                           truth: dict | None = None, extra: dict | None = None) -> tuple[dict[str, Frame], Path | None]:
     """The station's cycle: capture with ``capture.timeout_s`` (or the simulated cameras' own
     deadline from ``context``) and, if ``capture.keep_captures``, save under
     ``<data_dir>/captures/<cycle id>`` (a failed cycle's partial set too). (frames, path or None)."""
-    timeout = max(config.capture.timeout_s, (context or {}).get("capture_timeout_s", 0.0))
+    timeout = max(config.capture.timeout_s, context.capture_timeout_s if context is not None else 0.0)
     n = config.capture.frames_averaged
     if not config.capture.keep_captures:
         return capture_averaged(cameras, timeout, trigger_board, frames=n), None

@@ -15,8 +15,6 @@ import cv2
 from station.config import load_box, load_config
 from station.errors import ConfigError, StorageError
 
-HELP = "write the calibration box's faces as PNG images at true scale for manufacturing"
-
 
 def add_arguments(parser) -> None:
     parser.add_argument("--out", required=True, metavar="DIR", help="directory for the PNG files")

@@ -13,20 +13,9 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
 
-from calibration.box_detect import BoxDetector
-from calibration.calib_file import save_calibration
 from calibration.errors import CalibrationError, CalibrationRejected
-from calibration.refine import INTRINSIC_NAMES
-from calibration.station_calibration import assemble, calibrate_pair, check_limits, fixture_poses
-from drivers.registry import build_context
-from station.capture.cameras import close_cameras, open_station_cameras
-from station.capture.sync import capture_averaged
 from station.config import load_box, load_config
-from station.operator import TerminalOperator
-
-HELP = "calibrate the eight cameras and four pairs with the calibration box"
 
 
 def add_arguments(parser) -> None:
@@ -41,22 +30,30 @@ def _progress(text: str) -> None:
 
 
 def run(args) -> int:
+    from calibration.box_detect import BoxDetector
+    from calibration.calib_file import save_calibration
+    from calibration.station_calibration import assemble, calibrate_pair, check_limits, fixture_poses
+    from drivers.registry import build_context
+    from station.capture.cameras import close_cameras, open_station_cameras
+    from station.capture.sync import capture_averaged
+    from station.operator import TerminalOperator
+
     config = load_config(args.config)
     box = load_box(config.box_path)
     n_poses = args.poses or config.calibration.intrinsic_poses
     if n_poses < 3:
         raise CalibrationError(f"--poses {n_poses}: at least 3 box poses are needed for the intrinsics")
-    # Assemble once, through the driver registry: sim:// brings its simulated world in the context.
+    # Assemble once, through the driver registry: sim:// brings its simulated station in the context.
     context = build_context([c.uri for c in config.cameras.values()], config)
     # A simulated station brings the operator who places the box; a real one has a person.
-    make_operator = context.get("calibration_operator")
-    operator = make_operator(box, args.seed) if make_operator else TerminalOperator()
+    sim = context.simulation
+    operator = sim.calibration_operator(box, args.seed) if sim is not None else TerminalOperator()
     try:
         cameras = open_station_cameras(config, context)
     except BaseException:
-        context.get("close", lambda: None)()
+        context.close()
         raise
-    timeout = max(float(config.capture.timeout_s), float(context.get("capture_timeout_s", 0)))
+    timeout = max(float(config.capture.timeout_s), context.capture_timeout_s)
     detector = BoxDetector(box)
 
     # The box stands still like the car: each image is the mean of a burst (capture.frames_averaged),
@@ -90,7 +87,7 @@ def run(args) -> int:
         operator.done()
     finally:
         close_cameras(cameras)
-        context.get("close", lambda: None)()
+        context.close()
     calib = assemble(config, results, box)
     print_tables(calib)
     reasons = check_limits(calib, config.calibration.limits)
@@ -106,6 +103,10 @@ def run(args) -> int:
 
 
 def print_tables(calib) -> None:
+    import numpy as np
+
+    from calibration.refine import INTRINSIC_NAMES
+
     print("camera  fx(px)    fy(px)    cx(px)   cy(px)   k1       k2       k3       p1        p2        "
           "rms(px) points  std fx  std cx  std cy  std k1   pos std(mm) rot std(deg)")
     for cam_id, c in calib.cameras.items():

@@ -5,8 +5,6 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-HELP = "list the configured cameras and their state (open, model, serial, resolution, last frame)"
-
 
 def add_arguments(parser):
     parser.add_argument("--snap", action="store_true", help="grab one frame from every open camera now")
@@ -32,6 +30,7 @@ def last_saved_frames(captures_dir: Path) -> dict[str, dict]:
 
 
 def run(args) -> int:
+    from drivers.context import DriverContext
     from drivers.registry import build_context
     from station.capture.cameras import close_cameras, open_cameras, settings_for
     from station.config import load_config
@@ -41,7 +40,7 @@ def run(args) -> int:
     try:
         context = build_context([c.uri for c in config.cameras.values()], config)
     except CODED_ERRORS as e:
-        context, context_error = {}, str(e)
+        context, context_error = DriverContext(), str(e)
     else:
         context_error = None
     specs = {cid: (c.uri, settings_for(c)) for cid, c in config.cameras.items()}
@@ -55,7 +54,7 @@ def run(args) -> int:
                 cam = cams[cid]
                 if args.snap:
                     try:
-                        cam.snap(max(config.capture.timeout_s, context.get("capture_timeout_s", 0)))
+                        cam.snap(max(config.capture.timeout_s, context.capture_timeout_s))
                     except CODED_ERRORS as e:
                         row["error"] = str(e)
                 st = cam.state()
@@ -74,7 +73,7 @@ def run(args) -> int:
             rows.append(row)
     finally:
         close_cameras(cams)
-        context.get("close", lambda: None)()
+        context.close()
     if args.json:
         print(json.dumps(rows, indent=1))
     else:

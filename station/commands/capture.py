@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-HELP = "capture one synchronised set from all cameras and save it (lossless PNG + metadata)"
-
 
 def add_arguments(parser):
     parser.add_argument("--out", metavar="DIR", help="directory to create for the set "
@@ -35,13 +33,13 @@ def run(args) -> int:
         raise StationError(f"{out} already exists; a capture is never written over another",
                            hint="choose a new --out directory")
     context = build_context([c.uri for c in config.cameras.values()], config, seed=args.seed)
-    timeout = args.timeout or max(config.capture.timeout_s, context.get("capture_timeout_s", 0.0))
+    timeout = args.timeout or max(config.capture.timeout_s, context.capture_timeout_s)
     board = None
     cameras: dict = {}
     try:
         cameras = open_station_cameras(config, context)
         board = open_trigger_board(config, context)
-        truth = context["truth"]() if "truth" in context else None
+        truth = context.simulation.truth() if context.simulation is not None else None
         t0 = time.monotonic()
         try:
             frames, path = capture_and_save(cameras, timeout, out, trigger_board=board, truth=truth,
@@ -54,7 +52,7 @@ def run(args) -> int:
         if board is not None:
             board.close()
         close_cameras(cameras)
-        context.get("close", lambda: None)()
+        context.close()
     stamps = [f.timestamp_ns for f in frames.values()]
     burst = f" (each the mean of {n_frames})" if n_frames > 1 else ""
     print(f"captured {len(frames)} frames{burst} in {time.monotonic() - t0:.2f} s, frame timestamps within "

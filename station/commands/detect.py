@@ -9,8 +9,6 @@ import numpy as np
 
 from station.errors import ImageError, StorageError
 
-HELP = "find the rim ellipse in one photograph of a wheel (PNG or JPEG, colour or grey, any size)"
-
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 JPEG_MAGIC = b"\xff\xd8"
 SRGB_GAMMA = 0.45  # sRGB's curve, as one exponent

@@ -2,8 +2,6 @@
 
 from station.errors import all_error_classes
 
-HELP = "list the station's error codes (the PLC's fault codes)"
-
 
 def add_arguments(parser):
     pass

@@ -9,8 +9,6 @@ import sys
 from station.config import load_config
 from station.records.history import History, export_csv
 
-HELP = "list the stored measurement cycles (filter by job, date, vehicle, pass/fail; export CSV)"
-
 
 def _when(text: str) -> str:
     try:

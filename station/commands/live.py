@@ -6,8 +6,6 @@ import sys
 
 from station.config import load_config
 
-HELP = "live toe and camber of one axle while a wheel is adjusted (Ctrl-C to stop)"
-
 
 def add_arguments(parser):
     parser.add_argument("--axle", choices=["front", "rear", "all"], default="front",

@@ -9,8 +9,6 @@ from calibration.station_frame import AXLES, WHEELS
 from station.config import load_config
 from station.result import Measurement
 
-HELP = "measure toe and camber of all four wheels (one cycle on the configured station)"
-
 
 def add_arguments(parser):
     parser.add_argument("--seed", type=int, default=None,

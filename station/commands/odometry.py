@@ -4,7 +4,7 @@ Reads our simulated layout or KITTI's (docs/odometry.md), runs the paper's metho
 robust variant, prints the trajectory and, when ``poses.txt`` gives the truth, the error per
 step (eq. 49) with its mean and standard deviation and the drift in % of the distance
 travelled. Writes each trajectory as a KITTI pose file and, with ``--rerun``, a recording.
-``--simulate short|long`` first renders a simulated sequence into DIR.
+A simulated sequence to run it on: ``python -m simulators.odometry_scene DIR``.
 """
 
 from __future__ import annotations
@@ -15,8 +15,6 @@ from pathlib import Path
 import numpy as np
 
 from station.errors import OdometryError
-
-HELP = "stereo visual odometry of an image sequence (paper section 3.3)"
 
 
 def add_arguments(parser) -> None:
@@ -30,9 +28,6 @@ def add_arguments(parser) -> None:
     parser.add_argument("--rerun", metavar="FILE.rrd", help="also write a Rerun recording")
     parser.add_argument("--poses", metavar="FILE", help="ground-truth poses (KITTI format) if not DIR/poses.txt")
     parser.add_argument("--max-steps", type=int, metavar="N", help="stop after N steps")
-    parser.add_argument("--simulate", choices=("short", "long"), help="first render a simulated "
-                        "sequence into DIR: 'short' (11 steps, like the paper's) or 'long' (243 steps)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the simulated scene (default 0)")
     parser.add_argument("--quiet", action="store_true", help="print the summary only")
 
 
@@ -45,17 +40,6 @@ def _out_paths(args, methods) -> dict[str, Path]:
     return {m: Path(args.directory) / f"trajectory_{m}.txt" for m in methods}
 
 
-def _simulate(directory: Path, kind: str, seed: int) -> None:
-    # A development aid: the simulator is imported only when asked for.
-    from simulators.odometry_scene import write_sequence
-
-    if directory.exists() and any(directory.iterdir()):
-        raise OdometryError(f"{directory}: not empty; --simulate writes a new sequence",
-                            hint="give a new folder")
-    print(f"rendering the {kind} simulated sequence into {directory} ...", file=sys.stderr)
-    write_sequence(directory, kind, seed=seed)
-
-
 def run(args) -> int:
     from station.odometry.pipeline import run_odometry
     from station.odometry.sequence_io import open_sequence
@@ -64,8 +48,6 @@ def run(args) -> int:
     if args.max_steps is not None and args.max_steps < 1:
         raise OdometryError(f"--max-steps must be at least 1, got {args.max_steps}")
     directory = Path(args.directory)
-    if args.simulate:
-        _simulate(directory, args.simulate, args.seed)
     seq = open_sequence(directory, args.poses)
     methods = ("paper", "robust") if args.method == "both" else (args.method,)
     print(f"{directory}: {len(seq)} stereo images ({seq.layout} layout), "

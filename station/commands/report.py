@@ -8,8 +8,6 @@ from station.records.history import History
 from station.records.report import build_report, render_with_chromium, safe_filename, write_report
 from station.records.vehicle_specs import load_vehicle_specs
 
-HELP = "write the printable before/after report (HTML, optionally PDF) of a job"
-
 
 def add_arguments(parser):
     parser.add_argument("job", metavar="JOB", help="the job id / VIN (as stored with the cycles)")

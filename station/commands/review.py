@@ -11,9 +11,6 @@ from pathlib import Path
 from station.config import load_config
 from station.errors import StorageError
 from station.records.history import History
-from station.records.recording import read_recording_summary
-
-HELP = "open a cycle's recording in the Rerun viewer (default: the newest cycle)"
 
 
 def add_arguments(parser):
@@ -60,6 +57,8 @@ def _find(config, args) -> list[Path]:
 
 
 def _print_summary(path: Path) -> None:
+    from station.records.recording import read_recording_summary  # (Rerun: imported when used)
+
     s = read_recording_summary(path)
     print(f"{path}  ({s['bytes'] / 1e6:.2f} MB, recording id {s['recording_id']})")
     print(f"  {s['images']} image(s), {len(s['entities'])} entities, timelines: {', '.join(s['timelines'])}")

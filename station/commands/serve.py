@@ -10,8 +10,6 @@ import sys
 from station.config import load_config
 from station.errors import ConfigError
 
-HELP = "serve the station to the shop PLC over Modbus TCP or RTU (register map: docs/plc.md)"
-
 
 def add_arguments(parser):
     parser.add_argument("--host", help="address to listen on (default: plc.host, 127.0.0.1)")
