@@ -323,22 +323,27 @@ class StationConfig:
         return self.data_dir.joinpath(*parts)
 
 
-def load_config(path: str | os.PathLike | None = None) -> StationConfig:
-    """Read, parse and validate the station configuration. Raises ConfigError."""
-    path = Path(path) if path else Path(os.environ.get("STATION_CONFIG", DEFAULT_CONFIG))
+def read_yaml(path: Path, what: str, hint: str) -> Any:
+    """The parsed YAML file ``path``, ``what`` it holds naming it in a ConfigError when it is
+    missing (with ``hint``), unreadable or not YAML (with the line and column)."""
     try:
         text = path.read_text()
     except FileNotFoundError:
-        raise ConfigError(f"{path}: configuration file not found",
-                          hint="pass --config PATH or set STATION_CONFIG") from None
+        raise ConfigError(f"{path}: {what} not found", hint=hint) from None
     except OSError as e:
-        raise ConfigError(f"{path}: cannot read the configuration ({e.strerror})") from None
+        raise ConfigError(f"{path}: cannot read the {what} ({e.strerror})") from None
     try:
-        raw = yaml.safe_load(text)
+        return yaml.safe_load(text)
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
         raise ConfigError(f"{path}: not valid YAML{where}: {getattr(e, 'problem', e)}") from None
+
+
+def load_config(path: str | os.PathLike | None = None) -> StationConfig:
+    """Read, parse and validate the station configuration. Raises ConfigError."""
+    path = Path(path) if path else Path(os.environ.get("STATION_CONFIG", DEFAULT_CONFIG))
+    raw = read_yaml(path, "configuration file", "pass --config PATH or set STATION_CONFIG")
     try:
         tree = _validate(raw, SCHEMA, "")
     except _BadAt as e:
@@ -375,13 +380,7 @@ def load_box(path: str | os.PathLike) -> BoxTarget:
     from calibration.box_target import BoxTarget  # OpenCV, loaded only when a box is read
 
     path = Path(path)
-    try:
-        raw = yaml.safe_load(path.read_text())
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: box description not found",
-                          hint="calibration.box in station.yaml must name the box file") from None
-    except (OSError, yaml.YAMLError) as e:
-        raise ConfigError(f"{path}: cannot read the box description: {e}") from None
+    raw = read_yaml(path, "box description", "calibration.box in station.yaml must name the box file")
     if not isinstance(raw, dict):
         raise ConfigError(f"{path}: expected a mapping with size_m, dictionary, square_m, marker_m, faces")
     missing = [k for k in ("size_m", "dictionary", "square_m", "marker_m", "faces") if k not in raw]

@@ -16,8 +16,8 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-import yaml
 
+from station.config import read_yaml
 from station.errors import ConfigError
 from station.result import ANGLE_NAMES, Measurement
 
@@ -64,17 +64,8 @@ class VehicleSpec:
 def load_vehicle_specs(path: str | os.PathLike) -> dict[str, VehicleSpec]:
     """Read and validate a vehicles file. Returns {spec key: VehicleSpec}. Raises ConfigError."""
     path = Path(path)
-    try:
-        raw = yaml.safe_load(path.read_text())
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: vehicle specification file not found",
-                          hint="set `vehicle_specs:` in config/station.yaml to the vehicles file") from None
-    except OSError as e:
-        raise ConfigError(f"{path}: cannot read the vehicle specifications ({e.strerror})") from None
-    except yaml.YAMLError as e:
-        mark = getattr(e, "problem_mark", None)
-        where = f" at line {mark.line + 1}" if mark else ""
-        raise ConfigError(f"{path}: not valid YAML{where}: {getattr(e, 'problem', e)}") from None
+    raw = read_yaml(path, "vehicle specification file",
+                    "set `vehicle_specs:` in config/station.yaml to the vehicles file")
 
     def bad(where: str, what: str) -> ConfigError:
         return ConfigError(f"{path}: {where}: {what}",
