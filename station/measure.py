@@ -151,7 +151,8 @@ def unseen_axis_variance(o: WheelObservation, config: StationConfig) -> float:
     views (px). Decisions that a noisier capture takes the other way (which arcs, which edge
     model) move whole arcs, and the noisier its edges the more of them: at 1.3 Mpx a constant
     floor stated sigma-2 toe 1.5 times its error and sigma-5 camber 0.65 times; scaled by the
-    edges' noise, both within 0.77-1.49 on every set (docs/accuracy.md, stop 25)."""
+    edges' noise, both within 0.77-1.49 on every set (docs/measurement.md, "Uncertainty of
+    every angle"; the comparison in docs/history/accuracy.md)."""
     m = config.measurement
     q = o.circle.reprojection_rms_px
     a = float(np.mean([np.sqrt(np.prod(d.ellipse.axes_px)) for d in o.detections]))
@@ -281,7 +282,8 @@ def _small_rim_warnings(detections: dict, config: StationConfig) -> list[tuple[s
     """A warning per camera whose rim ellipse is smaller than ``measurement.min_rim_axis_px``
     (semi-major axis, px). The edge model's windows are in pixels, made for a flange a few
     pixels wide: on the simulator, rims of 125-175 px (640x512 cameras) gave toe errors of
-    0.78 deg RMS, rims of 190-260 px 0.08, of 250-350 px 0.03-0.04 (docs/rim-detection.md)."""
+    0.78 deg RMS, rims of 190-260 px 0.08, of 250-350 px 0.03-0.04 (docs/rim-detection.md,
+    "Known limits"; the figures in docs/history/rim-detection.md)."""
     limit = config.measurement.min_rim_axis_px
     return [(cid, f"{config.cameras[cid].wheel} {cid}: the rim spans only {d.ellipse.axes_px[0]:.0f} px "
                   f"(semi-major axis; limit {limit:.0f} px, 250 or more measure best): its toe and camber are "
@@ -293,7 +295,7 @@ def _soft_focus_warnings(detections: dict, config: StationConfig) -> list[tuple[
     """A warning per camera whose rim edge is blurred beyond ``measurement.edge_blur_limit_px``
     (the detector's estimate, ``details["blur_px"]``): a lens out of focus or a moving wheel.
     The detector copes (its windows grow with the blur), but such a station measured on the
-    simulator is several times less accurate (docs/accuracy.md, soft-focus)."""
+    simulator is several times less accurate (docs/accuracy.md, "Outside the envelope")."""
     limit = config.measurement.edge_blur_limit_px
     return [(cid, f"{config.cameras[cid].wheel} {cid}: the rim edge is blurred over {d.details['blur_px']:.1f} px "
                   f"(limit {limit} px; a focused camera gives about 1): refocus {cid}'s lens and check that the "

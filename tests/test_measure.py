@@ -223,9 +223,10 @@ def _rl_circle_scaled(monkeypatch, factor: float) -> dict:
 
 def test_an_axle_whose_rims_differ_in_size_fails_naming_the_odd_wheel(sim, monkeypatch):
     """Both cameras of a pair on the tyre's outline fit one 3-D circle as well as the rim do
-    (station seed 8, vehicle 5008 RL: radius 339 mm against 241, every other toe 0.25 deg off
-    through the car frame): the rims of an axle are the same size; when no pairing of the
-    wheel's candidates has its partner's size, the cycle fails there."""
+    (on a simulated station, a radius of 339 mm against 241 put every other toe 0.25 deg off
+    through the car frame); here RL's circle is made 1.3 times its size. The rims of an axle
+    are the same size; when no pairing of the wheel's candidates has its partner's size, nor a
+    rim carried from one camera to the other, the cycle fails there."""
     from station.wheel import axle_rims
 
     cfg, world, scene, images = sim
@@ -240,8 +241,8 @@ def test_an_axle_whose_rims_differ_in_size_fails_naming_the_odd_wheel(sim, monke
 
 def test_the_odd_wheel_of_an_axle_is_tried_again_at_its_partners_size(sim, monkeypatch):
     """Before refusing, the odd wheel's runner-up candidates are paired again, asked for a rim
-    of its axle partner's size (5008 RL: cam6's second candidate, 0.4 mm off); the cycle is then
-    valid and says what was taken."""
+    of its axle partner's size (here a pairing that says cam6 took its candidate 2); the cycle
+    is then valid and says what was taken."""
     from station.wheel import axle_rims
 
     cfg, world, scene, images = sim
@@ -260,9 +261,9 @@ def test_the_odd_wheel_of_an_axle_is_tried_again_at_its_partners_size(sim, monke
 
 
 def test_the_odd_wheel_is_found_again_from_one_cameras_rim_carried_to_the_other(sim, monkeypatch):
-    """When no pairing of the odd wheel's candidates has its partner's size (dark rims 6013 RR:
-    one camera's search ended inside the flange, none of its candidates was the flange), one
-    camera's rim, at the partner's size and across the wheel's axis, says where the rim must
+    """When no pairing of the odd wheel's candidates has its partner's size (as on a dark rim
+    where one camera's search ends inside the flange and none of its candidates is the flange),
+    one camera's rim, at the partner's size and across the wheel's axis, says where the rim must
     be in the other camera, which is searched again from there (station/wheel/rim_transfer.py)."""
     from station.wheel import axle_rims
 
@@ -291,8 +292,8 @@ def test_axle_rim_mismatch_tolerates_what_a_measurement_varies_by():
     assert axle_rim_mismatch(obs(FL=0.2410, FR=0.2420, RL=0.2550, RR=0.2545)) is None  # 0.4 %; staggered axles
     wheel, why = axle_rim_mismatch(obs(FL=0.2410, FR=0.2411, RL=0.2050, RR=0.2409))   # the lip's inner edge: 15 %
     assert wheel == "RL" and "205 mm" in why
-    # dark rims, vehicle 6013 RR: a ring inside the barrel, 4.7 % small and 38 mm deeper than the
-    # flange; its axis was right, but through the car frame every toe came out 0.4 deg off
+    # a dark rim's ring inside the barrel, 4.7 % small and 38 mm deeper than the flange: its axis
+    # is right, but through the car frame it puts every toe 0.4 deg off
     wheel, why = axle_rim_mismatch(obs(FL=0.2284, FR=0.2284, RL=0.2285, RR=0.2177))
     assert wheel == "RR" and "218 mm" in why
     assert axle_rim_mismatch(obs(FL=0.2537, FR=0.2553, RL=0.2536, RR=0.2537)) is None  # 0.63 %: dark rims' worst
@@ -556,7 +557,7 @@ def test_a_circle_fit_that_ran_off_its_points_starts_again_from_the_image_ellips
     def first_runs_off(*args, **kwargs):
         starts.append(args[4])
         fit = real(*args, **kwargs)
-        if len(starts) == 1:  # as from a paper centroid 0.16 m off (harsh-light vehicle 1018 RR)
+        if len(starts) == 1:  # as from a paper centroid 0.16 m off (a rim seen on two thirds of it)
             fit = dataclasses.replace(fit, center_station=fit.center_station + [0, 0, -3.0], radius_m=4.2,
                                       view_median_px=(13.5, 10.9))
         return fit

@@ -174,10 +174,10 @@ def test_bad_arrays():
 
 
 def test_a_hub_loses_to_a_concentric_dark_rim_seen_on_less_than_80_percent(monkeypatch):
-    """Anthracite rim (simulated dark-rim seed 6004, cam4): the hub's contour is closed (82 %),
-    the rim's flange shows on 77 % of its perimeter with a weak tyre band. A contour over
-    HUB_RATIO times larger and concentric, closed as well as any chosen rim must be, makes
-    the small one the hub."""
+    """An anthracite rim (candidates as a simulated dark rim gives them): the hub's contour is
+    closed (82 %), the rim's flange shows on 77 % of its perimeter with a weak tyre band. A
+    contour over HUB_RATIO times larger and concentric, closed as well as any chosen rim must
+    be, makes the small one the hub."""
     import station.rim.choice as choice
     from station.rim.hough import Candidate
 
@@ -192,14 +192,14 @@ def test_a_hub_loses_to_a_concentric_dark_rim_seen_on_less_than_80_percent(monke
 
     best, info = choice.choose(Scene(), [hub, rim], "cam4")
     assert best is rim, info["candidates"]
-    monkeypatch.setattr(choice, "MIN_COVERAGE", 0.8)        # asking the rim for 80 %, as before: the hub wins
+    monkeypatch.setattr(choice, "MIN_COVERAGE", 0.8)        # asking the rim for 80 % instead: the hub wins
     assert choice.choose(Scene(), [hub, rim], "cam4")[0] is hub
 
 
 def test_an_ellipse_inside_the_rim_is_not_another_wheel(monkeypatch):
-    """Dark-rim seed 6001, cam7: spoke arcs make a flat ellipse inside the rim that scores
-    within AMBIGUITY_RATIO of it. Two wheels never hold each other's centre, so that is no
-    second wheel; the same ellipse beside the rim still is."""
+    """A dark rim whose spoke arcs make a flat ellipse inside the rim that scores within
+    AMBIGUITY_RATIO of it. Two wheels never hold each other's centre, so that is no second
+    wheel; the same ellipse beside the rim still is."""
     import station.rim.choice as choice
     from station.rim.hough import Candidate
 
@@ -221,9 +221,8 @@ def test_a_large_photograph_with_edges_spread_over_pixels_is_refined_where_the_e
     """A rim rendered at 1280x1024 and upscaled 3.125x (a 12-Mpx photograph whose edges spread
     over ~3 px, JPEG-compressed, in colour): the sub-pixel stage at a third of the resolution,
     which fits its points better in full-resolution pixels, finds it to a few hundredths.
-    Refined at full resolution alone the rim came out a pixel too large until the windows grew
-    with the blur (stop 18); it is now within 0.3 px too, but the smaller scale still fits
-    better."""
+    Refined at full resolution alone, with the windows grown with the blur, the rim is within
+    0.3 px too, but the smaller scale fits its points better."""
     import station.rim.detector as detector
 
     img, truth = render_wheel(WheelSpec(clutter=4), seed=8)
@@ -286,7 +285,7 @@ def test_the_edge_model_cache_does_not_remember_which_blur_came_first():
 def test_the_edges_of_an_image_do_not_depend_on_where_it_sits_in_memory():
     """The same image gives bit-identical edge gradients however the allocator has moved on
     (cv2.magnitude's float32 result moved by an ulp with the arrays' alignment, and a cycle
-    then measured a wheel differently after other cycles: dark-rim 6004 FR by 0.7 deg)."""
+    then measured a wheel differently after other cycles: a dark rim by 0.7 deg)."""
     import hashlib
 
     from station.rim.edges import detect_edges
@@ -344,7 +343,7 @@ def test_window_blend_weights_the_long_window_between_the_two_shares():
     assert window_blend(0.0) == 0.0 and window_blend(lo * 0.99) == 0.0
     assert window_blend(hi) == 1.0 and window_blend(10 * hi) == 1.0
     assert window_blend((lo + hi) / 2) == pytest.approx(0.5)
-    assert window_blend(float("nan")) == 1.0 and window_blend(float("inf")) == 1.0  # no estimate: as before
+    assert window_blend(float("nan")) == 1.0 and window_blend(float("inf")) == 1.0  # no estimate: the long window
     shares = np.linspace(0, 2 * hi, 41)
     assert np.all(np.diff([window_blend(x) for x in shares]) >= 0)
 

@@ -243,7 +243,7 @@ def test_blur_estimate_ignores_profiles_with_a_highlight_up_to_the_edge():
     """Where a specular highlight on the lip runs down into the edge, the profile looks like a
     broad step of high contrast. The blur is the median of the per-profile estimates: a
     quarter of such profiles moves it little, while a least-squares blur over all profiles
-    (the estimator before 2026-12-01, which also took the highest-contrast ones) is pulled."""
+    (where the highest-contrast ones weigh the most) is pulled."""
     from scipy.ndimage import gaussian_filter1d
 
     from station.rim.subpixel import BLUR_GRID_PX, estimate_blur, fit_kinks

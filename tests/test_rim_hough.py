@@ -25,9 +25,9 @@ def _circle_edges(radii, rng, shown=None) -> EdgeSet:
 
 def test_two_contours_five_pixels_apart_are_two_candidates():
     """A narrow lip: the flange edge and the lip's inner edge 5 px apart at the search scale.
-    A band of 5 % of the size around one takes in the other; the consensus then keeps the
-    one with more pixels for both sizes, and the flange was no candidate at all
-    (narrow-lip vehicle 1001 cam5)."""
+    A band of 5 % of the size around one takes in the other, and a consensus on that band
+    alone keeps the one with more pixels for both sizes, leaving the flange no candidate at
+    all: both sizes must come out as candidates."""
     edges = _circle_edges((112.0, 117.0, 37.0), np.random.default_rng(4), shown=(1.0, 0.8, 1.0))
     cands = hough.find_candidates(edges, 12.0, 240.0)
     sizes = sorted(c.ellipse.axes_px[0] for c in cands if c.coverage > 0.6)

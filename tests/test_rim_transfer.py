@@ -48,9 +48,9 @@ def test_the_rim_carried_from_one_camera_is_where_the_other_sees_it(toe_deg, cam
 
 
 def test_an_axis_or_a_size_a_little_off_still_lands_within_two_pixels():
-    """What the search refines from: the axis of a concentric contour (0.2 deg off here; the
-    ring of dark-rim vehicle 6013 gave it 0.03 deg off), the axle partner's size (0.2 % off;
-    a well-measured pair gives it to 0.05 %)."""
+    """What the search refines from: the axis of a concentric contour (0.2 deg off here; a
+    ring inside a simulated dark rim's barrel gave it 0.03 deg off), the axle partner's size
+    (0.2 % off; a well-measured pair gives it to 0.05 %)."""
     a, b = _cams()
     axis = np.array([1.0, 0.01, -0.02])
     X = _circle(axis)

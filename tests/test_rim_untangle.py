@@ -94,9 +94,10 @@ def test_a_fit_on_one_curve_stays_and_distant_or_weak_runners_up_are_not_refined
 
 
 def test_harsh_light_the_simulated_station_does_not_follow_the_lip_highlight():
-    """Vehicle 1000 + 4 of the harsh-light probe, cam1 of the paper's layout (where it was found:
-    the camera on the wheel's axis): one lamp leaves the flange of the lower left in shadow; the
-    chosen candidate followed the lip's highlight 14 px inside there."""
+    """A harsh-light scene seen by cam1 of the paper's layout (the camera on the wheel's axis):
+    one lamp leaves the flange of the lower left in shadow, and the chosen candidate follows
+    the lip's highlight 14 px inside there; the detected rim must stay on the flange all
+    round."""
     from bench import outside_envelope as oe
     from simulators.world import SimWorld
     from station.config import load_config
@@ -116,4 +117,4 @@ def test_harsh_light_the_simulated_station_does_not_follow_the_lip_highlight():
     truth = fit_direct(pmap.undistort(cam.project(rim)))
     off = np.abs(truth.distance(pmap.undistort(det.points_px))[0])
     assert "untangled" in det.details
-    assert np.percentile(off, 99) < 1.5 and len(off) > 400   # was 15 px off on a third of the rim
+    assert np.percentile(off, 99) < 1.5 and len(off) > 400   # the highlight lies 15 px off on a third of the rim

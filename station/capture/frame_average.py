@@ -6,8 +6,9 @@ frame's noise, and the fractions of a grey level between them, so it is kept on 
 scale: an 8-bit grey g is 257 g there (65535 = 255 x 257, the scale ``to_grey`` reads 16-bit
 images on), a 16-bit frame stays on its own. At 1.3 Mpx the noise of one frame acts on toe and
 camber mostly through the detector's decisions (which arcs take which edge model), so
-averaging gains more than the square root on the points alone would suggest
-(docs/accuracy.md, "Stop 26"). ``capture.frames_averaged`` sets N (docs/configuration.md).
+averaging gains more than the square root on the points alone would suggest (noise-free
+images measured camber at 0.010 deg RMS, single sigma-2 frames at 0.015:
+docs/history/accuracy.md). ``capture.frames_averaged`` sets N (docs/configuration.md).
 """
 
 from __future__ import annotations

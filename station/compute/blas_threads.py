@@ -3,8 +3,9 @@
 The 3-D circle fit (station/wheel/circle_fit.py) solves least-squares problems whose Jacobian is about
 2400 x 6. On the station's shared 2-core machine, OpenBLAS' own worker threads made each SVD of
 such a matrix take ~20 ms instead of ~0.5 ms single-threaded: the four 3-D wheels of a cycle
-took 3.0 s instead of 0.46 s (docs/speed.md), with the same results. Parallel work is done by
-our own threads (rim detection, four cameras at once), which OpenBLAS threads only contend with.
+took 3.0 s instead of 0.46 s (docs/speed.md, "Why it is this fast"), with the same results.
+Parallel work is done by our own threads (rim detection, four cameras at once), which OpenBLAS
+threads only contend with.
 
 :func:`single_thread_blas` sets numpy's and scipy's OpenBLAS to one thread at run time (the
 OPENBLAS_NUM_THREADS variable works only before numpy is imported: `station` sets it, but a

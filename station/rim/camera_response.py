@@ -4,10 +4,10 @@ The sub-pixel edge model (station/rim/subpixel.py) takes grey levels proportiona
 a blurred edge's 50 % level is then where the edge is. A camera that encodes its output with
 a gamma (an sRGB webcam, a GenICam camera with ``Gamma`` < 1 or a LUT) bends the profile and
 moves that level toward the dark tyre by about a third of the blur: on the simulator, toe RMS
-0.025 -> 0.050 deg with a +0.02 deg bias (docs/accuracy.md, "gamma"). ``cameras.<id>.response_gamma``
-(or ``camera_defaults``) states the exponent the camera applies, grey = light^gamma (1:
-linear, the default; 0.45 for sRGB-like); the images are decoded with 1/gamma into 16-bit
-grey, so no dark level is lost to rounding. The captured images are kept as delivered.
+0.025 -> 0.050 deg with a +0.02 deg bias (docs/rim-detection.md, "Known limits").
+``cameras.<id>.response_gamma`` (or ``camera_defaults``) states the exponent the camera
+applies, grey = light^gamma (1: linear, the default; 0.45 for sRGB-like); the images are
+decoded with 1/gamma into 16-bit grey, so no dark level is lost to rounding. The captured images are kept as delivered.
 """
 
 from __future__ import annotations

@@ -191,7 +191,9 @@ RESCUE_MISFIT_GREY = 2.0  # a search whose edge holds on too little of the rim i
                           # levels): in an 8-frame mean (median misfit 0.7) the profiles a harsh lamp's
                           # glare bends 2-3 levels off the model fail 3x the median, and 1 of 30
                           # harsh-light cycles was refused for coverage (32 %); rescued, none is, and no
-                          # other set changes (docs/accuracy.md, stop 26)
+                          # other set changes. Tolerating them everywhere put ordinary rims' camber
+                          # 0.0094 -> 0.0103 deg RMS: their misfitting profiles are biased
+                          # (docs/history/accuracy.md)
 SAME_CONTOUR_PX = 0.2  # a point this near the fitted ellipse is an inlier whatever the noise: its
                        # offset is the edge's own bias (lighting, lip), not another contour. Without
                        # it, in an 8-frame mean (points 0.04 px apart from the fit) 3.5 sigma left
@@ -337,14 +339,16 @@ REFIT_ITERATIONS = 4
 # samples to hold that line against the noise. Where the image is quiet (an average of a few
 # frames: station/capture/frame_average.py) the shorter reach wins; where the noise is large against a
 # faint step (dark rims) the longer one; between, the two edges' weighted mean has the error of
-# neither alone (docs/accuracy.md, stops 24, 26 and 28).
+# neither alone (docs/rim-detection.md, "The final window follows the noise").
 REPOSITION_WINDOW_PX = (-3.0, 4.5)
 QUIET_WINDOW_PX = (-3.0, 3.0)
 QUIET_NOISE_SHARE = 0.02   # read noise (preprocess.noise_grey) over the inliers' median edge step under
                            # which it applies alone: 8 frames of 2 grey levels on the simulator's rims 0.010
                            # (a single frame 0.025, 8 frames of dark rims 0.021, up to 0.076)
 LONG_NOISE_SHARE = 0.04    # and over which the long one does; between the two, both, weighted (window_blend):
-                           # docs/accuracy.md, stop 28 (stop 26: one switch at 0.015)
+                           # not one switch, at which a camera would jump between two edge definitions
+                           # with its noise (the rules compared: docs/history/accuracy.md, "Which window
+                           # where")
 
 
 def window_blend(noise_share: float) -> float:

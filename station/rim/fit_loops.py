@@ -1,7 +1,7 @@
 """The ellipse fits' inner loops, compiled (numba).
 
 The rim detector's time went into some 10^4 small numpy calls per image, not into arithmetic
-(docs/speed.md, "What is slow"): the geometric fit's Levenberg-Marquardt loop (Newton foot
+(docs/speed.md, "Why it is this fast"): the geometric fit's Levenberg-Marquardt loop (Newton foot
 points, Jacobian, normal equations, twelve times over ~1000 points) and the consensus search's
 minimal conics and their support cost a few microseconds of call overhead per operation. Here
 each is one compiled loop over the points. They compute what ``ellipse_fit``'s numpy forms

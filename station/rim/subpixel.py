@@ -378,8 +378,9 @@ def _curved_where_needed(prof: np.ndarray, s: np.ndarray, sigma: float, s0, h, r
     F statistic above ``CURVED_LIP_F``, and only where most profiles of the arc of
     ``CURVED_ARC_DEG`` around it do: the lip's shape and light change slowly round the rim, and
     a model switching from profile to profile by chance mixed two edge definitions along one
-    arc (the seed-8 station's camber 0.030 -> 0.082 deg without the arc majority, 0.033 with
-    it). Measured in docs/rim-detection.md."""
+    arc (on a simulated station with other mounts and lenses, camber 0.030 -> 0.082 deg
+    without the arc majority, 0.033 with it). The rule is in docs/rim-detection.md, its
+    measurements in docs/history/rim-detection.md."""
     S = len(s)
     s0c, hc, rmsc, okc = curved or fit_kinks(prof, s, sigma, grid_step=0.125, refine=False, curvature=True)
     rss, rssc = rms ** 2 * S, rmsc ** 2 * S
@@ -490,8 +491,9 @@ def repositioned(grey: np.ndarray, anchors_px: np.ndarray, normals_px: np.ndarra
     aligned on the ellipse, not on each point (whose position came from the same noise), the
     average is not sharpened by the alignment. On the simulated station's rims the median of
     each profile's own best blur, as the passes take it, comes out 1-2 % low at a noise of 2
-    grey levels and 10 % low at 5; the arcs' averages 1 % and 2 % low (docs/accuracy.md,
-    stop 24); a blur 10 % too small made the toe error 5x larger.
+    grey levels and 10 % low at 5; the arcs' averages 1 % and 2 % low (docs/rim-detection.md,
+    "Final positions from Lanczos profiles"); a blur 10 % too small made the toe error 5x
+    larger (docs/history/accuracy.md).
 
     Only the positions move: which points, and which contour, the passes chose with bilinear
     profiles as they were measured (sampled with Lanczos, the passes changed decisions on

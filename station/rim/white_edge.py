@@ -18,8 +18,9 @@ WHITE_RADIUS_PX = 2  # a rim point with a white pixel this near has its edge pro
 def white_share(grey: np.ndarray, points_px: np.ndarray, radius: int = WHITE_RADIUS_PX) -> float:
     """Share of the rim points (N,2, image pixels of ``grey``) with a pixel at the sensor's white
     within ``radius`` px in x and y. On the simulated station an exposure 1.5x (2x) too long
-    made toe 0.038 (0.072) deg RMS instead of 0.026. A fit of the samples under the white
-    alone was tried and not kept (docs/rim-detection.md)."""
+    made toe 0.038 (0.072) deg RMS instead of 0.026. The cut-off profiles are not refitted
+    on their samples under the white: that needs their blur, which cut-off profiles do not
+    tell well (docs/rim-detection.md, known limits)."""
     if len(points_px) == 0:
         return 0.0
     h, w = grey.shape

@@ -104,9 +104,9 @@ def inward_arcs(r: np.ndarray, phi: np.ndarray, noise_px: float, n_sectors: int 
 def stray_arcs(r: np.ndarray, phi: np.ndarray, noise_px: float, n_sectors: int = HIDDEN_SECTORS) -> np.ndarray:
     """(N,) bool: :func:`inward_arcs`, and the arcs whose edge lies *outside* the fitted circle
     by as much. A lit tyre bead wall next to the flange looks like metal: on a small rim under
-    a tall sidewall (seed 955116, RL) the oblique camera saw the edge 0.4-1.5 px outside the
-    flange on a third of the rim, just under the gross-outlier limit, and they tilted the
-    circle by 0.25 deg."""
+    a tall sidewall the oblique camera saw the edge 0.4-1.5 px outside the flange on a third
+    of the rim, just under the gross-outlier limit, and those arcs tilted the circle by
+    0.25 deg."""
     return _arc_offsets(r, phi, noise_px, n_sectors) != 0
 
 
@@ -133,7 +133,7 @@ def stray_floor_px(r: np.ndarray, phi: np.ndarray, loss_scale_px: float) -> floa
     STRAY_NOISE_SIGMAS standard errors of an arc's median in this view's residuals r (N,) at rim
     angles phi (N,), at most ``loss_scale_px``. A fixed 0.3 px let arcs 0.1 px off stay where their medians are
     known to 0.01 px (a mean of eight frames): one such arc over 60 degrees of one view moved
-    camber 0.03 deg (1043 FR). Noisier edges keep the higher floor; noise-free points (a
+    camber 0.03 deg. Noisier edges keep the higher floor; noise-free points (a
     synthetic test, a perfect render) STRAY_MIN_PX, so that arithmetic is never judged."""
     return min(loss_scale_px, max(STRAY_MIN_PX, STRAY_NOISE_SIGMAS * arc_median_noise(r, phi)))
 

@@ -46,9 +46,10 @@ def _carried_pair(wheel: str, cams: tuple[str, str], detection_sets: list[dict],
     appear there (station/wheel/rim_transfer.py): the best such pair (by the weaker score) that is one
     3-D rim of that size, with a warning saying what was done; None if there is none. Tried from
     each camera's detection in ``detection_sets`` (the first choices, the pairing taken).
-    Dark rims, vehicle 6013 RR: cam8's search ended between the flange and the lip's inner edge,
-    none of its candidates was the flange; carried from cam7's first choice, its rim is found
-    0.1 px from the true one and the wheel's centre 0.2 mm off."""
+    For when one camera's search ended between the flange and the lip's inner edge (a dark
+    rim) and none of its candidates is the flange: carried from the other camera's first
+    choice, the simulated rim was found 0.1 px from the true one and the wheel's centre 0.2 mm
+    off."""
     from station.rim.detector import refine_candidate
     from station.wheel.rim_transfer import carried_prior
 

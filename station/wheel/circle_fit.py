@@ -389,18 +389,18 @@ def _without_faint(fit: WheelFit, steps: list, fitted) -> WheelFit:
     Contrast weights (``contrast_weights``) keep a faint point's say small in the final solve,
     but the tests before it are unweighted (weighted, they moved their own decisions): a faint
     arc alone in a stretch of the rim that the other view does not see can tilt the circle the
-    tests judge the other arcs by, and they then leave out good arcs (simulated 1121 RL: one
-    camera's shaded bottom arc at an eighth of the median step, camber 0.13 deg off; without
-    it 0.02). Left out everywhere, the faint points take dark rims' only good arcs with them
-    (6001 RL 1.4 deg off). So the fit without them is a check for that gross failure only: it
-    replaces the weighted fit where the faint points move the axis beyond what the fit without
-    them states (``moved_beyond_subset``), stating their difference as well
+    tests judge the other arcs by, and they then leave out good arcs (one camera's shaded
+    bottom arc at an eighth of the median step put a simulated wheel's camber 0.13 deg off;
+    without it 0.02). Left out everywhere, the faint points take dark rims' only good arcs with
+    them (a wheel 1.4 deg off). So the fit without them is a check for that gross failure only:
+    it replaces the weighted fit where the faint points move the axis beyond what the fit
+    without them states (``moved_beyond_subset``), stating their difference as well
     (``with_disagreement``: the fit without them may be the broken one, as on a bright tyre
     whose faint points were the flange), and elsewhere the weighted fit stands as it is.
-    (Weighed by their stated covariances instead, ``_with_subset_fit``, the two moved sound
-    wheels by 0.01-0.025 deg toward the fit without: 1115 FL 0.017 -> 0.042 deg with one
-    calibration. Only where the two were ``inconsistent``, it missed the gross cases: a fit
-    tilted by a faint arc also states a large uncertainty.)"""
+    Weighing the two by their stated covariances (``_with_subset_fit``) instead moved sound
+    wheels by 0.01-0.025 deg toward the fit without, and taking the fit without only where the
+    two are ``inconsistent`` missed the gross cases, since a fit tilted by a faint arc states a
+    large uncertainty too (the rules compared: docs/history/accuracy.md)."""
     bright = [not_faint(c) for c in steps]
     if all(b.all() for b in bright) or any(b.sum() < MIN_VIEW_POINTS for b in bright):
         return fit

@@ -98,10 +98,11 @@ def reconstruct_wheel(wheel: str, cams: tuple[str, str], detections: dict, camer
     concentric contour of the wheel (station/wheel/other_contour.py).
 
     The circle fit starts from the paper's circle, whose centre is the centroid of the
-    triangulated points. A view that sees part of the rim moves it toward that part: 0.16 m
-    on harsh-light vehicle 1018 RR, where the fit then ran off to a 4 m circle. When the fit
-    is not on its points (``DIVERGED_PX``), it starts again from the circle of the two image
-    ellipses (:func:`station.wheel.circle_fit.circle_from_ellipses`), kept if that one is."""
+    triangulated points. A view that sees part of the rim moves it toward that part (0.16 m
+    for a rim seen on two thirds of its perimeter under harsh light, and the fit from there ran
+    off to a circle 4 m wide). When the fit is not on its points (``DIVERGED_PX``), it starts
+    again from the circle of the two image ellipses
+    (:func:`station.wheel.circle_fit.circle_from_ellipses`), kept if that one is."""
     cam_l, cam_r = (cameras[c] for c in cams)
     det_l, det_r = detections[cams[0]], detections[cams[1]]
     paper = reconstruct_paper(det_l.points_px, det_r.points_px, cam_l, cam_r)
@@ -138,10 +139,11 @@ def unverifiable_epipolar(o: WheelObservation, config: StationConfig) -> bool:
     epipolar plane touches the rim: its tangent there is extrapolated. The pair is the same
     rim, but this cycle cannot check its calibration. (A wrong candidate that a circle fits on
     a few of its points only - 6 % on a camera whose image was flipped, tests/test_measure.py -
-    is not: the hidden true rim of held-out seed 2010 RR kept 48 %.) Where both cameras saw
-    the tangent points, a residual this large is a moved camera, whatever else they missed: a
-    camera knocked 6-15 px after calibration, its pair centred on the wheel, showed 5-11 px
-    with 73-76 % of the rim seen and every tangent point within 4 deg (bench/perturbed_images.py)."""
+    is not: a true rim that one camera saw on 68 % of its perimeter kept 48 %.) Where both
+    cameras saw the tangent points, a residual this large is a moved camera, whatever else they
+    missed: a camera knocked 6-15 px after calibration, its pair centred on the wheel, showed
+    5-11 px with 73-76 % of the rim seen and every tangent point within 4 deg
+    (bench/perturbed_images.py)."""
     limit = config.measurement.mismatch_limit_px
     return (o.circle.epipolar_rms_px > limit and max(o.circle.view_median_px) <= 0.2 * limit
             and min(kept_fractions(o)) >= UNCHECKED_MIN_KEPT

@@ -8,7 +8,8 @@ found off the flange: on a lit tyre bead or a tyre brighter than the lip (larger
 shaded (smaller). The circle's radius and its tilt are tied (a circle tilted toward a camera 13
 deg off its axis looks narrower), so such a wheel's angles are off by tenths of a degree: on
 the simulated sets every wheel 0.25 % or more off its partner was 0.3-0.7 deg off in toe or
-camber, several of them stating +/-0.1 or less (docs/accuracy.md, stop 25).
+camber, several of them stating +/-0.1 or less (docs/history/accuracy.md, "A rim a little
+larger or smaller than its partner's is warned of").
 
 This only warns; it changes no value. Holding such a wheel's radius at its partner's in the
 fit corrected the simulated ones (whose rims are exactly equal), but the same tie makes it

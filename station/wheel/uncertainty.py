@@ -35,12 +35,12 @@ def bias_covariance(sol, views, n0, e1, e2, n_modes: int, n_sectors: int = 18) -
     Mode 2 is the ellipse's elongation: the monocular shape cue camber leans on, since the
     horizontal baseline leaves the top and bottom of the rim without disparity. Without it,
     camber was stated twice too certain on the typical wheel; sized by the sector RMS, twice
-    too uncertain (stop 16). Modes 0-1 sized by the sector RMS (until stop 16) stated the
-    wheels that state the most about twice what they are off (bench/accuracy.py's table of
-    stated against observed, docs/accuracy.md). On a view seeing less of its rim, where the
-    modes cannot be told apart, modes 0-1 have the standard deviation of its sector
-    medians: the RMS of the median residual of each of ``n_sectors`` sectors, less its noise
-    (``sector_bias_rms``), and mode 2 none.
+    too uncertain, and modes 0-1 sized by the sector RMS stated the wheels that state the most
+    about twice what they are off (bench/accuracy.py's table of stated against observed,
+    docs/accuracy.md; the comparison is in docs/history/measurement.md). On a view seeing
+    less of its rim, where the modes cannot be told apart, modes 0-1 have the standard
+    deviation of its sector medians: the RMS of the median residual of each of ``n_sectors``
+    sectors, less its noise (``sector_bias_rms``), and mode 2 none.
 
     The uniform offset (mode 0) is taken as the same in both views: it comes from where the
     edge model puts a blurred, shaded flange edge, which is the same rim and the same model in
@@ -54,8 +54,8 @@ def bias_covariance(sol, views, n0, e1, e2, n_modes: int, n_sectors: int = 18) -
     With residuals weighted by edge contrast (``refine_circle(contrast=...)``) the modes are
     those of the weighted residuals: a faint arc's edge is off by more, and counts for less,
     in about the same proportion. Sized in raw pixels instead, its bias was counted in full
-    against a fit that gives it little weight: toe stated/RMS 1.45 on the held-out vehicles
-    1050-1089 (with the 0.010 deg floor), 1.26 with the weighted modes."""
+    against a fit that gives it little weight: toe stated/RMS 1.45 on 40 vehicles outside the
+    issue set (with a 0.010 deg floor), 1.26 with the weighted modes."""
     c = sol.x[2:5]
     n = normal_from(sol.x[:2], n0, e1, e2)
     J = sol.jac
