@@ -33,6 +33,13 @@ class Simulation(Protocol):
         and back, one step every ``hold`` frames of the ``live_cams``, as a technician turning
         its tie rod (rendered once into ``cache_dir``); :meth:`truth` follows it."""
 
+    def roll_car(self, distance_m: float) -> None:
+        """The simulated technician rolls the car forward (+) or back (-) by ``distance_m``."""
+
+    def steer(self, angle_deg: float) -> None:
+        """The simulated technician turns the steering wheel: the front wheels point about
+        ``angle_deg`` to the left (+) or right (-) of straight ahead."""
+
     def replay_set(self, noise_sigma: float | None = None) -> tuple[dict, dict, dict]:
         """({camera id: image}, truth, what was rendered) of the vehicle on the lift, rendered
         once with sensor noise ``noise_sigma`` (grey levels; None: the configuration's)."""

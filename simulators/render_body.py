@@ -45,7 +45,7 @@ def trace_body(o: np.ndarray, d: np.ndarray, idx: np.ndarray, hits: Hits, lighti
     if idx.size == 0:
         return
     Rv = vehicle.R_station_vehicle
-    offset = np.array([vehicle.position_m[0], vehicle.position_m[1], 0.0])
+    offset = vehicle.offset_station()
     ov = Rv.T @ (o - offset)
     dirs = d[idx]
     # direction components in the vehicle frame, (N,) each (explicit: no BLAS, see rowmat)
@@ -96,7 +96,7 @@ def trace_body(o: np.ndarray, d: np.ndarray, idx: np.ndarray, hits: Hits, lighti
 def floor_shadow(vehicle: Vehicle):
     """f(points (N,3) station) -> (N,) float32 light factor on the floor: the car's shadow."""
     Rv = vehicle.R_station_vehicle
-    offset = np.array([vehicle.position_m[0], vehicle.position_m[1], 0.0])
+    offset = vehicle.offset_station()
     lo, hi = body_box(vehicle)
     contacts = np.array([vehicle.wheel_center_vehicle(w)[:2] for w in WHEELS])
     g = vehicle.wheel

@@ -53,6 +53,21 @@ class SimulatedStation:
         self.world = AdjustmentWorld(world, adjustment_scenes(world, self.vehicle_seed, wheel, steps), frames,
                                      hold=hold, seed=self.vehicle_seed)
 
+    def roll_car(self, distance_m: float) -> None:
+        """The car rolls forward (+) or back (-) along the runways by ``distance_m``."""
+        self._move(roll_m=self.world.scene.vehicle.roll_m + float(distance_m))
+
+    def steer(self, angle_deg: float) -> None:
+        """The steering wheel is turned until a wheel midway between the front wheels points
+        ``angle_deg`` left of straight ahead (each front wheel by its own, Ackermann, angle)."""
+        self._move(steer_deg=float(angle_deg))
+
+    def _move(self, **change) -> None:
+        from dataclasses import replace
+
+        scene = self.world.scene
+        self.world.set_scene(replace(scene, vehicle=replace(scene.vehicle, **change)))
+
     def replay_set(self, noise_sigma: float | None = None) -> tuple[dict, dict, dict]:
         from simulators.world import SimWorld
 

@@ -18,7 +18,7 @@ import numpy as np
 from calibration.camera_model import CameraModel, look_at, rodrigues_to_matrix
 from simulators.render import render_clean, sensor_frame
 from simulators.scene import Lighting, Scene
-from simulators.vehicle import Vehicle, WheelGeometry, random_vehicle
+from simulators.vehicle import Vehicle, WheelGeometry, random_kingpins, random_runout, random_vehicle
 
 _VEHICLE_FIELDS = {f.name for f in fields(Vehicle)}
 _WHEEL_FIELDS = {f.name for f in fields(WheelGeometry)}
@@ -129,13 +129,21 @@ class SimWorld:
     def vehicle_scene(self, seed: int, **overrides) -> Scene:
         """A random vehicle (around the configured nominal one) under random per-camera light.
 
-        overrides: Vehicle fields (toe_deg=..., yaw_deg=...), WheelGeometry fields
+        Its front wheels' kingpins are random (simulators.vehicle.random_kingpins), and so is
+        each rim's runout up to ``simulation.runout_max_deg`` (0: square rims), each from a
+        stream of its own, so that the rest of the vehicle stays that of the seed.
+        overrides: Vehicle fields (toe_deg=..., yaw_deg=..., runout=...), WheelGeometry fields
         (rim_radius_m=...), or ``lighting`` / ``quads`` / ``floor_z_m`` for the Scene.
         """
         rng = np.random.default_rng(seed)
         nominal = self.config.nominal_vehicle
         vehicle = random_vehicle(rng, nominal_wheelbase_m=nominal.wheelbase_m, nominal_track_m=nominal.track_m)
         lighting = self.random_lighting(rng)
+        kingpins, ackermann = random_kingpins(np.random.default_rng([seed, 33]))
+        vehicle = replace(vehicle, kingpin=kingpins, ackermann=ackermann)
+        runout_max = float(getattr(self.config.simulation, "runout_max_deg", 0.0))
+        if runout_max > 0:
+            vehicle = replace(vehicle, runout=random_runout(np.random.default_rng([seed, 32]), runout_max))
         v_over = {k: v for k, v in overrides.items() if k in _VEHICLE_FIELDS}
         w_over = {k: v for k, v in overrides.items() if k in _WHEEL_FIELDS}
         s_over = {k: v for k, v in overrides.items() if k in ("lighting", "quads", "floor_z_m")}
