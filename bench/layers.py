@@ -38,7 +38,7 @@ STATION_LAYERS = [
                 "station.records.*", "station.operator", "station.sequencer", "station.result")),
     ("3-D wheel", ("station.wheel.*",)),
     ("measurement", ("station.measure",)),
-    ("cycle", ("station.cycle", "station.live")),
+    ("cycle", ("station.cycle", "station.live", "station.procedures.*")),
     ("plc", ("station.plc.*",)),
     ("commands", ("station.commands.*", "station.cli")),
 ]

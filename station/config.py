@@ -227,6 +227,7 @@ SCHEMA = {
         "min_rim_radius_m": Field(_number(0.05, 1), default=0.15),
         "max_rim_radius_m": Field(_number(0.05, 1), default=0.34),
         "min_rim_points": Field(_number(10, 100000, integer=True), default=200),
+        "runout_limit_deg": Field(_number(0.01, 10), default=0.4),
     }), default={}),
     "simulation": Field(_section({
         "station_seed": Field(_number(0, 2**31, integer=True), default=7),

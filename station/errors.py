@@ -70,6 +70,37 @@ class WorkerFailure(MeasurementError):
     code = 403
 
 
+class ProcedureError(MeasurementError):
+    """An alignment procedure of several captures (rolling the car, steering) cannot give its
+    result: the sentence says what happened, the hint what to do."""
+
+    code = 410
+
+
+class RollTooShort(ProcedureError):
+    """The car was rolled too little between the captures to find the wheels' spin axes."""
+
+    code = 411
+
+
+class WheelSlipped(ProcedureError):
+    """A wheel turned by another amount than the car's travel over its rolling radius allows."""
+
+    code = 412
+
+
+class CarMovedSideways(ProcedureError):
+    """The car moved across the runways, or turned, while it was rolled."""
+
+    code = 413
+
+
+class RimPatternLost(ProcedureError):
+    """A rim's face could not be followed from one capture to the next (a plain or dirty face)."""
+
+    code = 414
+
+
 class PlcError(StationError):
     code = 500
     area = "plc"

@@ -93,7 +93,7 @@ def measure_frames(images: dict[str, np.ndarray], cameras: dict[str, CameraModel
         result.warn(f"{wheel} ({', '.join(observations[wheel].cams)}): {text}", WarningFlag("rim_size", wheel))
     t2 = time.perf_counter()
     fits = {w: (o.circle if method == "circle" else o.paper) for w, o in observations.items()}
-    _fill_angles(result, fits, observations, config)
+    fill_angles(result, fits, observations, config)
     _pair_warnings(result, observations, config)
     centreline_warnings(result)
     timing["angles"] = time.perf_counter() - t2
@@ -160,6 +160,12 @@ def unseen_axis_variance(o: WheelObservation, config: StationConfig) -> float:
     return float(np.radians(m.uncertainty_floor_deg) ** 2 + noise ** 2)
 
 
+def unseen_axis_covariance(o: WheelObservation, axis_station: np.ndarray, config: StationConfig) -> np.ndarray:
+    """(3,3) the unseen variance (:func:`unseen_axis_variance`) across the unit axis (3,), shaped
+    by :func:`unseen_axis_shape`."""
+    return unseen_axis_variance(o, config) * unseen_axis_shape(axis_station, config.measurement.uncertainty_toe_scale)
+
+
 def unseen_axis_shape(axis_station: np.ndarray, toe_scale: float) -> np.ndarray:
     """(3,3) shape of the unseen variance across a wheel's unit axis (3,): 1 along the
     direction that tilts the axis up or down (camber), ``toe_scale`` squared along the
@@ -178,9 +184,12 @@ def unseen_axis_shape(axis_station: np.ndarray, toe_scale: float) -> np.ndarray:
     return toe_scale ** 2 * np.outer(e_toe, e_toe) + np.outer(e_camber, e_camber)
 
 
-def _fill_angles(result: Measurement, fits: dict[str, WheelFit], observations: dict, config: StationConfig) -> None:
+def fill_angles(result: Measurement, fits: dict[str, WheelFit], observations: dict, config: StationConfig,
+                unseen: bool = True) -> None:
     """The angles of the wheels ``fits`` (one WheelFit per wheel), their standard uncertainty
-    and each wheel's 3-D rim, into ``result``."""
+    and each wheel's 3-D rim, into ``result``. ``unseen``: add each wheel's unseen variance
+    (:func:`unseen_axis_variance`) to its fit's axis covariance (False: the fits' covariances
+    hold it already, as a spin axis fitted to several captures does)."""
     centers = {w: f.center_station for w, f in fits.items()}
     axes = {w: f.axis_station for w, f in fits.items()}
     angles = alignment.compute_angles(centers, axes)
@@ -188,8 +197,8 @@ def _fill_angles(result: Measurement, fits: dict[str, WheelFit], observations: d
     # the floor: an error no single cycle's residuals show (a decision between arcs that a
     # new capture may take the other way, an edge bias the circle absorbs completely), in
     # quadrature across each axis, less in toe's direction than camber's (docs/measurement.md)
-    cov_a = {w: _finite_cov(f.cov_axis, 1e-8) + unseen_axis_variance(observations[w], config) *
-             unseen_axis_shape(f.axis_station, config.measurement.uncertainty_toe_scale) for w, f in fits.items()}
+    cov_a = {w: _finite_cov(f.cov_axis, 1e-8) + (unseen_axis_covariance(observations[w], f.axis_station, config)
+                                                 if unseen else 0.0) for w, f in fits.items()}
     cov = alignment.angle_covariance(centers, axes, cov_c, cov_a)
     std = dict(zip(ANGLE_NAMES, np.sqrt(np.clip(np.diag(cov), 0, None))))
     for w in WHEELS:

@@ -1,9 +1,10 @@
-"""Who places the calibration box: a tiny protocol the calibration flow talks to.
+"""The person at the lift, as the procedures talk to them: small protocols.
 
-``station calibrate`` asks an operator to put the box somewhere and waits until it is there.
-A technician at a terminal (:class:`TerminalOperator`) or the simulated operator
-(simulators/sim_operator.py, which moves the box in the simulated world) implement it; the
-flow never asks which one it has.
+``station calibrate`` asks an operator to put the box somewhere and waits until it is there
+(:class:`Operator`); the alignment procedures ask them to roll the car or turn the steering
+wheel (:class:`AlignmentOperator`). A technician at a terminal (:class:`TerminalOperator`) or
+the simulated station's operator (drivers.context.Simulation: it moves the box, rolls the car,
+steers) implement them; the procedures never ask which one they have.
 """
 
 from __future__ import annotations
@@ -21,6 +22,15 @@ class Operator(Protocol):
 
     def done(self) -> None:
         """The calibration no longer needs the box."""
+
+
+class AlignmentOperator(Protocol):
+    def roll_car(self, distance_m: float) -> None:
+        """Roll the car forward (+) or back (-) along the runways by about ``distance_m``."""
+
+    def steer(self, angle_deg: float) -> None:
+        """Turn the steering wheel until the front wheels point about ``angle_deg`` left (+) or
+        right (-) of straight ahead."""
 
 
 class TerminalOperator:
@@ -44,3 +54,12 @@ class TerminalOperator:
 
     def done(self) -> None:
         print("calibration images taken; remove the box", file=self.out, flush=True)
+
+    def roll_car(self, distance_m: float) -> None:
+        way = "forward" if distance_m > 0 else "back"
+        self._ask(f"roll the car {way} by about {abs(distance_m) * 100:.0f} cm (push it slowly, steering straight, "
+                  "then let it stand still)")
+
+    def steer(self, angle_deg: float) -> None:
+        where = "straight ahead" if angle_deg == 0 else f"{abs(angle_deg):.0f} deg to the {'left' if angle_deg > 0 else 'right'}"
+        self._ask(f"turn the steering wheel until the front wheels point {where}")

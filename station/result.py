@@ -99,6 +99,9 @@ class WheelResult:
     axis_station: list[float] | None = None      # (3,) outward unit spin axis
     rim_radius_m: float | None = None
     quality: WheelQuality | None = None
+    runout_deg: float | None = None             # with runout compensation: the rim's tilt against the spin axis,
+    runout_phase_deg: float | None = None       # its direction on the rim (from the station's up, at the last capture),
+    runout_mm: float | None = None              # and the lip's wobble across its diameter
 
 
 @dataclass
@@ -161,6 +164,7 @@ class Measurement:
     alignment_frame: dict | None = None                   # {"origin_station_m", "R_station_align"}
     timing_s: dict[str, float] = field(default_factory=dict)
     method: str | None = None
+    runout_compensated: bool = False  # toe and camber of the wheels' spin axes (True) or of the rim planes
     detections: dict[str, CameraDetection] | None = None
     cycle_id: str | None = None
     time_utc: str | None = None
@@ -227,6 +231,7 @@ class Measurement:
         out["timing_s"] = dict(self.timing_s)
         if self.method is not None:
             out["method"] = self.method
+            out["runout_compensated"] = self.runout_compensated
         if self.detections is not None:
             out["detections"] = {c: d.to_json() for c, d in self.detections.items()}
         if self.cycle_id is not None:
@@ -238,9 +243,11 @@ class Measurement:
         return out
 
     def _wheel_json(self, wheel: str, r: WheelResult) -> dict:
-        out = _present({k: v for k, v in vars(r).items() if k != "quality"})
+        runout = ("runout_deg", "runout_phase_deg", "runout_mm")
+        out = _present({k: v for k, v in vars(r).items() if k != "quality" and k not in runout})
         if r.quality is not None:
             out["quality"] = r.quality.to_json()
+        out.update(_present({k: getattr(r, k) for k in runout}))
         if self.errors and wheel in self.errors:
             out.update(self.errors[wheel])
         if self.verdicts is not None:
@@ -265,7 +272,7 @@ class Measurement:
                                        "software_version", "calibration_id", "job_id", "vehicle_spec",
                                        "captures_dir", "truth", "errors", "recording", "simulation_seed")}
         detections = d.get("detections")
-        return cls(**plain, valid=bool(d.get("valid", False)),
+        return cls(**plain, valid=bool(d.get("valid", False)), runout_compensated=bool(d.get("runout_compensated", False)),
                    failure=Failure.from_json(d["failure"]) if isinstance(d.get("failure"), dict) else None,
                    warnings=list(d.get("warnings") or []),
                    warning_flags=[WarningFlag.from_json(f) for f in d.get("warning_flags") or [] if isinstance(f, dict)],

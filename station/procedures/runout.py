@@ -1,0 +1,162 @@
+"""Runout compensation by rolling: toe and camber of the wheels' spin axes, not of their rims.
+
+The car is rolled back and forward along the runways while the cameras take it at a few
+positions (``ROLL_PLAN``, the last where it started). At each capture every wheel's rim gives its
+3-D circle (the normal of its lip plane) and its face's angular profile; the profiles tell how far
+each wheel turned between the captures (station/wheel/rim_pattern.py), and the normals turned by
+those angles fix each wheel's spin axis (station/wheel/runout.py). The result is the last
+capture's measurement with the spin axes in place of the rim normals, each wheel's runout beside.
+
+Refused, with a code (station/errors.py 411-414): a roll too short to turn the wheels
+``MIN_ROLL_DEG``; a wheel whose turn does not match the car's travel (it slipped, or was turned
+by hand); a car that moved across the runways or turned; a rim whose face cannot be followed.
+A runout beyond ``measurement.runout_limit_deg`` is measured and compensated but warned of (a
+bent rim).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from calibration.camera_model import CameraModel
+from calibration.station_frame import SIDE, WHEELS
+from station.config import StationConfig
+from station.errors import CarMovedSideways, RimPatternLost, RollTooShort, WheelSlipped
+from station.measure import fill_angles, unseen_axis_covariance
+from station.result import Measurement, WarningFlag
+from station.rim.camera_response import linear_images
+from station.wheel.fit import WheelFit
+from station.wheel.rim_pattern import FacePose, angular_profile, face_depth, rotation_between
+from station.wheel.runout import SpinAxis, fit_spin_axis
+
+ROLL_DISTANCE_M = 0.15         # how far the car is rolled each way: about 25 deg of a wheel's turn
+ROLL_PLAN = (0.0, -1.0, 1.0, 0.0)  # where the car stands at each capture, in roll distances; the last is the result's
+TYRE_BEYOND_LIP_M = 0.10       # a rolling radius to expect from the lip's (only to tell a rim's N-fold symmetry apart)
+MIN_ROLL_DEG = 10.0            # the captures must turn every wheel through at least this
+MIN_PATTERN_PEAK = 0.7         # a face followed from one capture to another correlates at least this well
+PATTERN_AGREEMENT_DEG = 0.5    # and both cameras of the pair agree on its turn within this
+SLIP_SHARE = 0.04              # a wheel's rolling radius (its centre's travel over its turn) off the car's by more: slipped
+SIDEWAYS_M = 0.015             # a wheel centre off the line of the car's travel by more: the car moved across or turned
+
+
+@dataclass(frozen=True)
+class WheelRoll:
+    """One wheel over the captures: its spin axis fit, the turn at each capture (deg, relative to
+    the last), its rolling radius (m, NaN when it hardly turned), its face's depth behind the lip."""
+
+    spin: SpinAxis
+    roll_deg: np.ndarray
+    rolling_radius_m: float
+    face_depth_m: float
+
+
+def wheel_rolls(results: list[Measurement], images: list[dict], models: dict[str, CameraModel],
+                config: StationConfig) -> dict[str, WheelRoll]:
+    """Each wheel's spin axis from valid measurements ``results`` (K, with their observations)
+    of the captures ``images`` (K dicts of camera -> image), the last one the reference.
+    Raises RimPatternLost, RollTooShort, WheelSlipped or CarMovedSideways naming the wheel."""
+    linear = [linear_images(im, config) for im in images]
+    ref = results[-1]
+    forward = np.asarray(ref.alignment_frame["R_station_align"])[:, 1]
+    rolls = {}
+    for w in WHEELS:
+        cams = (config.pairs[w].precision, config.pairs[w].reference)
+        poses = [_pose(r, w) for r in results]
+        depth, _ = face_depth({c: linear[-1][c] for c in cams}, models, poses[-1])
+        profiles = [{c: angular_profile(im[c], models[c], pose, depth) for c in cams} for im, pose in zip(linear, poses)]
+        travel = np.array([(p.center_station - poses[-1].center_station) @ forward for p in poses])
+        prior = -SIDE[w] * travel / (poses[-1].radius_m + TYRE_BEYOND_LIP_M)
+        theta = np.array([_turn(w, cams, profiles[-1], prof, a) for prof, a in zip(profiles, prior)])
+        _check_travel(w, poses, forward)
+        if np.degrees(np.ptp(theta)) < MIN_ROLL_DEG:
+            raise RollTooShort(f"{w}: the captures turned the wheel through only {np.degrees(np.ptp(theta)):.1f} deg "
+                               f"(at least {MIN_ROLL_DEG:.0f} needed to find its spin axis)",
+                               hint=f"roll the car about {ROLL_DISTANCE_M * 100:.0f} cm each way when asked")
+        cov = np.array([_normal_covariance(r, w, config) for r in results])
+        spin = fit_spin_axis(np.array([p.axis_station for p in poses]), theta, cov, poses[-1].radius_m)
+        turned = np.abs(theta) > np.radians(MIN_ROLL_DEG / 2)
+        radius = float(np.median(-SIDE[w] * travel[turned] / theta[turned])) if turned.any() else float("nan")
+        rolls[w] = WheelRoll(spin, np.degrees(theta), radius, depth)
+    _check_slip(rolls)
+    return rolls
+
+
+def compensated(reference: Measurement, rolls: dict[str, WheelRoll], config: StationConfig) -> Measurement:
+    """``reference`` (the last capture's valid measurement) with each wheel's toe and camber of
+    its spin axis, their uncertainty from the fit, and its runout; a warning per rim whose runout
+    exceeds ``measurement.runout_limit_deg``."""
+    result = replace(reference, wheels={}, axles={}, warnings=list(reference.warnings),
+                     warning_flags=list(reference.warning_flags), timing_s=dict(reference.timing_s))
+    fits = {w: replace(o.circle, axis_station=rolls[w].spin.axis_station, cov_axis=rolls[w].spin.cov_axis)
+            for w, o in reference.observations.items()}
+    fill_angles(result, fits, reference.observations, config, unseen=False)
+    limit = config.measurement.runout_limit_deg
+    for w, roll in rolls.items():
+        s = roll.spin
+        result.wheels[w] = replace(result.wheels[w], runout_deg=s.runout_deg, runout_phase_deg=s.runout_phase_deg,
+                                   runout_mm=s.runout_mm)
+        if s.runout_deg > limit:
+            result.warn(f"{w}: its rim runs out {s.runout_deg:.2f} deg ({s.runout_mm:.1f} mm across the lip) against its "
+                        f"spin axis, beyond the {limit} deg limit: a bent rim or a wheel seated askew on its hub; toe "
+                        "and camber are of the spin axis, but check the rim and its mounting",
+                        WarningFlag("runout", w))
+    result.runout_compensated = True
+    return result
+
+
+def _pose(result: Measurement, wheel: str) -> FacePose:
+    c = result.observations[wheel].circle
+    return FacePose(np.asarray(c.center_station, float), np.asarray(c.axis_station, float), float(c.radius_m))
+
+
+def _normal_covariance(result: Measurement, wheel: str, config: StationConfig) -> np.ndarray:
+    """(3,3) the rim normal's covariance at one capture: the circle fit's and the unseen share."""
+    o = result.observations[wheel]
+    cov = np.asarray(o.circle.cov_axis, float)
+    cov = cov if np.all(np.isfinite(cov)) else np.eye(3) * 1e-8
+    return cov + unseen_axis_covariance(o, o.circle.axis_station, config)
+
+
+def _turn(wheel: str, cams: tuple[str, str], reference: dict, profiles: dict, prior_rad: float) -> float:
+    """The wheel's turn (rad, about its outward axis) from the reference capture to this one:
+    both cameras' profiles, averaged; RimPatternLost when either cannot follow the face or the
+    two disagree."""
+    turns = []
+    for c in cams:
+        angle, peak = rotation_between(reference[c], profiles[c], prior_rad)
+        if peak < MIN_PATTERN_PEAK:
+            raise RimPatternLost(f"{wheel} {c}: the rim's face does not match between captures (correlation "
+                                 f"{peak:.2f}, at least {MIN_PATTERN_PEAK} needed): a plain, dirty or covered face",
+                                 hint="clean the rim's face and measure again, or measure without --compensate")
+        turns.append(angle)
+    if abs(np.degrees(turns[0] - turns[1])) > PATTERN_AGREEMENT_DEG:
+        raise RimPatternLost(f"{wheel}: its two cameras disagree on how far the wheel turned ({np.degrees(turns[0]):.2f} "
+                             f"and {np.degrees(turns[1]):.2f} deg)",
+                             hint="check both cameras' view of the rim's face and measure again")
+    return float(np.mean(turns))
+
+
+def _check_travel(wheel: str, poses: list[FacePose], forward: np.ndarray) -> None:
+    """CarMovedSideways when the wheel's centre left the line of the car's travel."""
+    d = np.array([p.center_station - poses[-1].center_station for p in poses])
+    across = d - np.outer(d @ forward, forward)
+    off = float(np.max(np.linalg.norm(across[:, :2], axis=1)))
+    if off > SIDEWAYS_M:
+        raise CarMovedSideways(f"{wheel}: its centre moved {off * 1000:.0f} mm across the line of the car's travel while "
+                               f"it was rolled (at most {SIDEWAYS_M * 1000:.0f} mm)",
+                               hint="roll the car straight along the runways, steering straight ahead, and start again")
+
+
+def _check_slip(rolls: dict[str, WheelRoll]) -> None:
+    """WheelSlipped when a wheel's rolling radius is off the car's median (the four roll together)."""
+    radii = {w: r.rolling_radius_m for w, r in rolls.items() if np.isfinite(r.rolling_radius_m)}
+    if len(radii) < 3:
+        return
+    median = float(np.median(list(radii.values())))
+    for w, r in radii.items():
+        if abs(r / median - 1) > SLIP_SHARE:
+            raise WheelSlipped(f"{w}: its turn does not match the car's travel (rolling radius {r * 1000:.0f} mm against "
+                               f"the other wheels' {median * 1000:.0f} mm): it slipped, or was turned or braked",
+                               hint="release the brakes, roll the car slowly on a clean runway and start again")
