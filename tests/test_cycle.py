@@ -57,3 +57,29 @@ def test_an_unknown_vehicle_spec_is_raised_after_the_cycle_is_kept(station):
     with History(station.config.data_path("history.sqlite")) as h:
         kept = h.jobs("JOB-C4")
     assert len(kept) == 1 and any("no-such-car" in w for w in kept[0].warnings)
+
+
+def _disk_full(*args, **kwargs):
+    raise OSError(28, "No space left on device")
+
+
+@pytest.mark.slow
+def test_images_the_disk_refuses_are_a_warning_and_the_cycle_goes_on(station, monkeypatch):
+    monkeypatch.setattr("station.capture.saving.save_cycle", _disk_full)
+    result = station.measure(job_id="JOB-C5")
+    assert result.valid and result.captures_dir is None
+    assert result.has_flag("not_kept") and any("No space left on device" in w for w in result.warnings)
+    with History(station.config.data_path("history.sqlite")) as h:
+        kept = h.jobs("JOB-C5")
+    assert len(kept) == 1 and kept[0].has_flag("not_kept")  # the history knows the images are missing
+
+
+@pytest.mark.slow
+def test_a_failed_capture_whose_images_the_disk_refuses_is_still_kept(station, monkeypatch):
+    monkeypatch.setattr("station.capture.saving.save_cycle", _disk_full)
+    monkeypatch.setattr(station.cameras["cam5"], "_grab", lambda timeout_s: None)
+    failed = station.measure(job_id="JOB-C6")
+    assert not failed.valid and failed.failure.code == 201  # the capture's own error, not the disk's
+    assert failed.captures_dir is None and failed.has_flag("not_kept")
+    with History(station.config.data_path("history.sqlite")) as h:
+        assert h.get(failed.cycle_id)["valid"] is False
