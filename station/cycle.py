@@ -22,7 +22,7 @@ from calibration.errors import CalibrationMismatch
 from drivers.context import DriverContext
 from drivers.registry import build_context
 from station.capture.cameras import close_cameras, open_station_cameras, open_trigger_board
-from station.capture.saving import capture_and_keep, new_cycle_id
+from station.capture.saving import capture_and_keep, new_cycle_id, remove_unfinished_captures
 from station.capture.sync import capture_averaged
 from station.compute.workers import WorkerPool, default_workers
 from station.config import StationConfig
@@ -59,6 +59,7 @@ class Station:
         core, 0 or 1: none (the four wheels run in two threads of this process)."""
         self.config = config
         self.progress = progress
+        remove_unfinished_captures(config.data_path("captures"))  # of a station process killed mid-save
         self.calibration = calibration or load_calibration(config.calibration_file, config)
         self.models = {cid: self.calibration.model(cid) for cid in config.cameras}
         uris = [c.uri for c in config.cameras.values()]

@@ -18,8 +18,9 @@ from pathlib import Path
 
 from drivers.base import Camera, Frame
 from drivers.context import DriverContext
-from drivers.frame_store import save_cycle
+from drivers.frame_store import UNFINISHED, save_cycle
 from station.capture.sync import capture_averaged
+from station.compute.orphans import remove_orphans
 from station.errors import CODED_ERRORS, StorageError
 
 log = logging.getLogger("station.capture")
@@ -101,6 +102,12 @@ def capture_and_save(cameras: dict[str, Camera], timeout_s: float, out_dir, **op
     if kept.error is not None:
         raise kept.error
     return frames, kept.path
+
+
+def remove_unfinished_captures(captures_dir: Path) -> int:
+    """Remove the temporary folders of saves whose process was killed mid-save (their owner's
+    PID no longer runs); returns how many. A running process's save is left alone."""
+    return remove_orphans(captures_dir, UNFINISHED)
 
 
 def capture_station_cycle(cameras: dict[str, Camera], config, *, trigger_board=None, context: DriverContext | None = None,
