@@ -15,7 +15,8 @@ private mount namespace (`unshare -m`) with a small tmpfs filled up, or remounte
 The rows (what counts as ``correct``):
 
 * kill -9 of ``station measure`` at a random moment of its run (uniform over the time an
-  uninterrupted run takes): no process and no shared memory left 5 s later;
+  uninterrupted run takes): no process left 5 s later, and nothing in /dev/shm (its frames,
+  the named semaphores its processes had open);
 * kill -9 of ``station serve`` idle (after a PLC cycle, its workers waiting) and mid-cycle (at
   a random moment of a PLC cycle): the same;
 * ``station measure`` on a full data disk, ``--json`` elsewhere: exit 4, the result printed
@@ -53,7 +54,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from bench.faults import FaultRow  # noqa: E402
-from tests.process_tree import end_marked, left_after, marked_env, new_token  # noqa: E402
+from tests.process_tree import end_marked, left_after, marked_env, new_token, shared_memory_of  # noqa: E402
 
 DEFAULT_TRIES = {"kill measure": 10, "kill serve": 3, "disk": 2, "history": 3, "leftovers": 4}
 SETTLE_S = 5.0  # how long a killed process's descendants get to end
@@ -90,21 +91,40 @@ def _bay(work: Path) -> Bay:
     return Bay(work, config.path, config.calibration_file)
 
 
-def _left_behind(token: str, pid: int) -> tuple[int, float]:
-    """(processes, MiB) still there ``SETTLE_S`` after ``pid`` ended: the token's processes
-    (resident memory) and ``pid``'s frames in shared memory; then ends and removes them."""
+@dataclass
+class Left:
+    """What a child left behind: processes, their resident MiB, files in shared memory."""
+
+    procs: int = 0
+    mib: float = 0.0
+    shm_files: int = 0
+
+    @property
+    def nothing(self) -> bool:
+        return self.procs == 0 and self.shm_files == 0
+
+
+def _left_behind(token: str, pid: int, shm_before: frozenset[str] = frozenset()) -> Left:
+    """What is still there ``SETTLE_S`` after ``pid`` ended: the token's processes, ``pid``'s
+    frames in shared memory and, of ``shm_before`` (the /dev/shm files the token's processes had
+    mapped before the kill: multiprocessing's named semaphores), those still there. Then ends
+    and removes them."""
     procs = left_after(token, SETTLE_S)
-    shm_bytes = 0
-    for folder in SHM.glob(f"station-frames-{pid}-*"):
-        shm_bytes += sum(f.stat().st_size for f in folder.rglob("*") if f.is_file())
-        shutil.rmtree(folder, ignore_errors=True)
-    end_marked(token)
-    return len(procs), sum(p.rss_kib for p in procs.values()) / 1024 + shm_bytes / 2**20
+    shm = [Path(f) for f in shm_before if os.path.exists(f)] + list(SHM.glob(f"station-frames-{pid}-*"))
+    shm_bytes = sum(f.stat().st_size for entry in shm
+                    for f in ([entry] if entry.is_file() else entry.rglob("*")) if f.is_file())
+    end_marked(token)  # the resource tracker last: it unlinks the semaphores when the rest is gone
+    for entry in shm:
+        if entry.is_dir():
+            shutil.rmtree(entry, ignore_errors=True)
+        else:
+            entry.unlink(missing_ok=True)
+    return Left(len(procs), sum(p.rss_kib for p in procs.values()) / 1024 + shm_bytes / 2**20, len(shm))
 
 
-def _count(row: FaultRow, procs: int, mib: float) -> None:
-    row.procs_left += procs
-    row.mib_left += mib
+def _count(row: FaultRow, left: Left) -> None:
+    row.procs_left += left.procs
+    row.mib_left += left.mib
 
 
 # --- kill -9 of station measure -------------------------------------------------------------------
@@ -127,14 +147,15 @@ def _kill_measure(bay: Bay, tries: int, run_s: float, rng: random.Random) -> Fau
             proc = subprocess.Popen(bay.station("measure", "--seed", str(i)), env=bay.env(token, data), cwd=ROOT,
                                     stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
             time.sleep(rng.uniform(0.05, 0.95) * run_s)
+            shm = frozenset(shared_memory_of(token))
             killed = proc.poll() is None
             proc.send_signal(signal.SIGKILL)
             proc.wait()
-            procs, mib = _left_behind(token, proc.pid)
+            left = _left_behind(token, proc.pid, shm)
             if killed:
                 break
-        _count(row, procs, mib)
-        row.correct += killed and procs == 0 and mib == 0
+        _count(row, left)
+        row.correct += killed and left.nothing
     return row
 
 
@@ -178,6 +199,7 @@ def _kill_serve(bay: Bay, tries: int, when: str, rng: random.Random) -> FaultRow
                                 cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
         client = None
         killed_as_meant = False
+        shm: frozenset[str] = frozenset()
         try:
             m = _Lines(proc.stdout).wait_for(r"Modbus TCP [\d.]+:(\d+)", 60)
             if m is None:
@@ -195,14 +217,15 @@ def _kill_serve(bay: Bay, tries: int, when: str, rng: random.Random) -> FaultRow
             else:
                 steady = plc.run_cycle(f"JOB-{i}-2")  # how long a cycle takes once assembled
                 killed_as_meant = _trigger_and_wait(plc, rm, f"JOB-{i}-3", rng.uniform(0.05, 0.9) * steady.measure_s)
+            shm = frozenset(shared_memory_of(token))
         finally:
             proc.send_signal(signal.SIGKILL)
             proc.wait()
             if client is not None:
                 client.close()
-            procs, mib = _left_behind(token, proc.pid)
-            _count(row, procs, mib)
-        row.correct += killed_as_meant and procs == 0 and mib == 0
+            left = _left_behind(token, proc.pid, shm)
+            _count(row, left)
+        row.correct += killed_as_meant and left.nothing
     return row
 
 
@@ -249,7 +272,7 @@ def _measure_on_disk(bay: Bay, tries: int, disk: str, json_on_disk: bool) -> Fau
                + f"; status=$?; ls -A {mnt} > {listing}; exit $status; }}")
         p = subprocess.run(["unshare", "-m", "sh", "-c", cmd], env=bay.env(token, mnt), cwd=ROOT,
                            capture_output=True, text=True, timeout=300)
-        _count(row, *_left_behind(token, -1))
+        _count(row, _left_behind(token, -1))
         if "Traceback" in p.stderr or "internal error" in p.stderr:
             row.wrong += 1
             continue
@@ -303,7 +326,7 @@ def _history_read_only(bay: Bay, tries: int) -> FaultRow:
                + " ".join(bay.station("history")))
         p = subprocess.run(["unshare", "-m", "sh", "-c", cmd], env=bay.env(token, data), cwd=ROOT,
                            capture_output=True, text=True, timeout=120)
-        _count(row, *_left_behind(token, -1))
+        _count(row, _left_behind(token, -1))
         listed = "5 cycle(s)" in p.stdout and all(f"JOB-{k}" in p.stdout for k in range(1, 6))
         if "Traceback" in p.stderr or "internal error" in p.stderr:
             row.wrong += 1
@@ -330,7 +353,7 @@ def _leftovers(bay: Bay, tries: int) -> FaultRow:
             leftover = _wait_for_unfinished(data, what, proc)
             proc.send_signal(signal.SIGKILL)
             proc.wait()
-            _count(row, *_left_behind(token, proc.pid))
+            _count(row, _left_behind(token, proc.pid))
             if leftover is not None and leftover.exists():
                 break
             leftover = None
@@ -339,7 +362,7 @@ def _leftovers(bay: Bay, tries: int) -> FaultRow:
         token = new_token()
         p = subprocess.run(bay.station("measure", "--seed", str(i)), env=bay.env(token, data), cwd=ROOT,
                            capture_output=True, text=True, timeout=300)
-        _count(row, *_left_behind(token, -1))
+        _count(row, _left_behind(token, -1))
         hidden = [f for sub in ("captures", "recordings") if (data / sub).exists()
                   for f in (data / sub).iterdir() if f.name.startswith(".")]
         if "Traceback" in p.stderr or p.returncode != 0:

@@ -70,10 +70,37 @@ def left_after(token: str, within_s: float) -> dict[int, Proc]:
         time.sleep(0.1)
 
 
-def end_marked(token: str) -> None:
-    """SIGKILL whatever still runs with ``token`` (only processes this test started carry it)."""
+def shared_memory_of(token: str) -> set[str]:
+    """The files in /dev/shm that the marked processes have mapped (multiprocessing's named
+    semaphores ``sem.mp-*``, frames handed to workers): what a killed process may leave there."""
+    files = set()
     for pid in marked_processes(token):
         try:
-            os.kill(pid, signal.SIGKILL)
-        except ProcessLookupError:
-            pass
+            with open(f"/proc/{pid}/maps") as f:
+                files.update(line.split(None, 5)[5].strip() for line in f
+                             if len(line.split(None, 5)) == 6 and line.split(None, 5)[5].startswith("/dev/shm/"))
+        except OSError:
+            continue
+    return files
+
+
+def end_marked(token: str, tracker_grace_s: float = 2.0) -> None:
+    """SIGKILL whatever still runs with ``token`` (only processes this test started carry it).
+    multiprocessing's resource tracker goes last: once the others are gone it unlinks their
+    named semaphores and exits by itself; killed first, it would leave them in /dev/shm."""
+    left = marked_processes(token)
+    trackers = {pid for pid, p in left.items() if "resource_tracker" in p.cmd}
+    for pid in set(left) - trackers:
+        _kill(pid)
+    deadline = time.monotonic() + tracker_grace_s
+    while trackers & set(marked_processes(token)) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    for pid in trackers & set(marked_processes(token)):
+        _kill(pid)
+
+
+def _kill(pid: int) -> None:
+    try:
+        os.kill(pid, signal.SIGKILL)
+    except ProcessLookupError:
+        pass

@@ -4,6 +4,7 @@ frames in shared memory; idle or mid-cycle."""
 
 from __future__ import annotations
 
+import os
 import signal
 import subprocess
 import sys
@@ -11,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.process_tree import end_marked, left_after, marked_env, marked_processes, new_token
+from tests.process_tree import end_marked, left_after, marked_env, marked_processes, new_token, shared_memory_of
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -35,9 +36,9 @@ if __name__ == "__main__":
 """
 
 
-def _kill_at(tmp_path: Path, when: str, line_wanted: str) -> tuple[dict, dict, int]:
+def _kill_at(tmp_path: Path, when: str, line_wanted: str) -> tuple[dict, set, dict, int]:
     """Start a station with two workers, SIGKILL it when it prints ``line_wanted``: (processes
-    before the kill, processes left 5 s after, the station's PID)."""
+    before the kill, their files in /dev/shm, processes left 5 s after, the station's PID)."""
     token = new_token()
     script = tmp_path / "station_process.py"
     script.write_text(STATION.format(root=str(ROOT)))
@@ -49,10 +50,10 @@ def _kill_at(tmp_path: Path, when: str, line_wanted: str) -> tuple[dict, dict, i
                 break
         else:
             pytest.fail(f"the station ended before printing {line_wanted!r} (exit {proc.wait()})")
-        before = marked_processes(token)
+        before, shm = marked_processes(token), shared_memory_of(token)
         proc.send_signal(signal.SIGKILL)
         proc.wait()
-        return before, left_after(token, within_s=5.0), proc.pid
+        return before, shm, left_after(token, within_s=5.0), proc.pid
     finally:
         proc.kill()
         proc.wait()
@@ -62,7 +63,9 @@ def _kill_at(tmp_path: Path, when: str, line_wanted: str) -> tuple[dict, dict, i
 @pytest.mark.slow
 @pytest.mark.parametrize("when, line_wanted", [("idle", "ready"), ("mid-cycle", "detecting rims")])
 def test_a_killed_station_leaves_no_process_and_no_shared_memory(tmp_path, when, line_wanted):
-    before, left, pid = _kill_at(tmp_path, when, line_wanted)
+    before, shm, left, pid = _kill_at(tmp_path, when, line_wanted)
     assert len(before) >= 5, before  # the station, 2 workers, the forkserver, the resource tracker
     assert left == {}, [f"{p.pid} {p.cmd[:90]}" for p in left.values()]
+    assert any("/sem.mp-" in f for f in shm)  # the pool's named semaphores ...
+    assert not [f for f in shm if os.path.exists(f)]  # ... unlinked by the resource tracker on its way out
     assert not list(Path("/dev/shm").glob(f"station-frames-{pid}-*"))
