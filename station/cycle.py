@@ -5,8 +5,9 @@ registry, the calibration file); nothing below asks whether it is simulated: the
 driver brings its simulated station through ``drivers.registry.build_context``, and the
 truth it adds reaches the cycle through ``drivers.context.Simulation``. Everything a cycle
 produces is kept: the frames (even of a failed cycle), the result JSON, the Rerun
-recording and the history row; a failure to record or store becomes a warning on the
-result, never a lost measurement.
+recording and the history row; a failure to keep the frames, record or store (a full or
+read-only disk) becomes a warning on the result (flag ``not_kept``), never a lost
+measurement.
 """
 
 from __future__ import annotations

@@ -69,7 +69,10 @@ def _exit_with_owner(owner_pid: int) -> None:
         while owner_alive(owner_pid):
             time.sleep(1.0)
     if pidfd is not None:
-        select.select([pidfd], [], [])  # a pidfd becomes readable when its process has exited
+        watch = select.poll()
+        watch.register(pidfd, select.POLLIN)  # a pidfd becomes readable when its process has exited
+        while not watch.poll():
+            pass
     frame_handoff.remove_orphans()
     os._exit(0)
 

@@ -22,6 +22,7 @@ import json
 import math
 import numbers
 import os
+import re
 import shutil
 import sqlite3
 import tempfile
@@ -29,6 +30,7 @@ import threading
 from pathlib import Path
 from urllib.parse import quote
 
+from station.compute.orphans import remove_orphans
 from station.records.atomic_file import write_atomic
 from station.errors import StorageError
 from station.result import ANGLE_NAMES, Measurement
@@ -61,6 +63,7 @@ CREATE TABLE IF NOT EXISTS angles (
     PRIMARY KEY (cycle, name)
 ) WITHOUT ROWID;
 """
+_COPY = re.compile(r"station-history-(?P<pid>\d+)-.+")  # a reader's private copy (read-only disk)
 _COLUMNS = ("id", "cycle_id", "time_utc", "job_id", "vehicle_spec", "valid", "passed",
             "calibration_id", "recording", "software_version", "station")
 
@@ -203,7 +206,8 @@ class History:
         else:
             # cycles in the -wal but no index to read them by, and none may be made there:
             # read a private copy (SQLite rebuilds the index beside the copy)
-            self._copy_dir = tempfile.mkdtemp(prefix="station-history-")
+            remove_orphans(Path(tempfile.gettempdir()), _COPY)  # copies of readers that were killed
+            self._copy_dir = tempfile.mkdtemp(prefix=f"station-history-{os.getpid()}-")
             copy = Path(self._copy_dir) / self.path.name
             shutil.copyfile(self.path, copy)
             shutil.copyfile(wal, copy.with_name(copy.name + "-wal"))
