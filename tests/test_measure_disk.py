@@ -62,6 +62,7 @@ def test_full_disk_prints_and_writes_the_result_with_warnings(tmp_path, station_
     assert _printed_a_result(p.stdout) and "Traceback" not in p.stderr and "internal error" not in p.stderr
     assert "cannot save the images: No space left on device; the measurement is kept" in p.stdout
     assert "cannot write the recording: No space left on device" in p.stdout
+    assert "the data disk is full); the measurement is kept, this cycle is not in the history" in p.stdout
     result = json.loads((tmp_path / "result.json").read_text())
     assert result["valid"] and not result.get("captures_dir") and not result.get("recording")
     assert any(f["kind"] == "not_kept" for f in result["warning_flags"])
