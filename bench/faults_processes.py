@@ -155,6 +155,10 @@ def _kill_measure(bay: Bay, tries: int, run_s: float, rng: random.Random) -> Fau
             if killed:
                 break
         _count(row, left)
+        if not killed:
+            _why_not(row, i, "the run ended before every kill drawn")
+        elif not left.nothing:
+            _why_not(row, i, f"left {left}")
         row.correct += killed and left.nothing
     return row
 
@@ -203,6 +207,7 @@ def _kill_serve(bay: Bay, tries: int, when: str, rng: random.Random) -> FaultRow
         try:
             m = _Lines(proc.stdout).wait_for(r"Modbus TCP [\d.]+:(\d+)", 60)
             if m is None:
+                _why_not(row, i, "`station serve` did not start")
                 row.lost += 1
                 continue
             client = ModbusTcpClient("127.0.0.1", port=int(m.group(1)), timeout=5, retries=0)
@@ -210,14 +215,20 @@ def _kill_serve(bay: Bay, tries: int, when: str, rng: random.Random) -> FaultRow
             plc = PlcSimulator(client, timeout_s=180)
             first = plc.run_cycle(f"JOB-{i}-1")  # assembles the station and starts its workers
             if first.state != "done" or first.problems:
+                _why_not(row, i, f"the first PLC cycle: {first.state} {first.problems}")
                 row.wrong += 1
                 continue
             if when == "idle":
+                shm = frozenset(shared_memory_of(token))
                 killed_as_meant = plc.read_block(status_only=True)["state"] == rm.STATE_CODES["idle"]
             else:
                 steady = plc.run_cycle(f"JOB-{i}-2")  # how long a cycle takes once assembled
-                killed_as_meant = _trigger_and_wait(plc, rm, f"JOB-{i}-3", rng.uniform(0.05, 0.9) * steady.measure_s)
-            shm = frozenset(shared_memory_of(token))
+                for attempt in range(5):  # a cycle that ended before the moment drawn: another one
+                    delay = rng.uniform(0.05, 0.9) * steady.measure_s
+                    killed_as_meant, shm = _busy_after(plc, rm, token, f"JOB-{i}-{3 + attempt}", delay)
+                    if killed_as_meant:
+                        break
+                    plc.acknowledge()
         finally:
             proc.send_signal(signal.SIGKILL)
             proc.wait()
@@ -225,22 +236,32 @@ def _kill_serve(bay: Bay, tries: int, when: str, rng: random.Random) -> FaultRow
                 client.close()
             left = _left_behind(token, proc.pid, shm)
             _count(row, left)
+        if not killed_as_meant:
+            _why_not(row, i, f"the kill did not land while {when}")
+        elif not left.nothing:
+            _why_not(row, i, f"left {left}")
         row.correct += killed_as_meant and left.nothing
     return row
 
 
-def _trigger_and_wait(plc, rm, job_id: str, delay_s: float) -> bool:
-    """Start a cycle, wait ``delay_s`` after the station reports busy; whether it is still busy."""
+def _busy_after(plc, rm, token: str, job_id: str, delay_s: float) -> tuple[bool, frozenset[str]]:
+    """Start a cycle and wait ``delay_s`` after the station reports busy: (still busy, the
+    token's files in /dev/shm), the last read just before the caller's kill."""
     f_job, f_spec = rm.FIELDS["job_id"], rm.FIELDS["vehicle_spec"]
     plc.write(rm.COMMAND, [rm.COMMAND_CODES["measure"]] + rm.ascii_to_regs(job_id, f_job.count)
               + rm.ascii_to_regs(None, f_spec.count))
     deadline = time.monotonic() + 30
     while plc.read_block(status_only=True)["state"] != rm.STATE_CODES["busy"]:
         if time.monotonic() > deadline:
-            return False
+            return False, frozenset()
         time.sleep(0.01)
     time.sleep(delay_s)
-    return plc.read_block(status_only=True)["state"] == rm.STATE_CODES["busy"]
+    shm = frozenset(shared_memory_of(token))
+    return plc.read_block(status_only=True)["state"] == rm.STATE_CODES["busy"], shm
+
+
+def _why_not(row: FaultRow, i: int, why: str) -> None:
+    print(f"  {row.fault}, try {i + 1}: {why}", file=sys.stderr, flush=True)
 
 
 # --- full and read-only data disks ----------------------------------------------------------------
@@ -274,6 +295,7 @@ def _measure_on_disk(bay: Bay, tries: int, disk: str, json_on_disk: bool) -> Fau
                            capture_output=True, text=True, timeout=300)
         _count(row, _left_behind(token, -1))
         if "Traceback" in p.stderr or "internal error" in p.stderr:
+            _why_not(row, i, f"exit {p.returncode}: {p.stderr.strip()[-300:]}")
             row.wrong += 1
             continue
         printed = _printed_a_result(p.stdout)
@@ -285,8 +307,10 @@ def _measure_on_disk(bay: Bay, tries: int, disk: str, json_on_disk: bool) -> Fau
         else:
             answered = p.returncode == 4 and json_path.exists() and json.loads(json_path.read_text())["valid"]
         if not printed or not answered:
+            _why_not(row, i, f"exit {p.returncode}, result printed: {printed}; {p.stderr.strip()[-300:]}")
             row.lost += 1
         elif not warned or any(name.startswith(".") for name in left_on_disk):
+            _why_not(row, i, f"warned: {warned}, on the disk: {left_on_disk}")
             row.wrong += 1  # no warning, or a half-written file left on the disk
         else:
             row.correct += 1
@@ -328,11 +352,14 @@ def _history_read_only(bay: Bay, tries: int) -> FaultRow:
                            capture_output=True, text=True, timeout=120)
         _count(row, _left_behind(token, -1))
         listed = "5 cycle(s)" in p.stdout and all(f"JOB-{k}" in p.stdout for k in range(1, 6))
+        if "Traceback" in p.stderr or "internal error" in p.stderr or p.returncode != 0 or not listed:
+            _why_not(row, i, f"{state}: exit {p.returncode}, listed: {listed}; {p.stderr.strip()[-300:]}")
         if "Traceback" in p.stderr or "internal error" in p.stderr:
             row.wrong += 1
         elif p.returncode != 0 or not listed:
             row.lost += 1
         elif sorted(f.name for f in data.iterdir()) != before:
+            _why_not(row, i, f"{state}: files before {before}, after {sorted(f.name for f in data.iterdir())}")
             row.wrong += 1  # it wrote where it must not
         else:
             row.correct += 1
@@ -358,6 +385,7 @@ def _leftovers(bay: Bay, tries: int) -> FaultRow:
                 break
             leftover = None
         if leftover is None:
+            _why_not(row, i, f"no kill landed while the {what} were being written")
             continue  # never provoked: not counted as correct
         token = new_token()
         p = subprocess.run(bay.station("measure", "--seed", str(i)), env=bay.env(token, data), cwd=ROOT,
@@ -365,9 +393,9 @@ def _leftovers(bay: Bay, tries: int) -> FaultRow:
         _count(row, _left_behind(token, -1))
         hidden = [f for sub in ("captures", "recordings") if (data / sub).exists()
                   for f in (data / sub).iterdir() if f.name.startswith(".")]
-        if "Traceback" in p.stderr or p.returncode != 0:
-            row.wrong += 1
-        elif leftover.exists() or hidden:
+        if "Traceback" in p.stderr or p.returncode != 0 or leftover.exists() or hidden:
+            _why_not(row, i, f"next start: exit {p.returncode}, {leftover.name} still there: {leftover.exists()}, "
+                             f"hidden: {[f.name for f in hidden]}")
             row.wrong += 1
         else:
             row.correct += 1

@@ -79,3 +79,10 @@ def remove_orphans(shm_dir: Path = SHM_DIR) -> int:
     """Remove frame folders left by a station process that was killed mid-cycle (their owner's
     PID no longer runs); returns how many. Folders of running processes are left alone."""
     return orphans.remove_orphans(shm_dir, _ORPHAN)
+
+
+def remove_frames_of(owner_pid: int, shm_dir: Path = SHM_DIR) -> None:
+    """Remove the frame folders of ``owner_pid``, which the caller knows to be gone (a killed
+    process is still a zombie to :func:`remove_orphans` until its parent has reaped it)."""
+    for folder in shm_dir.glob(f"{PREFIX}{owner_pid}-*"):
+        shutil.rmtree(folder, ignore_errors=True)

@@ -73,7 +73,7 @@ def _exit_with_owner(owner_pid: int) -> None:
         watch.register(pidfd, select.POLLIN)  # a pidfd becomes readable when its process has exited
         while not watch.poll():
             pass
-    frame_handoff.remove_orphans()
+    frame_handoff.remove_frames_of(owner_pid)
     os._exit(0)
 
 
