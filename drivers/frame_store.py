@@ -2,13 +2,16 @@
 
 A cycle directory holds ``<camera_id>.png`` (8- or 16-bit, lossless) and ``cycle.json`` with
 each frame's metadata; a simulated set also has ``truth.json``. Writing goes to a temporary
-directory renamed into place, so a cycle is either complete on disk or absent.
+directory renamed into place, so a cycle is either complete on disk or absent. The temporary
+directory, ``.<name>.<writer's PID>.<random>`` beside the target, is what a writer killed
+mid-save leaves behind (:data:`UNFINISHED` matches it).
 """
 
 from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import tempfile
 from pathlib import Path
@@ -20,6 +23,7 @@ from drivers.base import Frame
 from drivers.errors import FrameError
 
 FORMAT_VERSION = 1
+UNFINISHED = re.compile(r"\.(?P<name>.+)\.(?P<pid>\d+)\.[a-z0-9_]{8}")  # a save's temporary directory
 
 
 def save_cycle(directory: str | os.PathLike, frames: dict[str, Frame], extra: dict | None = None,
@@ -29,7 +33,7 @@ def save_cycle(directory: str | os.PathLike, frames: dict[str, Frame], extra: di
     if directory.exists():
         raise FrameError(f"{directory}: already exists; a saved cycle is never overwritten")
     directory.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{directory.name}.", dir=directory.parent))
+    tmp = Path(tempfile.mkdtemp(prefix=f".{directory.name}.{os.getpid()}.", dir=directory.parent))
     try:
         meta = {"format_version": FORMAT_VERSION, "cameras": {}, **(extra or {})}
         for cam_id, frame in frames.items():

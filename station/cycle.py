@@ -5,8 +5,9 @@ registry, the calibration file); nothing below asks whether it is simulated: the
 driver brings its simulated station through ``drivers.registry.build_context``, and the
 truth it adds reaches the cycle through ``drivers.context.Simulation``. Everything a cycle
 produces is kept: the frames (even of a failed cycle), the result JSON, the Rerun
-recording and the history row; a failure to record or store becomes a warning on the
-result, never a lost measurement.
+recording and the history row; a failure to keep the frames, record or store (a full or
+read-only disk) becomes a warning on the result (flag ``not_kept``), never a lost
+measurement.
 """
 
 from __future__ import annotations
@@ -22,14 +23,14 @@ from calibration.errors import CalibrationMismatch
 from drivers.context import DriverContext
 from drivers.registry import build_context
 from station.capture.cameras import close_cameras, open_station_cameras, open_trigger_board
-from station.capture.saving import capture_and_save, new_cycle_id
+from station.capture.saving import capture_and_keep, new_cycle_id, remove_unfinished_captures
 from station.capture.sync import capture_averaged
 from station.compute.workers import WorkerPool, default_workers
 from station.config import StationConfig
 from station.errors import CODED_ERRORS, StationError, StorageError
 from station.measure import measure_frames
 from station.records.atomic_file import write_text_atomic
-from station.result import Failure, Measurement
+from station.result import Failure, Measurement, WarningFlag
 from station.sequencer import Sequencer
 
 
@@ -59,6 +60,7 @@ class Station:
         core, 0 or 1: none (the four wheels run in two threads of this process)."""
         self.config = config
         self.progress = progress
+        remove_unfinished_captures(config.data_path("captures"))  # of a station process killed mid-save
         self.calibration = calibration or load_calibration(config.calibration_file, config)
         self.models = {cid: self.calibration.model(cid) for cid in config.cameras}
         uris = [c.uri for c in config.cameras.values()]
@@ -114,20 +116,24 @@ class Station:
                       + (f", {n} frames each (averaged)" if n > 1 else ""))
         try:
             if cfg.capture.keep_captures:
-                frames, _ = capture_and_save(self.cameras, self.timeout_s, captures_dir, truth=cycle.truth,
-                                             trigger_board=self.trigger_board, extra={"job_id": cycle.job_id},
-                                             frames_averaged=n)
+                frames, kept = capture_and_keep(self.cameras, self.timeout_s, captures_dir, truth=cycle.truth,
+                                                trigger_board=self.trigger_board, extra={"job_id": cycle.job_id},
+                                                frames_averaged=n)
             else:
-                frames = capture_averaged(self.cameras, self.timeout_s, self.trigger_board, frames=n)
+                frames, kept = capture_averaged(self.cameras, self.timeout_s, self.trigger_board, frames=n), None
         except CODED_ERRORS as e:
-            saved = getattr(e, "saved_to", None)
+            kept = getattr(e, "kept", None)
             result = Measurement(station=cfg.name, failure=Failure(e.code, str(e), e.hint))
             self._stamp(result, cycle)
-            result.captures_dir = str(saved) if saved else None
+            result.captures_dir = str(kept.path) if kept and kept.path else None
+            if kept and kept.error:
+                _not_kept(result, kept.warning)
             self._finish(result, record=False, store=cycle.store)
             cycle.failed = result
             raise
-        cycle.captures_dir = str(captures_dir) if cfg.capture.keep_captures else None
+        if kept is not None:
+            cycle.captures_dir = str(kept.path) if kept.path else None
+            cycle.not_kept = kept.warning
         return frames
 
     def _measure(self, cycle: _Cycle, frames: dict, method: str) -> Measurement:
@@ -139,6 +145,8 @@ class Station:
         self._stamp(result, cycle)
         result.timing_s["capture"] = t_capture
         result.captures_dir = cycle.captures_dir
+        if cycle.not_kept:
+            _not_kept(result, cycle.not_kept)
         if cycle.truth is not None:
             result.add_truth(cycle.truth)
         return result
@@ -182,14 +190,14 @@ class Station:
                 _record(path, self, result, images or {})
                 result.recording = str(path)
             except StorageError as e:
-                result.warnings.append(str(e))
+                _not_kept(result, str(e))
         if store:
             try:
                 from station.records.history import History
                 with History(self.config.data_path("history.sqlite")) as history:
                     history.store(result)
             except StorageError as e:
-                result.warnings.append(str(e))
+                _not_kept(result, f"{e}; the measurement is kept, this cycle is not in the history")
         result.timing_s["record_and_store"] = time.perf_counter() - t0
 
 
@@ -206,9 +214,15 @@ class _Cycle:
     t0: float
     truth: dict | None = None
     captures_dir: str | None = None
+    not_kept: str | None = None  # why the frames could not be kept (a full or read-only disk)
     images: dict | None = None
     failed: Measurement | None = None
     spec_error: StationError | None = None
+
+
+def _not_kept(result: Measurement, sentence: str) -> None:
+    """A part of the cycle's record (images, recording, history row) that the data disk refused."""
+    result.warn(sentence, WarningFlag("not_kept"))
 
 
 def _apply_spec(cfg: StationConfig, result: Measurement, key: str) -> None:
@@ -244,8 +258,8 @@ def write_json(result: Measurement, path: str | Path) -> Path:
         path.parent.mkdir(parents=True, exist_ok=True)
         return write_text_atomic(path, json.dumps(result.to_json(), indent=1, default=_json_default))
     except OSError as e:
-        raise StorageError(f"{path}: cannot write the result JSON: {e.strerror or e}; the cycle is "
-                           "kept in the history", hint="choose a writable folder for --json") from e
+        raise StorageError(f"{path}: cannot write the result JSON: {e.strerror or e}",
+                           hint="choose a folder for --json that is writable and has free space") from e
 
 
 def _json_default(o):

@@ -71,3 +71,54 @@ def test_close_does_not_wait_forever_for_a_stuck_worker():
     time.sleep(0.5)
     with pytest.raises(ProcessLookupError):
         os.kill(pid, 0)
+
+
+OWNER = """
+import sys, time
+sys.path.insert(0, {root!r})
+from station.compute.workers import WorkerPool
+from tests.test_compute_workers import _sleep
+if __name__ == "__main__":
+    import numpy as np
+    from station.compute.frame_handoff import FrameHandoff
+    pool = WorkerPool(2)
+    FrameHandoff(dict(cam1=np.zeros((4, 4), np.uint8))).__enter__()  # frames in /dev/shm, as mid-cycle
+    if sys.argv[1] == "busy":
+        pool._pool.submit(_sleep, 600.0)
+        pool._pool.submit(_sleep, 600.0)
+        time.sleep(0.5)  # both tasks have reached a worker
+    print("ready", flush=True)
+    time.sleep(600)
+"""
+
+
+@pytest.mark.parametrize("workers", ["idle", "busy"])
+def test_a_killed_owner_leaves_no_process_behind(tmp_path, workers):
+    """SIGKILL of the pool's owner: its workers, the forkserver and the resource tracker end too,
+    and its frames in /dev/shm go, even while the owner is a zombie that nobody has reaped yet."""
+    import signal
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from tests.process_tree import end_marked, left_after, marked_env, marked_processes, new_token
+
+    token = new_token()
+    script = tmp_path / "owner.py"
+    script.write_text(OWNER.format(root=str(Path(__file__).resolve().parent.parent)))
+    owner = subprocess.Popen([sys.executable, str(script), workers], stdout=subprocess.PIPE, text=True,
+                             env=marked_env(token))
+    try:
+        assert owner.stdout.readline().strip() == "ready"
+        started = marked_processes(token)
+        assert len(started) >= 4, started  # the owner, the resource tracker, the forkserver, 2 workers
+        frames = list(Path("/dev/shm").glob(f"station-frames-{owner.pid}-*"))
+        assert frames
+        owner.send_signal(signal.SIGKILL)  # not reaped until the end: a zombie meanwhile
+        left = left_after(token, within_s=5.0)
+        assert left == {}, [p.cmd[:100] for p in left.values()]
+        assert not [f for f in frames if f.exists()]
+    finally:
+        owner.kill()
+        owner.wait()
+        end_marked(token)

@@ -310,3 +310,55 @@ def test_full_disk_is_a_clear_error_and_keeps_earlier_cycles(tmp_path):
     out = _json.loads(p.stdout.strip().splitlines()[-1])
     assert out["stored"] > 10 and out["error"] and "full" in out["error"]
     assert out["check"] == "ok" and out["rows"] == out["stored"]  # nothing half-stored, nothing lost
+
+
+# --- reading a history on a read-only disk ----------------------------------------------------------
+WRITER = textwrap.dedent("""
+    import os, sys
+    sys.path.insert(0, {tests!r})
+    from result_builder import make_result
+    from station.records.history import History
+    h = History(sys.argv[1] + "/history.sqlite")
+    for i in range(1, 4):
+        h.store(make_result(i, cycle=i, job_id=f"JOB-{{i}}"))
+    if sys.argv[2] == "killed":
+        os._exit(0)  # no close: the cycles stay in the -wal file (and its -shm index)
+    h.close()
+""")
+
+
+def _history_on_read_only_mount(tmp_path, state: str):
+    """`station history` on a read-only bind mount of a history left ``state``: (exit status,
+    output, the folder's files before, after)."""
+    import shutil
+    if shutil.which("unshare") is None:
+        pytest.skip("unshare is not installed")
+    data = tmp_path / "data"
+    data.mkdir()
+    writer = tmp_path / "writer.py"
+    writer.write_text(WRITER.format(tests=str(TESTS)))
+    subprocess.run([sys.executable, str(writer), str(data), "closed" if state == "closed" else "killed"], check=True)
+    if state == "killed, index lost":
+        (data / "history.sqlite-shm").unlink()  # as a copy without the -shm file
+    before = sorted(p.name for p in data.iterdir())
+    cmd = (f"mount --bind {data} {data} && mount -o remount,bind,ro {data} && "
+           f"{sys.executable} -m station.cli history --jobs && {sys.executable} -m station.cli history")
+    p = subprocess.run(["unshare", "-m", "sh", "-c", cmd], capture_output=True, text=True, timeout=120,
+                       cwd=TESTS.parent, env={**os.environ, "STATION_DATA_DIR": str(data), "HOME": str(tmp_path)})
+    if p.returncode != 0 and ("mount" in p.stderr or "unshare" in p.stderr):
+        pytest.skip(f"cannot make a private mount here: {p.stderr.strip()[:200]}")
+    return p, before, sorted(q.name for q in data.iterdir())
+
+
+@pytest.mark.parametrize("state", ["closed", "killed", "killed, index lost"])
+def test_cli_reads_a_history_on_a_read_only_disk(tmp_path, state):
+    p, before, after = _history_on_read_only_mount(tmp_path, state)
+    assert p.returncode == 0, p.stderr
+    assert "3 cycle(s)" in p.stdout and all(f"JOB-{i}" in p.stdout for i in (1, 2, 3))
+    assert after == before  # nothing created, nothing removed
+
+
+def test_cli_reading_a_missing_history_creates_nothing(tmp_path, monkeypatch, capsys):
+    assert _cli(["history"], monkeypatch, tmp_path) == 0
+    assert "no cycles match" in capsys.readouterr().out
+    assert list(tmp_path.iterdir()) == []

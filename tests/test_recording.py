@@ -345,3 +345,33 @@ def test_unreachable_viewer_is_only_a_warning(tmp_path):
     rec.log_event("x")
     assert rec.close() == tmp_path / "c.rrd"
     assert time.monotonic() - t0 < 2 and "viewer not available" in rec.warnings[0]
+
+
+KILLED_RECORDER = textwrap.dedent("""
+    import sys, time
+    sys.path.insert(0, {tests!r})
+    from station.records.recording import CycleRecorder
+    rec = CycleRecorder(sys.argv[1])
+    print("recording", flush=True)
+    time.sleep(600)  # killed mid-cycle: its .part file stays
+""")
+
+
+def test_the_next_recorder_removes_what_a_killed_one_left_and_no_live_ones(tmp_path):
+    import os
+    folder = tmp_path / "recordings"
+    script = tmp_path / "killed.py"
+    script.write_text(KILLED_RECORDER.format(tests=str(TESTS)))
+    proc = subprocess.Popen([sys.executable, str(script), str(folder / "c-0001.rrd")], stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "recording"
+    finally:
+        proc.kill()
+        proc.wait()
+    left = [p.name for p in folder.iterdir()]
+    assert left == [f".c-0001.rrd.{proc.pid}.part"]  # what the killed recorder left behind
+    running = folder / f".c-0002.rrd.{os.getppid()}.part"  # another process's recording in progress
+    running.write_bytes(b"")
+    with CycleRecorder(folder / "c-0003.rrd") as rec:
+        rec.log_result(make_result(3, cycle=3))
+    assert sorted(p.name for p in folder.iterdir()) == sorted([running.name, "c-0003.rrd"])

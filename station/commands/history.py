@@ -38,7 +38,7 @@ def _fmt(v) -> str:
 
 def run(args) -> int:
     config = load_config(args.config)
-    with History(config.data_path("history.sqlite")) as history:
+    with History(config.data_path("history.sqlite"), read_only=True) as history:
         if args.jobs:
             print(f"{'job':<24} {'cycles':>6}  last (UTC)")
             for job, n, last in history.job_ids():

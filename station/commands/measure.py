@@ -2,15 +2,33 @@
 
 from __future__ import annotations
 
+import argparse
 import random
 import sys
 
 from calibration.station_frame import AXLES, WHEELS
 from station.config import load_config
+from station.errors import StorageError, user_message
 from station.result import Measurement
+
+EXIT_MEASURED = 0
+EXIT_FAILED = 1  # the cycle failed: no angle is valid
+EXIT_ERROR = 2  # as station.cli: an error before or after the cycle (here: the --json file)
+EXIT_NOT_KEPT = 4  # measured, printed and --json written; the data disk refused images, recording or history
+EXIT_STATUS_HELP = """exit status:
+  0  measured; the result is printed (and written to --json) and kept
+  1  the measurement failed (no valid angle); the failure is printed (and kept
+     unless a warning says the data disk refused it)
+  2  an error: nothing measured, or the --json file could not be written
+     (the result is still printed above the error)
+  4  measured, printed and written to --json, but the data disk refused to keep
+     part of the cycle (images, recording or history row: full, read-only):
+     the warnings say which"""
 
 
 def add_arguments(parser):
+    parser.epilog = EXIT_STATUS_HELP
+    parser.formatter_class = argparse.RawDescriptionHelpFormatter
     parser.add_argument("--seed", type=int, default=None,
                         help="simulated station only: which random vehicle stands on the lift (default: a new one)")
     parser.add_argument("--vehicle", metavar="NAME", help="vehicle spec from config/vehicles.yaml: adds pass/fail")
@@ -36,9 +54,20 @@ def run(args) -> int:
         result.simulation_seed = seed
     print_result(result)
     if args.json:
-        write_json(result, args.json)
+        try:
+            write_json(result, args.json)
+        except StorageError as e:
+            print(user_message(e) + "\n  the result is printed above", file=sys.stderr)
+            return EXIT_ERROR
         print(f"result written to {args.json}")
-    return 0 if result.valid else 1
+    return exit_status(result)
+
+
+def exit_status(result: Measurement) -> int:
+    """The exit status of a cycle whose result was printed (EXIT_STATUS_HELP)."""
+    if not result.valid:
+        return EXIT_FAILED
+    return EXIT_NOT_KEPT if result.has_flag("not_kept") else EXIT_MEASURED
 
 
 def _pm(value, std):
@@ -57,6 +86,8 @@ def print_result(result: Measurement, out=sys.stdout) -> None:
         p("no angle of this cycle is valid.")
         if result.captures_dir:
             p(f"the images are kept for review in {result.captures_dir}")
+        for w in result.warnings:
+            p(f"warning: {w}")
         return
     spec = result.vehicle_spec
     verdicts = result.verdicts or {}

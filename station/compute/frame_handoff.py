@@ -11,6 +11,7 @@ through the pipe as before: same results, only slower.
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import tempfile
 from dataclasses import dataclass
@@ -18,8 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
+from station.compute import orphans
+
 SHM_DIR = Path("/dev/shm")
 PREFIX = "station-frames-"  # then the owner's PID: a folder whose owner is gone is an orphan
+_ORPHAN = re.compile(re.escape(PREFIX) + r"(?P<pid>\d+)-.*")
 
 
 @dataclass(frozen=True)
@@ -74,21 +78,11 @@ class FrameHandoff:
 def remove_orphans(shm_dir: Path = SHM_DIR) -> int:
     """Remove frame folders left by a station process that was killed mid-cycle (their owner's
     PID no longer runs); returns how many. Folders of running processes are left alone."""
-    removed = 0
-    for folder in shm_dir.glob(f"{PREFIX}*"):
-        pid = folder.name[len(PREFIX):].split("-", 1)[0]
-        if not pid.isdigit() or _alive(int(pid)):
-            continue
+    return orphans.remove_orphans(shm_dir, _ORPHAN)
+
+
+def remove_frames_of(owner_pid: int, shm_dir: Path = SHM_DIR) -> None:
+    """Remove the frame folders of ``owner_pid``, which the caller knows to be gone (a killed
+    process is still a zombie to :func:`remove_orphans` until its parent has reaped it)."""
+    for folder in shm_dir.glob(f"{PREFIX}{owner_pid}-*"):
         shutil.rmtree(folder, ignore_errors=True)
-        removed += 1
-    return removed
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # another user's process: alive
-        return True
-    return True

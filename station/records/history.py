@@ -6,6 +6,11 @@ is written in ONE transaction, so a process killed mid-write leaves either the w
 none of it, and SQLite's journal keeps the file consistent. Every failure (corrupt file, locked
 database, full disk, read-only folder) is a :class:`~station.errors.StorageError` that says what
 to do; the caller keeps its result.
+
+A reader (``History(path, read_only=True)``) writes nothing: a missing history reads as an
+empty one (no file is made), and on a read-only disk the file is opened as SQLite's
+"immutable" (no lock, no -shm/-wal files made), or read-only through its existing -shm
+index when cycles are still in the -wal file.
 """
 
 from __future__ import annotations
@@ -17,10 +22,15 @@ import json
 import math
 import numbers
 import os
+import re
+import shutil
 import sqlite3
+import tempfile
 import threading
 from pathlib import Path
+from urllib.parse import quote
 
+from station.compute.orphans import remove_orphans
 from station.records.atomic_file import write_atomic
 from station.errors import StorageError
 from station.result import ANGLE_NAMES, Measurement
@@ -53,6 +63,7 @@ CREATE TABLE IF NOT EXISTS angles (
     PRIMARY KEY (cycle, name)
 ) WITHOUT ROWID;
 """
+_COPY = re.compile(r"station-history-(?P<pid>\d+)-.+")  # a reader's private copy (read-only disk)
 _COLUMNS = ("id", "cycle_id", "time_utc", "job_id", "vehicle_spec", "valid", "passed",
             "calibration_id", "recording", "software_version", "station")
 
@@ -125,13 +136,42 @@ def _angle_rows(result: Measurement) -> list[tuple[str, float | None, float | No
     return rows
 
 
-class History:
-    """The history database at ``path`` (created on first use). ``timeout_s``: wait for a lock."""
+def _writable(path: Path) -> bool:
+    """Whether SQLite may write ``path`` and create its -wal/-shm files beside it."""
+    return os.access(path.parent, os.W_OK) and (not path.exists() or os.access(path, os.W_OK))
 
-    def __init__(self, path: str | os.PathLike, *, timeout_s: float = 5.0):
+
+def _disk_problem(folder: Path) -> str | None:
+    """Why ``folder`` cannot be written (read-only file system, full disk, permissions), if known."""
+    try:
+        st = os.statvfs(folder)
+    except OSError:
+        return None
+    if st.f_flag & os.ST_RDONLY:
+        return "the data folder is on a read-only file system"
+    if st.f_bavail == 0:
+        return "the data disk is full"
+    if not os.access(folder, os.W_OK):
+        return "the data folder is not writable"
+    return None
+
+
+class History:
+    """The history database at ``path`` (created on first use). ``timeout_s``: wait for a lock.
+    ``read_only``: for reading only, creating no file (module docstring)."""
+
+    def __init__(self, path: str | os.PathLike, *, timeout_s: float = 5.0, read_only: bool = False):
         self.path = Path(path)
         self.timeout_s = timeout_s
         self._lock = threading.RLock()
+        self._copy_dir: str | None = None
+        if read_only:
+            try:
+                self._conn = self._connect_read_only()
+            except (sqlite3.Error, OSError) as e:
+                self.close()
+                raise self._error(e, "cannot open the history") from e
+            return
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             # one connection, usable from the server's threads; self._lock serialises its use
@@ -152,6 +192,50 @@ class History:
         except (sqlite3.Error, OSError) as e:
             raise self._error(e, "cannot open the history") from e
 
+    def _connect_read_only(self) -> sqlite3.Connection:
+        wal = self.path.with_name(self.path.name + "-wal")
+        shm = self.path.with_name(self.path.name + "-shm")
+        if not self.path.exists():
+            return self._empty()
+        if _writable(self.path):
+            conn = self._connect(self.path, "mode=ro")
+        elif not wal.exists() or wal.stat().st_size == 0:
+            conn = self._connect(self.path, "immutable=1")  # every cycle is in the main file
+        elif shm.exists():
+            conn = self._connect(self.path, "mode=ro")  # SQLite reads the -wal through the -shm index
+        else:
+            # cycles in the -wal but no index to read them by, and none may be made there:
+            # read a private copy (SQLite rebuilds the index beside the copy)
+            remove_orphans(Path(tempfile.gettempdir()), _COPY)  # copies of readers that were killed
+            self._copy_dir = tempfile.mkdtemp(prefix=f"station-history-{os.getpid()}-")
+            copy = Path(self._copy_dir) / self.path.name
+            shutil.copyfile(self.path, copy)
+            shutil.copyfile(wal, copy.with_name(copy.name + "-wal"))
+            conn = self._connect(copy, "mode=ro")
+        version = conn.execute("PRAGMA user_version").fetchone()[0]
+        if version > SCHEMA_VERSION:
+            conn.close()
+            raise StorageError(f"{self.path}: history written by a newer station (schema {version})",
+                               hint="update the station software, or point data_dir elsewhere")
+        if version < SCHEMA_VERSION:  # an empty file (a first cycle that found the disk full): no cycles yet
+            conn.close()
+            return self._empty()
+        return conn
+
+    def _connect(self, path: Path, options: str) -> sqlite3.Connection:
+        conn = sqlite3.connect(f"file:{quote(str(path))}?{options}", uri=True, timeout=self.timeout_s,
+                               isolation_level=None, check_same_thread=False)
+        conn.row_factory = sqlite3.Row
+        return conn
+
+    @staticmethod
+    def _empty() -> sqlite3.Connection:
+        """An empty history in memory: what a reader sees where no cycle was stored yet."""
+        conn = sqlite3.connect(":memory:", isolation_level=None, check_same_thread=False)
+        conn.row_factory = sqlite3.Row
+        conn.executescript(_SCHEMA)
+        return conn
+
     # -- errors ------------------------------------------------------------------------------------
     def _error(self, e: Exception, doing: str) -> StorageError:
         text = str(e)
@@ -167,7 +251,8 @@ class History:
         if isinstance(e, OSError) or "readonly" in text or "read-only" in text or "disk" in text \
                 or "unable to open" in text or "full" in text:
             reason = getattr(e, "strerror", None) or text
-            return StorageError(f"{self.path}: {doing}: {reason}",
+            problem = _disk_problem(self.path.parent)
+            return StorageError(f"{self.path}: {doing}: {reason}" + (f" ({problem})" if problem else ""),
                                 hint="check that the data folder exists, is writable and has free space")
         return StorageError(f"{self.path}: {doing}: {text}")
 
@@ -291,7 +376,11 @@ class History:
             raise self._error(e, "cannot check the history") from e
 
     def close(self) -> None:
-        self._conn.close()
+        if getattr(self, "_conn", None) is not None:
+            self._conn.close()
+        if self._copy_dir is not None:
+            shutil.rmtree(self._copy_dir, ignore_errors=True)
+            self._copy_dir = None
 
     def __enter__(self) -> "History":
         return self

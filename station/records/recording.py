@@ -20,7 +20,9 @@ One ``.rrd`` file per cycle, written by :class:`CycleRecorder`. Entity paths mir
 Writing never interrupts a measurement: a failure to write (read-only folder, full disk) is
 latched, later calls become no-ops, the partial file is removed, and :meth:`CycleRecorder.close`
 raises :class:`~station.errors.StorageError` once, after the caller has its result. The data
-goes to a ``.part`` file beside the target and is renamed into place only when complete.
+goes to a ``.<name>.<writer's PID>.part`` file beside the target and is renamed into place only
+when complete; the first recorder of a process in a folder removes the ``.part`` files there
+whose writer was killed (:func:`remove_unfinished_recordings`).
 """
 
 from __future__ import annotations
@@ -42,11 +44,14 @@ import numpy as np
 import rerun as rr
 
 from calibration.station_frame import AXLES, WHEELS
+from station.compute.orphans import remove_orphans
 from station.errors import StorageError
 from station.records.history import finite_number, jsonable
 from station.result import Measurement
 
 _LEVELS = {"TRACE", "DEBUG", "INFO", "WARN", "ERROR", "CRITICAL"}
+UNFINISHED = re.compile(r"\.(?P<name>.+\.rrd)\.(?P<pid>\d+)\.part")  # a recording being written
+_swept_folders: set[Path] = set()  # folders this process has cleared of killed writers' .part files
 _WHEEL_COLORS = {"FL": (230, 160, 40), "FR": (60, 170, 230), "RL": (200, 90, 200), "RR": (90, 200, 110)}
 
 
@@ -73,6 +78,12 @@ def angle_values(result: Measurement) -> dict[str, float]:
     if v is not None:
         out["thrust"] = v
     return out
+
+
+def remove_unfinished_recordings(folder: str | os.PathLike) -> int:
+    """Remove the ``.part`` files in ``folder`` whose writer was killed (its PID no longer runs);
+    returns how many. A running process's recording is left alone."""
+    return remove_orphans(Path(folder), UNFINISHED)
 
 
 def recording_id_for(job_id: str | None) -> str | None:
@@ -143,6 +154,9 @@ class CycleRecorder:
             self._attach_viewer(application, spawn_viewer, viewer_url)
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
+            if self.path.parent not in _swept_folders:
+                _swept_folders.add(self.path.parent)
+                remove_unfinished_recordings(self.path.parent)
             self._file = open(self._part, "wb")
         except OSError as e:
             self._fail(e, "cannot create the recording")
