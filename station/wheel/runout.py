@@ -48,50 +48,62 @@ def rotate(axis: np.ndarray, angles_rad: np.ndarray, vectors: np.ndarray) -> np.
     return v * c + np.cross(a, v) * s + np.outer(v @ a, a) * (1 - c)
 
 
-def _residuals(p: np.ndarray, normals: np.ndarray, angles: np.ndarray, basis) -> np.ndarray:
-    """(3K,) the normals less the model's: p = (axis offsets (2), normal-at-zero offsets (2))."""
+def _residuals(p: np.ndarray, normals: np.ndarray, angles: np.ndarray, basis, whiten: np.ndarray) -> np.ndarray:
+    """(2K,) the normals less the model's, across each normal, whitened by its covariance:
+    p = (axis offsets (2), normal-at-zero offsets (2)); whiten (K,2,3)."""
     a = normal_from(p[:2], *basis)
     m = normal_from(p[2:4], *basis)
-    return (normals - rotate(a, angles, m)).ravel()
+    return np.einsum("kij,kj->ki", whiten, normals - rotate(a, angles, m)).ravel()
+
+
+def _whitening(normals: np.ndarray, cov_normals: np.ndarray | None) -> np.ndarray:
+    """(K,2,3): per normal, the map from a 3-D residual to its two components across the normal,
+    scaled by their inverse square-root covariance (plain components without covariances)."""
+    out = []
+    for i, n in enumerate(normals):
+        e1 = np.cross(n, [0.0, 0.0, 1.0])
+        e1 /= np.linalg.norm(e1)
+        P = np.stack([e1, np.cross(n, e1)])                                        # (2,3)
+        if cov_normals is None:
+            out.append(P)
+            continue
+        vals, vecs = np.linalg.eigh(P @ cov_normals[i] @ P.T)
+        out.append((vecs / np.sqrt(np.maximum(vals, 1e-20))) @ vecs.T @ P)
+    return np.array(out)
 
 
 def fit_spin_axis(normals: np.ndarray, roll_rad: np.ndarray, cov_normals: np.ndarray | None = None,
                   lip_radius_m: float = 0.0) -> SpinAxis:
     """The spin axis of a rim whose normals (K,3) were measured at roll angles (K,) (relative to
     any one capture; K >= 2, and the angles must differ). ``cov_normals`` (K,3,3): the normals'
-    covariances, propagated to the axis (first order, normals independent); ``lip_radius_m`` for
-    the runout in mm."""
+    covariances: each weighs its normal (generalised least squares) and the axis' covariance is
+    the fit's; without them the normals count alike and no covariance is stated. ``lip_radius_m``
+    for the runout in mm."""
     n = np.asarray(normals, float)
     n = n / np.linalg.norm(n, axis=1, keepdims=True)
     theta = np.asarray(roll_rad, float)
     basis = axis_basis(n.mean(axis=0))
-    sol = least_squares(_residuals, np.zeros(4), args=(n, theta, basis), method="lm", xtol=1e-15, ftol=1e-15)
+    cov_n = None if cov_normals is None else np.asarray(cov_normals, float)
+    whiten = _whitening(n, cov_n)
+    sol = least_squares(_residuals, np.zeros(4), args=(n, theta, basis, whiten), method="lm", xtol=1e-15, ftol=1e-15)
     a = normal_from(sol.x[:2], *basis)
     m = normal_from(sol.x[2:4], *basis)
-    cov = np.full((3, 3), np.nan)
-    if cov_normals is not None:
-        cov = _axis_covariance(sol.x, n, theta, basis, np.asarray(cov_normals, float))
+    cov = np.full((3, 3), np.nan) if cov_n is None else _axis_covariance(sol, basis)
     tilt = float(np.arccos(np.clip(a @ m, -1.0, 1.0)))
     e1, e2 = ring_basis(m)
     toward = a - m * (a @ m)  # the spin axis seen from the rim's normal: the rim leans away from it
     phase = float(np.degrees(np.arctan2(-(toward @ e2), -(toward @ e1)))) % 360.0 if tilt > 0 else 0.0
-    misfit = float(np.degrees(np.sqrt(np.mean(sol.fun.reshape(-1, 3) ** 2) * 3)))
+    unweighted = _residuals(sol.x, n, theta, basis, _whitening(n, None))
+    misfit = float(np.degrees(np.sqrt(np.mean(unweighted ** 2) * 2)))
     return SpinAxis(a, cov, m, float(np.degrees(tilt)), phase, 2000.0 * lip_radius_m * np.sin(tilt), misfit)
 
 
-def _axis_covariance(p, n, theta, basis, cov_n) -> np.ndarray:
-    """(3,3) covariance of the fitted axis from the normals' (K,3,3), by the implicit-function
-    theorem: dp/dn = -(J_p^T J_p)^-1 J_p^T J_n, J_n the identity on the normals."""
-    def jac(fun, x, h):
-        return np.stack([(fun(x + h * e) - fun(x - h * e)) / (2 * h) for e in np.eye(len(x))], axis=1)
-    Jp = jac(lambda q: _residuals(q, n, theta, basis), p, 1e-7)                  # (3K,4)
-    dp_dn = -np.linalg.pinv(Jp.T @ Jp) @ Jp.T                                   # (4,3K): residuals are n - model
-    k = len(n)
-    big = np.zeros((3 * k, 3 * k))
-    for i in range(k):
-        big[3 * i:3 * i + 3, 3 * i:3 * i + 3] = cov_n[i]
-    cov_p = dp_dn @ big @ dp_dn.T
-    J_axis = jac(lambda q: normal_from(q, *basis), p[:2], 1e-7)                 # (3,2)
+def _axis_covariance(sol, basis) -> np.ndarray:
+    """(3,3) covariance of the fitted axis: the whitened fit's (J^T J)^-1, carried to the axis."""
+    cov_p = np.linalg.pinv(sol.jac.T @ sol.jac)
+    h = 1e-7
+    J_axis = np.stack([(normal_from(sol.x[:2] + h * e, *basis) - normal_from(sol.x[:2] - h * e, *basis)) / (2 * h)
+                       for e in np.eye(2)], axis=1)                                # (3,2)
     return J_axis @ cov_p[:2, :2] @ J_axis.T
 
 
