@@ -42,10 +42,14 @@ class _Bad(Exception):
 def _number(lo=-math.inf, hi=math.inf, integer=False):
     def check(v, key):
         if isinstance(v, bool) or not isinstance(v, (int, float)) or (integer and not isinstance(v, int)):
-            raise _Bad(f"expected {'an integer' if integer else 'a number'}, got {v!r}")
-        if not math.isfinite(v) or not lo <= v <= hi:
-            raise _Bad(f"expected a value in [{lo}, {hi}], got {v!r}")
-        return int(v) if integer else float(v)
+            raise _Bad(f"expected {'an integer' if integer else 'a number'}, got {v!r}"[:200])
+        try:
+            x = float(v)  # an integer of hundreds of digits is beyond any float
+        except OverflowError:
+            x = math.inf
+        if not math.isfinite(x) or not lo <= v <= hi:
+            raise _Bad(f"expected a value in [{lo}, {hi}], got {v if x == v else f'{x:g}'}")
+        return int(v) if integer else x
     return check
 
 
@@ -327,17 +331,24 @@ def read_yaml(path: Path, what: str, hint: str) -> Any:
     """The parsed YAML file ``path``, ``what`` it holds naming it in a ConfigError when it is
     missing (with ``hint``), unreadable or not YAML (with the line and column)."""
     try:
-        text = path.read_text()
+        data = path.read_bytes()
     except FileNotFoundError:
         raise ConfigError(f"{path}: {what} not found", hint=hint) from None
     except OSError as e:
-        raise ConfigError(f"{path}: cannot read the {what} ({e.strerror})") from None
+        raise ConfigError(f"{path}: cannot read the {what} ({e.strerror or e})") from None
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise ConfigError(f"{path}: the {what} is not text: byte {e.start} is not UTF-8 (a binary or damaged file)",
+                          hint="restore the file from a copy; docs/configuration.md describes it") from None
     try:
         return yaml.safe_load(text)
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
-        raise ConfigError(f"{path}: not valid YAML{where}: {getattr(e, 'problem', e)}") from None
+        raise ConfigError(f"{path}: not valid YAML{where}: {getattr(e, 'problem', None) or e}") from None
+    except RecursionError:  # nesting no configuration has
+        raise ConfigError(f"{path}: not valid YAML: nested too deeply") from None
 
 
 def load_config(path: str | os.PathLike | None = None) -> StationConfig:

@@ -58,6 +58,50 @@ def test_missing_and_broken_files(tmp_path):
         load_config(bad)
 
 
+@pytest.mark.parametrize("content, expected", [
+    (b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR\xff\xfe", "the configuration file is not text: byte 0 is not UTF-8"),
+    (b"version: 1\nname: st\x00ation\n", "not valid YAML"),
+    (b"[" * 50_000, "not valid YAML"),
+    (b"", "missing required key"),
+])
+def test_files_that_are_not_a_configuration(tmp_path, content, expected):
+    path = tmp_path / "station.yaml"
+    path.write_bytes(content)
+    with pytest.raises(ConfigError, match=expected):
+        load_config(path)
+
+
+def test_a_number_beyond_any_float_is_named(tmp_path):
+    path = _write(tmp_path, lambda d: d["capture"].update(timeout_s=10**400))
+    with pytest.raises(ConfigError, match=r"capture\.timeout_s: expected a value in \[0\.01, 600\], got inf"):
+        load_config(path)
+    path = _write(tmp_path, lambda d: d["cameras"]["cam2"]["nominal"].update(position_m=[0, -(10**400), 1]))
+    with pytest.raises(ConfigError, match=r"cameras\.cam2\.nominal\.position_m"):
+        load_config(path)
+
+
+def test_a_truncated_configuration_is_refused_or_complete(tmp_path):
+    """Cut anywhere, the file is refused with a ConfigError, or what is left is a whole
+    configuration (the optional sections at its end take their defaults)."""
+    text = DEFAULT_CONFIG.read_bytes()
+    path = tmp_path / "station.yaml"
+    for n in range(0, len(text), max(1, len(text) // 150)):
+        path.write_bytes(text[:n].replace(b"vehicles.yaml", str(DEFAULT_CONFIG.parent / "vehicles.yaml").encode()))
+        try:
+            load_config(path)
+        except ConfigError:
+            pass
+
+
+def test_cli_reports_a_binary_configuration_without_traceback(tmp_path):
+    path = tmp_path / "station.yaml"
+    path.write_bytes(bytes(range(256)))
+    out = subprocess.run([sys.executable, "-m", "station.cli", "--config", str(path), "history"],
+                         capture_output=True, text=True)
+    assert out.returncode == 2 and "is not text: byte 128 is not UTF-8" in out.stderr
+    assert "Traceback" not in out.stderr and "internal error" not in out.stderr
+
+
 def test_cli_reports_config_errors_without_traceback(tmp_path):
     path = _write(tmp_path, lambda d: d["cameras"]["cam3"].update(role="main"))
     out = subprocess.run([sys.executable, "-m", "station.cli", "--config", str(path), "errors"],
