@@ -71,11 +71,12 @@ def _bool(v, key):
     return v
 
 
-def _vector(n, positive=False, integer=False):
+def _vector(n, positive=False, integer=False, lo=-math.inf, hi=math.inf):
+    """A list of ``n`` numbers in [lo, hi]; ``positive``: each at least 1 (pixel counts)."""
     def check(v, key):
         if not isinstance(v, (list, tuple)) or len(v) != n:
-            raise _Bad(f"expected a list of {n} numbers, got {v!r}")
-        out = [_number(lo=1 if positive else -math.inf, integer=integer)(x, key) for x in v]
+            raise _Bad(f"expected a list of {n} numbers, got {v!r}"[:200])
+        out = [_number(lo=1 if positive else lo, hi=hi, integer=integer)(x, key) for x in v]
         return tuple(out)
     return check
 
@@ -386,19 +387,34 @@ def _check_station(path: Path, tree: Section) -> None:
 
 
 # --- the calibration box's description (config/box.yaml) -------------------------------------
+BOX_FACE = {
+    "squares": Field(_vector(2, integer=True, lo=2, hi=1000), doc="chessboard squares (columns, rows)"),
+    "first_id": Field(_number(0, 100_000, integer=True), doc="the face's first ArUco marker id"),
+}
+BOX_SCHEMA = {
+    "version": Field(_number(1, 1, integer=True), default=1, doc="format version, 1"),
+    "size_m": Field(_vector(3, lo=0.01, hi=10), doc="the box's length, width and height (m)"),
+    "dictionary": Field(_string(), doc="a cv2.aruco predefined dictionary, e.g. DICT_5X5_1000"),
+    "square_m": Field(_number(1e-4, 1), doc="chessboard square side (m)"),
+    "marker_m": Field(_number(1e-4, 1), doc="ArUco marker side (m)"),
+    "texel_m": Field(_number(1e-5, 0.01), default=0.0005, doc="texture resolution (m)"),
+    "faces": Field(_mapping_of(BOX_FACE), doc="face name -> squares and first_id"),
+}
+
+
 def load_box(path: str | os.PathLike) -> BoxTarget:
-    """Read config/box.yaml. Raises ConfigError naming the file and the problem."""
+    """Read config/box.yaml. Raises ConfigError naming the file, the key and the problem."""
     from calibration.box_target import BoxTarget  # OpenCV, loaded only when a box is read
 
     path = Path(path)
     raw = read_yaml(path, "box description", "calibration.box in station.yaml must name the box file")
-    if not isinstance(raw, dict):
-        raise ConfigError(f"{path}: expected a mapping with size_m, dictionary, square_m, marker_m, faces")
-    missing = [k for k in ("size_m", "dictionary", "square_m", "marker_m", "faces") if k not in raw]
-    if missing:
-        raise ConfigError(f"{path}: missing key {missing[0]!r}")
+    hint = "fix the box file; config/box.yaml describes every key"
     try:
-        return BoxTarget(raw["size_m"], raw["dictionary"], raw["square_m"], raw["marker_m"],
-                         raw["faces"], raw.get("texel_m", 0.0005), source=str(path))
+        box = _validate(raw, BOX_SCHEMA, "")
+    except _BadAt as e:
+        raise ConfigError(f"{path}: {e.key}: {e}", hint=hint) from None
+    faces = {name: {"squares": f.squares, "first_id": f.first_id} for name, f in box.faces.items()}
+    try:
+        return BoxTarget(box.size_m, box.dictionary, box.square_m, box.marker_m, faces, box.texel_m, source=str(path))
     except (ValueError, TypeError, KeyError) as e:
-        raise ConfigError(f"{path}: {e}") from None
+        raise ConfigError(f"{path}: {e}", hint=hint) from None

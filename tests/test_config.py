@@ -93,6 +93,30 @@ def test_a_truncated_configuration_is_refused_or_complete(tmp_path):
             pass
 
 
+@pytest.mark.parametrize("mutate, expected", [
+    (lambda d: d["faces"]["px"].update(squares=[1, 1]), r"faces\.px\.squares: expected a value in \[2, 1000\]"),
+    (lambda d: d["faces"]["px"].update(squares=[12.5, 14]), r"faces\.px\.squares: expected an integer"),
+    (lambda d: d["faces"]["py"].update(first_id=None), r"faces\.py\.first_id: expected an integer"),
+    (lambda d: d["faces"].update(nx=None), r"faces\.nx\.squares: missing required key"),
+    (lambda d: d.update(square_m="big"), r"square_m: expected a number"),
+    (lambda d: d.update(size_m=[0.5, 0.5, 10**400]), r"size_m: expected a value in \[0\.01, 10\], got inf"),
+    (lambda d: d.update(dictionary=7), r"dictionary: expected a non-empty string"),
+    (lambda d: d.update(dictionary="DICT_NOPE"), r"unknown ArUco dictionary 'DICT_NOPE'"),
+    (lambda d: d.update(marker_m=0.05), r"marker_m must be positive and smaller than square_m"),
+    (lambda d: d.update(colour="red"), r"colour: unknown key"),
+])
+def test_box_file_mistakes_are_named(tmp_path, mutate, expected):
+    from station.config import load_box
+
+    data = yaml.safe_load((DEFAULT_CONFIG.parent / "box.yaml").read_text())
+    mutate(data)
+    path = tmp_path / "box.yaml"
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(ConfigError, match=expected) as info:
+        load_box(path)
+    assert str(path) in str(info.value)
+
+
 def test_cli_reports_a_binary_configuration_without_traceback(tmp_path):
     path = tmp_path / "station.yaml"
     path.write_bytes(bytes(range(256)))
