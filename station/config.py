@@ -167,9 +167,11 @@ def _join(a, b):
 
 
 # --- the schema -----------------------------------------------------------------------------
+STATION_EXTENT_M = 100.0  # every position in the station frame lies within this of its origin
+_POSITION = _vector(3, lo=-STATION_EXTENT_M, hi=STATION_EXTENT_M)
 NOMINAL = {
-    "position_m": Field(_vector(3), doc="camera position in the station frame (m)"),
-    "look_at_m": Field(_vector(3), doc="point the optical axis aims at (m)"),
+    "position_m": Field(_POSITION, doc="camera position in the station frame (m)"),
+    "look_at_m": Field(_POSITION, doc="point the optical axis aims at (m)"),
     "focal_px": Field(_number(100, 1e5), doc="nominal focal length (px)"),
 }
 CAMERA = {
@@ -193,7 +195,7 @@ CAMERA_DEFAULTS = {
     "response_gamma": Field(CAMERA["response_gamma"].check, default=1.0),
 }
 FIXTURE = {
-    "position_m": Field(_vector(3)),
+    "position_m": Field(_POSITION),
     "yaw_deg": Field(_number(-180, 180)),
 }
 SCHEMA = {
@@ -376,6 +378,11 @@ def _check_station(path: Path, tree: Section) -> None:
                               f"camera, found {roles or 'none'}")
     seen: dict[str, str] = {}
     for cam_id, c in cams.items():
+        axis = [b - a for a, b in zip(c.nominal.position_m, c.nominal.look_at_m)]
+        if math.hypot(axis[0], axis[1]) < 1e-3 * max(1.0, abs(axis[2])):
+            raise ConfigError(f"{path}: cameras.{cam_id}.nominal: look_at_m is "
+                              + ("position_m itself" if not any(axis) else "straight above or below position_m")
+                              + "; a station camera looks across the runway at a wheel")
         scheme = c.uri.split("://", 1)[0] if "://" in c.uri else ""
         if scheme not in URI_SCHEMES:
             raise ConfigError(f"{path}: cameras.{cam_id}.uri: unknown scheme in {c.uri!r}; expected "

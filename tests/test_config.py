@@ -41,6 +41,13 @@ def test_default_config_loads_eight_cameras_in_four_pairs():
     (lambda d: d.pop("version"), r"version: missing required key"),
     (lambda d: d["simulation"].update(noise_sigma="high"), r"simulation\.noise_sigma: expected a number"),
     (lambda d: d["cameras"]["cam3"].update(response_gamma=0), r"cameras\.cam3\.response_gamma: expected a value in"),
+    (lambda d: d["cameras"]["cam3"]["nominal"].update(position_m=[1e308, 0, 1]),
+     r"cameras\.cam3\.nominal\.position_m: expected a value in \[-100\.0, 100\.0\]"),
+    (lambda d: d["calibration"]["fixture"]["FL"].update(position_m=[0, 0, -1e5]), r"calibration\.fixture\.FL\.position_m"),
+    (lambda d: d["cameras"]["cam5"]["nominal"].update(look_at_m=d["cameras"]["cam5"]["nominal"]["position_m"]),
+     r"cameras\.cam5\.nominal: look_at_m is position_m itself"),
+    (lambda d: d["cameras"]["cam6"]["nominal"].update(look_at_m=[*d["cameras"]["cam6"]["nominal"]["position_m"][:2], 0]),
+     r"cameras\.cam6\.nominal: look_at_m is straight above or below position_m"),
 ])
 def test_mistakes_are_named(tmp_path, mutate, expected):
     path = _write(tmp_path, mutate)
