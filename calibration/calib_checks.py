@@ -10,6 +10,8 @@ what is wrong; ``StationCalibration.from_dict`` turns that into the CalibrationE
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
+from datetime import datetime
 
 import numpy as np
 
@@ -84,10 +86,15 @@ def number(v, where: str, lo: float = -math.inf, hi: float = math.inf) -> float:
 
 def integer(v, where: str, lo: int, hi: int) -> int:
     if isinstance(v, bool) or not isinstance(v, int):
-        raise FieldError(where, f"expected a whole number, got {_kind(v)} {v!r}"[:120])
+        raise FieldError(where, f"expected a whole number, got {_kind(v)} {_short(v)}")
     if not lo <= v <= hi:
-        raise FieldError(where, f"{v} is outside [{lo}, {hi}]")
+        raise FieldError(where, f"{_short(v)} is outside [{lo}, {hi}]")
     return v
+
+
+def _short(v) -> str:
+    text = repr(v)
+    return text if len(text) <= 24 else f"{text[:12]}...({len(text)} characters)"
 
 
 def text(v, where: str) -> str:
@@ -109,6 +116,49 @@ def array(v, where: str, shape: tuple[int, ...]) -> np.ndarray:
             check(item, depth + 1, f"{path}[{i}]")
     check(v, 0, where)
     return np.array(v, dtype=float)
+
+
+# --- the document -------------------------------------------------------------------------------
+@dataclass
+class Document:
+    """A calibration file's content, checked: per camera (model, RMS, corners used, std), per
+    wheel (left, right), the pairs' covariances, the header's texts and the notes."""
+
+    cameras: dict[str, tuple[CameraModel, float, int, dict]]
+    pairs: dict[str, tuple[str, str]]
+    covariance: dict[str, np.ndarray]
+    header: dict[str, str]
+    notes: dict
+
+
+def read_document(d: dict) -> Document:
+    """Every part of a parsed calibration file (its format and version already checked)."""
+    keys(d, "", ("format", "format_version", "cameras", "pairs"), TOP_KEYS)
+    header = {k: text(d.get(k, ""), k) for k in TOP_TEXT}
+    if header["created_utc"]:
+        try:
+            datetime.fromisoformat(header["created_utc"])
+        except ValueError:
+            raise FieldError("created_utc", f"{_short(header['created_utc'])} is not an ISO 8601 time") from None
+    if not mapping(d["cameras"], "cameras"):
+        raise FieldError("cameras", "no cameras")
+    cameras = {cam_id: read_camera(cam_id, c) for cam_id, c in d["cameras"].items()}
+    if "camera_ids" in d:  # written for other tools: it must still list the cameras
+        ids = d["camera_ids"]
+        if not isinstance(ids, list) or sorted(map(str, ids)) != sorted(cameras) or len(set(map(str, ids))) != len(ids):
+            raise FieldError("camera_ids", f"must list the cameras of the file ({', '.join(cameras)})")
+    models = {cam_id: parts[0] for cam_id, parts in cameras.items()}
+    pairs, covariance = {}, {}
+    for wheel, p in mapping(d["pairs"], "pairs").items():
+        left, right, cov = read_pair(wheel, p, models)
+        pairs[wheel] = (left, right)
+        if cov is not None:
+            covariance[wheel] = cov
+    if covariance and len(covariance) != len(pairs):  # one bundle adjustment writes all (imports, old files: none)
+        lacking = sorted(set(pairs) - set(covariance))
+        raise FieldError(f"pairs.{lacking[0]}.covariance", f"missing while pair(s) {', '.join(sorted(covariance))} "
+                         "have theirs")
+    return Document(cameras, pairs, covariance, header, mapping(d.get("notes", {}), "notes"))
 
 
 # --- a camera ---------------------------------------------------------------------------------
@@ -137,7 +187,7 @@ def read_camera(cam_id: str, c) -> tuple[CameraModel, float, int, dict]:
     rms = c.get("reprojection_rms_px")
     rms = math.nan if rms is None else number(rms, f"{where}.reprojection_rms_px", 0, max(width, height))
     n_points = integer(c.get("n_points", 0), f"{where}.n_points", 0, 10**9)
-    return model, rms, n_points, read_std(c.get("std", {}), f"{where}.std")
+    return model, rms, n_points, read_std(c.get("std", {}), f"{where}.std", model)
 
 
 def check_intrinsics(where: str, width: int, height: int, K: np.ndarray) -> None:
@@ -202,18 +252,34 @@ def distortion_problem(model: CameraModel, n: int = 48) -> str | None:
     return None
 
 
-def read_std(v, where: str) -> dict:
-    """{parameter: standard deviation}: fx..k3 one number each, position_m and rotation_deg three."""
+def read_std(v, where: str, model: CameraModel) -> dict:
+    """{parameter: standard deviation}: fx..k3 one number each, position_m and rotation_deg three;
+    each at most std_limits(model)'s."""
     mapping(v, where)
     keys(v, where, (), (*STD_SCALARS, *STD_VECTORS))
+    limits = std_limits(model)
     out = {}
     for k, x in v.items():
         if k in STD_VECTORS:
-            out[k] = [number(s, f"{where}.{k}[{i}]", 0) for i, s in enumerate(
+            out[k] = [number(s, f"{where}.{k}[{i}]", 0, limits[k]) for i, s in enumerate(
                 array(x, f"{where}.{k}", (3,)).tolist())]
         else:
-            out[k] = number(x, f"{where}.{k}", 0)
+            out[k] = number(x, f"{where}.{k}", 0, limits[k])
     return out
+
+
+def std_limits(model: CameraModel) -> dict[str, float]:
+    """The largest standard deviation each parameter can have: one whose 1-sigma change moves
+    the image's corners by the image's size (px), the station's extent (m), half a turn (deg)."""
+    size = float(max(model.width, model.height))
+    f = float(max(model.K[0, 0], model.K[1, 1]))
+    corners = np.array([[-0.5, -0.5], [model.width - 0.5, model.height - 0.5],
+                        [-0.5, model.height - 0.5], [model.width - 0.5, -0.5]])
+    r = float(np.linalg.norm(model.unapply_K(corners), axis=1).max())  # normalised radius of the farthest corner
+    return {"fx": size, "fy": size, "cx": size, "cy": size,
+            "k1": size / (f * r**3), "k2": size / (f * r**5), "k3": size / (f * r**7),
+            "p1": size / (f * 3 * r**2), "p2": size / (f * 3 * r**2),
+            "position_m": MAX_CAMERA_DISTANCE_M, "rotation_deg": 180.0}
 
 
 # --- a pair -----------------------------------------------------------------------------------

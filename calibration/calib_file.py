@@ -118,8 +118,9 @@ class StationCalibration:
             return CalibrationError(f"{source}: {msg}", hint="recalibrate with `station calibrate` or fix the file")
         if not isinstance(d, dict) or d.get("format") != FORMAT:
             raise bad(f"not a station calibration file (format must be {FORMAT!r})")
-        if d.get("format_version") != FORMAT_VERSION:
-            raise bad(f"format_version {d.get('format_version')!r} is not supported (this software reads {FORMAT_VERSION})")
+        version = d.get("format_version")
+        if type(version) is not int or version != FORMAT_VERSION:  # true and 1.0 equal 1 in Python
+            raise bad(f"format_version {version!r} is not supported (this software reads {FORMAT_VERSION})")
         try:
             return cls._read(d)
         except checks.FieldError as e:
@@ -127,34 +128,11 @@ class StationCalibration:
 
     @classmethod
     def _read(cls, d: dict) -> "StationCalibration":
-        checks.keys(d, "", ("format", "format_version", "cameras", "pairs"), checks.TOP_KEYS)
-        header = {k: checks.text(d.get(k, ""), k) for k in checks.TOP_TEXT}
-        if header["created_utc"]:
-            try:
-                datetime.fromisoformat(header["created_utc"])
-            except ValueError:
-                raise checks.FieldError("created_utc", f"{header['created_utc'][:40]!r} is not an ISO 8601 time") from None
-        if not checks.mapping(d["cameras"], "cameras"):
-            raise checks.FieldError("cameras", "no cameras")
-        cams = {cam_id: CameraCalibration(*checks.read_camera(cam_id, c)) for cam_id, c in d["cameras"].items()}
-        if "camera_ids" in d:  # written for other tools: it must still list the cameras
-            ids = d["camera_ids"]
-            if not isinstance(ids, list) or sorted(map(str, ids)) != sorted(cams) or len(set(map(str, ids))) != len(ids):
-                raise checks.FieldError("camera_ids", f"must list the cameras of the file ({', '.join(cams)})")
-        models = {cam_id: c.model for cam_id, c in cams.items()}
-        pairs, covs = {}, {}
-        for wheel, p in checks.mapping(d["pairs"], "pairs").items():
-            left, right, cov = checks.read_pair(wheel, p, models)
-            pairs[wheel] = (left, right)
-            if cov is not None:
-                covs[wheel] = cov
-        if covs and len(covs) != len(pairs):  # one bundle adjustment writes them all (or none: imports, old files)
-            lacking = sorted(set(pairs) - set(covs))
-            raise checks.FieldError(f"pairs.{lacking[0]}.covariance",
-                                    f"missing while pair(s) {', '.join(sorted(covs))} have theirs")
-        return cls(cams, pairs, station_name=header["station_name"], created_utc=header["created_utc"],
-                   software_version=header["software_version"], method=header["method"],
-                   notes=checks.mapping(d.get("notes", {}), "notes"), pair_covariance=covs)
+        doc = checks.read_document(d)
+        cams = {cam_id: CameraCalibration(*parts) for cam_id, parts in doc.cameras.items()}
+        return cls(cams, doc.pairs, station_name=doc.header["station_name"], created_utc=doc.header["created_utc"],
+                   software_version=doc.header["software_version"], method=doc.header["method"], notes=doc.notes,
+                   pair_covariance=doc.covariance)
 
     def check_against_config(self, config, source: str = "calibration") -> None:
         """The file must describe exactly the configured cameras (at their resolution) and pairs."""

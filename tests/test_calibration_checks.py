@@ -51,6 +51,9 @@ CORRUPTIONS = [  # (field, new value or KeyError to delete it, what the message 
     ("cameras.cam1.std", None, "cameras.cam1.std: expected an object, got null"),
     ("cameras.cam1.std.fx", -1, "cameras.cam1.std.fx: -1 is outside"),
     ("cameras.cam1.std.bogus", 1, "cameras.cam1.std.bogus: unknown key"),
+    ("cameras.cam1.std.k2", 1e308, "cameras.cam1.std.k2: 1e+308 is outside [0, "),
+    ("cameras.cam1.std.fx", 5000, "cameras.cam1.std.fx: 5000 is outside [0, 1280]"),
+    ("cameras.cam1.std.position_m", [0, 0, 1e3], "cameras.cam1.std.position_m[2]: 1000 is outside [0, 100]"),
     ("cameras.cam2.K.0.0", 1e308, "cameras.cam2.K: fx = 1e+308 px gives a horizontal field of view"),
     ("cameras.cam2.K.1.1", 1.0, "cameras.cam2.K: fy = 1 px gives a vertical field of view of 180 deg"),
     ("cameras.cam2.K.0.0", -1800.0, "cameras.cam2.K: fx = -1800 px; a focal length must be positive"),
@@ -92,6 +95,8 @@ CORRUPTIONS = [  # (field, new value or KeyError to delete it, what the message 
     ("station_name", 7, "station_name: expected text, got int"),
     ("notes", None, "notes: expected an object, got null"),
     ("extra", 1, "extra: unknown key"),
+    ("format_version", True, "format_version True is not supported"),
+    ("format_version", 1.0, "format_version 1.0 is not supported"),
 ]
 
 
