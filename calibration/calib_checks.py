@@ -306,13 +306,33 @@ def read_pair(wheel: str, p, models: dict[str, CameraModel]) -> tuple[str, str, 
             _agree(stored, computed[name], f"{where}.{name}")
     if "baseline_m" in p:
         _agree(np.array(number(p["baseline_m"], f"{where}.baseline_m")), np.array(pair.baseline_m), f"{where}.baseline_m")
-    cov = read_covariance(p["covariance"], f"{where}.covariance") if "covariance" in p else None
+    cov = None
+    if "covariance" in p:
+        cov = read_covariance(p["covariance"], f"{where}.covariance")
+        check_covariance_scale(cov, (models[left], models[right]), f"{where}.covariance")
     return left, right, cov
 
 
 def _agree(stored: np.ndarray, computed: np.ndarray, where: str) -> None:
     if np.abs(stored - computed).max() > DERIVED_TOL * max(1.0, float(np.abs(computed).max())):
         raise FieldError(where, "does not agree with the cameras it is derived from (the file was edited or damaged)")
+
+
+COVARIANCE_PARAMETERS = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "rotation", "rotation", "rotation",
+                         "position_m", "position_m", "position_m")  # per camera, in the covariance's order
+
+
+def check_covariance_scale(cov: np.ndarray, models: tuple[CameraModel, CameraModel], where: str) -> None:
+    """Every parameter's standard deviation (the root of its variance) within std_limits of its
+    camera; the rotation vector's within half a turn (rad)."""
+    std = np.sqrt(np.diag(cov))
+    for c, model in enumerate(models):
+        limits = std_limits(model) | {"rotation": math.pi}
+        for i, name in enumerate(COVARIANCE_PARAMETERS):
+            k = c * len(COVARIANCE_PARAMETERS) + i
+            if std[k] > limits[name]:
+                raise FieldError(where, f"row {k} ({model.name} {name}) gives a standard deviation of {std[k]:.3g}, "
+                                 f"beyond {limits[name]:.3g}")
 
 
 def read_covariance(v, where: str) -> np.ndarray:

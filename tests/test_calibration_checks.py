@@ -90,6 +90,7 @@ CORRUPTIONS = [  # (field, new value or KeyError to delete it, what the message 
     ("pairs.FL.covariance", KeyError, "pairs.FL.covariance: missing while pair(s) FR, RL, RR have theirs"),
     ("pairs.FL.covariance.0.0", -1.0, "pairs.FL.covariance: is not positive semi-definite"),
     ("pairs.FL.covariance.0.1", 1.0, "pairs.FL.covariance: must be a symmetric 30x30"),
+    ("pairs.FL.covariance.20.20", 1e308, "pairs.FL.covariance: row 20 (cam4 k2) gives a standard deviation of 1e+154"),
     ("camera_ids", ["cam1"], "camera_ids: must list the cameras"),
     ("created_utc", "yesterday", "created_utc: 'yesterday' is not an ISO 8601 time"),
     ("station_name", 7, "station_name: expected text, got int"),
