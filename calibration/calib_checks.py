@@ -244,8 +244,8 @@ def distortion_problem(model: CameraModel, n: int = 48) -> str | None:
     field = (np.linspace(0.02, 1.0, 25)[:, None, None] * xy[None]).reshape(-1, 2)
     step = 1e-6
     with np.errstate(all="ignore"):
-        dx = (distort_normalized(field + [step, 0], model.dist) - distort_normalized(field - [step, 0], model.dist)) / (2 * step)
-        dy = (distort_normalized(field + [0, step], model.dist) - distort_normalized(field - [0, step], model.dist)) / (2 * step)
+        dx, dy = ((distort_normalized(field + h, model.dist) - distort_normalized(field - h, model.dist)) / (2 * step)
+                  for h in ([step, 0], [0, step]))
     det = dx[:, 0] * dy[:, 1] - dx[:, 1] * dy[:, 0]
     if not np.all(det > 0):
         return "the distortion folds the image (two directions would meet in one pixel)"
@@ -305,7 +305,8 @@ def read_pair(wheel: str, p, models: dict[str, CameraModel]) -> tuple[str, str, 
             stored = array(p[name], f"{where}.{name}", shape)
             _agree(stored, computed[name], f"{where}.{name}")
     if "baseline_m" in p:
-        _agree(np.array(number(p["baseline_m"], f"{where}.baseline_m")), np.array(pair.baseline_m), f"{where}.baseline_m")
+        baseline = number(p["baseline_m"], f"{where}.baseline_m")
+        _agree(np.array(baseline), np.array(pair.baseline_m), f"{where}.baseline_m")
     cov = None
     if "covariance" in p:
         cov = read_covariance(p["covariance"], f"{where}.covariance")
