@@ -3,17 +3,18 @@ import/export.
 
 Saving is atomic (write a temporary file beside the target, fsync, rename): a crash or a failed
 run never leaves a half-written file, and a good file is replaced only by a validated one.
-Loading validates everything (format, version, shapes, NaN, camera ids against the station
-configuration) and raises :class:`CalibrationError` naming the file, the camera and the key.
+Loading checks every field (calibration/calib_checks.py) and the cameras and pairs against the
+station configuration, and raises :class:`CalibrationError` naming the file and the field. The
+calibration id is a checksum of the content, so an edited file has another id.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
 import tempfile
-import uuid
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from importlib import metadata
@@ -22,6 +23,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from calibration import calib_checks as checks
 from calibration.camera_model import CameraModel
 from calibration.errors import CalibrationError, CalibrationMismatch
 from calibration.stereo import StereoPair
@@ -56,7 +58,6 @@ class StationCalibration:
     cameras: dict[str, CameraCalibration]
     pairs: dict[str, tuple[str, str]] = field(default_factory=dict)  # wheel -> (left, right)
     station_name: str = ""
-    calibration_id: str = field(default_factory=lambda: uuid.uuid4().hex[:12])
     created_utc: str = field(default_factory=lambda: datetime.now(timezone.utc).isoformat(timespec="seconds"))
     software_version: str = field(default_factory=software_version)
     method: str = "box: paper eqs 4-22 + bundle adjustment"
@@ -72,8 +73,18 @@ class StationCalibration:
         left, right = self.pairs[wheel]
         return StereoPair(wheel, self.model(left), self.model(right))
 
+    @property
+    def calibration_id(self) -> str:
+        """12 hex digits: the checksum of the document this calibration writes (content_id)."""
+        return content_id(self._document())
+
     # --- JSON ---------------------------------------------------------------------------------
     def to_dict(self) -> dict:
+        doc = self._document()
+        return {"format": FORMAT, "format_version": FORMAT_VERSION, "calibration_id": content_id(doc), **doc}
+
+    def _document(self) -> dict:
+        """The file's content without its calibration id."""
         cams = {}
         for cam_id, c in self.cameras.items():
             d = c.model.to_dict()
@@ -94,58 +105,37 @@ class StationCalibration:
                             "baseline_m": p.baseline_m, "E": p.E.tolist(), "F": p.F.tolist()}
             if wheel in self.pair_covariance:
                 pairs[wheel]["covariance"] = np.asarray(self.pair_covariance[wheel], float).tolist()
-        return {"format": FORMAT, "format_version": FORMAT_VERSION, "calibration_id": self.calibration_id,
+        return {"format": FORMAT, "format_version": FORMAT_VERSION,
                 "created_utc": self.created_utc, "software_version": self.software_version,
                 "station_name": self.station_name, "method": self.method,
                 "camera_ids": list(self.cameras), "cameras": cams, "pairs": pairs, "notes": self.notes}
 
     @classmethod
     def from_dict(cls, d: dict, source: str = "calibration") -> "StationCalibration":
+        """The calibration in the parsed JSON ``d``, every field checked (calibration/calib_checks.py);
+        CalibrationError naming ``source`` and the field otherwise."""
         def bad(msg):
             return CalibrationError(f"{source}: {msg}", hint="recalibrate with `station calibrate` or fix the file")
         if not isinstance(d, dict) or d.get("format") != FORMAT:
             raise bad(f"not a station calibration file (format must be {FORMAT!r})")
-        if d.get("format_version") != FORMAT_VERSION:
-            raise bad(f"format_version {d.get('format_version')!r} is not supported (this software reads {FORMAT_VERSION})")
-        cams = {}
-        if not isinstance(d.get("cameras"), dict) or not d["cameras"]:
-            raise bad("no cameras")
-        for cam_id, c in d["cameras"].items():
-            try:
-                for key in ("K", "dist", "R_cam_station", "t_cam_station_m"):
-                    arr = np.asarray(c[key], float)
-                    if not np.all(np.isfinite(arr)):
-                        raise bad(f"camera {cam_id}: {key} contains NaN or infinity")
-                model = CameraModel.from_dict({**c, "name": cam_id})
-            except CalibrationError:
-                raise
-            except (KeyError, TypeError, ValueError) as e:
-                raise bad(f"camera {cam_id}: missing or malformed {e}") from None
-            R = model.R_cam_station
-            if abs(np.linalg.det(R) - 1) > 1e-6 or np.abs(R @ R.T - np.eye(3)).max() > 1e-6:
-                raise bad(f"camera {cam_id}: R_cam_station is not a rotation")
-            if model.K[0, 0] <= 0 or model.K[1, 1] <= 0:
-                raise bad(f"camera {cam_id}: focal length must be positive")
-            cams[cam_id] = CameraCalibration(model, float(c.get("reprojection_rms_px", math.nan) or math.nan),
-                                             int(c.get("n_points", 0)), dict(c.get("std", {})))
-        pairs, covs = {}, {}
-        for wheel, p in (d.get("pairs") or {}).items():
-            if p.get("left") not in cams or p.get("right") not in cams:
-                raise bad(f"pair {wheel}: names a camera that is not in the file ({p.get('left')}, {p.get('right')})")
-            pairs[wheel] = (p["left"], p["right"])
-            if "covariance" in p:  # optional (files before it carry marginal std devs only)
-                try:
-                    cov = np.asarray(p["covariance"], float)
-                except (TypeError, ValueError):
-                    raise bad(f"pair {wheel}: covariance is not a 30x30 matrix of numbers") from None
-                if cov.shape != (30, 30) or not np.all(np.isfinite(cov)) or np.abs(cov - cov.T).max() > 1e-9 * max(np.abs(cov).max(), 1e-300):
-                    raise bad(f"pair {wheel}: covariance must be a symmetric 30x30 matrix of finite numbers")
-                covs[wheel] = cov
-        return cls(cams, pairs, d.get("station_name", ""), d.get("calibration_id", ""), d.get("created_utc", ""),
-                   d.get("software_version", ""), d.get("method", ""), d.get("notes", {}), pair_covariance=covs)
+        version = d.get("format_version")
+        if type(version) is not int or version != FORMAT_VERSION:  # true and 1.0 equal 1 in Python
+            raise bad(f"format_version {version!r} is not supported (this software reads {FORMAT_VERSION})")
+        try:
+            return cls._read(d)
+        except checks.FieldError as e:
+            raise bad(f"{e.where}: {e}") from None
+
+    @classmethod
+    def _read(cls, d: dict) -> "StationCalibration":
+        doc = checks.read_document(d)
+        cams = {cam_id: CameraCalibration(*parts) for cam_id, parts in doc.cameras.items()}
+        return cls(cams, doc.pairs, station_name=doc.header["station_name"], created_utc=doc.header["created_utc"],
+                   software_version=doc.header["software_version"], method=doc.header["method"], notes=doc.notes,
+                   pair_covariance=doc.covariance)
 
     def check_against_config(self, config, source: str = "calibration") -> None:
-        """The file must describe exactly the configured cameras and pairs."""
+        """The file must describe exactly the configured cameras (at their resolution) and pairs."""
         want = set(config.cameras)
         have = set(self.cameras)
         if want - have:
@@ -159,10 +149,26 @@ class StationCalibration:
             if (m.width, m.height) != (cam.width, cam.height):
                 raise CalibrationMismatch(f"{source}: camera {cam_id} was calibrated at {m.width}x{m.height} but is "
                                           f"configured for {cam.width}x{cam.height}")
+        unknown = sorted(set(self.pairs) - set(config.pairs))
+        if unknown:
+            raise CalibrationMismatch(f"{source}: pairs: {', '.join(map(repr, unknown))} is not a configured pair "
+                                      f"({', '.join(config.pairs)})", hint="use the calibration made for this station")
         for wheel, pc in config.pairs.items():
-            if wheel in self.pairs and self.pairs[wheel] != (pc.precision, pc.reference):
+            if wheel not in self.pairs:
+                raise CalibrationMismatch(f"{source}: pairs: no pair {wheel} ({pc.precision}, {pc.reference}); the "
+                                          "stereo calibration of every configured pair is needed",
+                                          hint="run `station calibrate` for this station")
+            if self.pairs[wheel] != (pc.precision, pc.reference):
                 raise CalibrationMismatch(f"{source}: pair {wheel} is {self.pairs[wheel]} in the file but "
                                           f"({pc.precision}, {pc.reference}) in the configuration")
+
+
+def content_id(document: dict) -> str:
+    """The calibration id of a calibration document: the first 12 hex digits of the SHA-256 of
+    the document without its ``calibration_id``, as JSON with sorted keys and no spaces."""
+    content = {k: v for k, v in document.items() if k != "calibration_id"}
+    text = json.dumps(content, sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()[:12]
 
 
 def _num(x: float):
@@ -195,16 +201,28 @@ def save_calibration(calib: StationCalibration, path: str | os.PathLike) -> Path
 def load_calibration(path: str | os.PathLike, config=None) -> StationCalibration:
     """Read and validate a calibration file (and check it against ``config`` if given)."""
     path = Path(path)
+    hint = "recalibrate with `station calibrate` or restore the file"
     try:
-        text = path.read_text()
+        data = path.read_bytes()
     except FileNotFoundError:
         raise CalibrationError(f"{path}: calibration file not found", hint="run `station calibrate`") from None
     except OSError as e:
-        raise CalibrationError(f"{path}: cannot read the calibration ({e.strerror})") from None
+        raise CalibrationError(f"{path}: cannot read the calibration ({e.strerror or e})") from None
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise CalibrationError(f"{path}: not a calibration file: byte {e.start} is not UTF-8 text "
+                               "(a binary or damaged file)", hint=hint) from None
+    if not text.strip():
+        raise CalibrationError(f"{path}: the calibration file is empty", hint=hint)
     try:
         d = json.loads(text, parse_constant=lambda c: float("nan"))
     except json.JSONDecodeError as e:
-        raise CalibrationError(f"{path}: not valid JSON at line {e.lineno}: {e.msg}") from None
+        raise CalibrationError(f"{path}: not valid JSON at line {e.lineno}, column {e.colno}: {e.msg} "
+                               "(a truncated or damaged file)", hint=hint) from None
+    except (ValueError, RecursionError) as e:  # a number of thousands of digits, nesting beyond any file's
+        raise CalibrationError(f"{path}: not a calibration file ({type(e).__name__}: {str(e)[:80]})",
+                               hint=hint) from None
     calib = StationCalibration.from_dict(d, str(path))
     if config is not None:
         calib.check_against_config(config, str(path))

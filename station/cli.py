@@ -72,7 +72,7 @@ def _command_of(argv: list[str]) -> str | None:
 
 
 def _crash_log(exc: BaseException) -> Path:
-    log_dir = Path.home() / ".cache" / "station"
+    log_dir = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "station"
     try:
         log_dir.mkdir(parents=True, exist_ok=True)
     except OSError:

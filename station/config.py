@@ -42,10 +42,14 @@ class _Bad(Exception):
 def _number(lo=-math.inf, hi=math.inf, integer=False):
     def check(v, key):
         if isinstance(v, bool) or not isinstance(v, (int, float)) or (integer and not isinstance(v, int)):
-            raise _Bad(f"expected {'an integer' if integer else 'a number'}, got {v!r}")
-        if not math.isfinite(v) or not lo <= v <= hi:
-            raise _Bad(f"expected a value in [{lo}, {hi}], got {v!r}")
-        return int(v) if integer else float(v)
+            raise _Bad(f"expected {'an integer' if integer else 'a number'}, got {v!r}"[:200])
+        try:
+            x = float(v)  # an integer of hundreds of digits is beyond any float
+        except OverflowError:
+            x = math.inf
+        if not math.isfinite(x) or not lo <= v <= hi:
+            raise _Bad(f"expected a value in [{lo}, {hi}], got {v if x == v else f'{x:g}'}")
+        return int(v) if integer else x
     return check
 
 
@@ -67,11 +71,12 @@ def _bool(v, key):
     return v
 
 
-def _vector(n, positive=False, integer=False):
+def _vector(n, positive=False, integer=False, lo=-math.inf, hi=math.inf):
+    """A list of ``n`` numbers in [lo, hi]; ``positive``: each at least 1 (pixel counts)."""
     def check(v, key):
         if not isinstance(v, (list, tuple)) or len(v) != n:
-            raise _Bad(f"expected a list of {n} numbers, got {v!r}")
-        out = [_number(lo=1 if positive else -math.inf, integer=integer)(x, key) for x in v]
+            raise _Bad(f"expected a list of {n} numbers, got {v!r}"[:200])
+        out = [_number(lo=1 if positive else lo, hi=hi, integer=integer)(x, key) for x in v]
         return tuple(out)
     return check
 
@@ -162,9 +167,11 @@ def _join(a, b):
 
 
 # --- the schema -----------------------------------------------------------------------------
+STATION_EXTENT_M = 100.0  # every position in the station frame lies within this of its origin
+_POSITION = _vector(3, lo=-STATION_EXTENT_M, hi=STATION_EXTENT_M)
 NOMINAL = {
-    "position_m": Field(_vector(3), doc="camera position in the station frame (m)"),
-    "look_at_m": Field(_vector(3), doc="point the optical axis aims at (m)"),
+    "position_m": Field(_POSITION, doc="camera position in the station frame (m)"),
+    "look_at_m": Field(_POSITION, doc="point the optical axis aims at (m)"),
     "focal_px": Field(_number(100, 1e5), doc="nominal focal length (px)"),
 }
 CAMERA = {
@@ -188,7 +195,7 @@ CAMERA_DEFAULTS = {
     "response_gamma": Field(CAMERA["response_gamma"].check, default=1.0),
 }
 FIXTURE = {
-    "position_m": Field(_vector(3)),
+    "position_m": Field(_POSITION),
     "yaw_deg": Field(_number(-180, 180)),
 }
 SCHEMA = {
@@ -329,17 +336,24 @@ def read_yaml(path: Path, what: str, hint: str) -> Any:
     """The parsed YAML file ``path``, ``what`` it holds naming it in a ConfigError when it is
     missing (with ``hint``), unreadable or not YAML (with the line and column)."""
     try:
-        text = path.read_text()
+        data = path.read_bytes()
     except FileNotFoundError:
         raise ConfigError(f"{path}: {what} not found", hint=hint) from None
     except OSError as e:
-        raise ConfigError(f"{path}: cannot read the {what} ({e.strerror})") from None
+        raise ConfigError(f"{path}: cannot read the {what} ({e.strerror or e})") from None
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise ConfigError(f"{path}: the {what} is not text: byte {e.start} is not UTF-8 (a binary or damaged file)",
+                          hint="restore the file from a copy; docs/configuration.md describes it") from None
     try:
         return yaml.safe_load(text)
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
-        raise ConfigError(f"{path}: not valid YAML{where}: {getattr(e, 'problem', e)}") from None
+        raise ConfigError(f"{path}: not valid YAML{where}: {getattr(e, 'problem', None) or e}") from None
+    except RecursionError:  # nesting no configuration has
+        raise ConfigError(f"{path}: not valid YAML: nested too deeply") from None
 
 
 def load_config(path: str | os.PathLike | None = None) -> StationConfig:
@@ -366,6 +380,11 @@ def _check_station(path: Path, tree: Section) -> None:
                               f"camera, found {roles or 'none'}")
     seen: dict[str, str] = {}
     for cam_id, c in cams.items():
+        axis = [b - a for a, b in zip(c.nominal.position_m, c.nominal.look_at_m)]
+        if math.hypot(axis[0], axis[1]) < 1e-3 * max(1.0, abs(axis[2])):
+            raise ConfigError(f"{path}: cameras.{cam_id}.nominal: look_at_m is "
+                              + ("position_m itself" if not any(axis) else "straight above or below position_m")
+                              + "; a station camera looks across the runway at a wheel")
         scheme = c.uri.split("://", 1)[0] if "://" in c.uri else ""
         if scheme not in URI_SCHEMES:
             raise ConfigError(f"{path}: cameras.{cam_id}.uri: unknown scheme in {c.uri!r}; expected "
@@ -377,19 +396,34 @@ def _check_station(path: Path, tree: Section) -> None:
 
 
 # --- the calibration box's description (config/box.yaml) -------------------------------------
+BOX_FACE = {
+    "squares": Field(_vector(2, integer=True, lo=2, hi=1000), doc="chessboard squares (columns, rows)"),
+    "first_id": Field(_number(0, 100_000, integer=True), doc="the face's first ArUco marker id"),
+}
+BOX_SCHEMA = {
+    "version": Field(_number(1, 1, integer=True), default=1, doc="format version, 1"),
+    "size_m": Field(_vector(3, lo=0.01, hi=10), doc="the box's length, width and height (m)"),
+    "dictionary": Field(_string(), doc="a cv2.aruco predefined dictionary, e.g. DICT_5X5_1000"),
+    "square_m": Field(_number(1e-4, 1), doc="chessboard square side (m)"),
+    "marker_m": Field(_number(1e-4, 1), doc="ArUco marker side (m)"),
+    "texel_m": Field(_number(1e-5, 0.01), default=0.0005, doc="texture resolution (m)"),
+    "faces": Field(_mapping_of(BOX_FACE), doc="face name -> squares and first_id"),
+}
+
+
 def load_box(path: str | os.PathLike) -> BoxTarget:
-    """Read config/box.yaml. Raises ConfigError naming the file and the problem."""
+    """Read config/box.yaml. Raises ConfigError naming the file, the key and the problem."""
     from calibration.box_target import BoxTarget  # OpenCV, loaded only when a box is read
 
     path = Path(path)
     raw = read_yaml(path, "box description", "calibration.box in station.yaml must name the box file")
-    if not isinstance(raw, dict):
-        raise ConfigError(f"{path}: expected a mapping with size_m, dictionary, square_m, marker_m, faces")
-    missing = [k for k in ("size_m", "dictionary", "square_m", "marker_m", "faces") if k not in raw]
-    if missing:
-        raise ConfigError(f"{path}: missing key {missing[0]!r}")
+    hint = "fix the box file; config/box.yaml describes every key"
     try:
-        return BoxTarget(raw["size_m"], raw["dictionary"], raw["square_m"], raw["marker_m"],
-                         raw["faces"], raw.get("texel_m", 0.0005), source=str(path))
+        box = _validate(raw, BOX_SCHEMA, "")
+    except _BadAt as e:
+        raise ConfigError(f"{path}: {e.key}: {e}", hint=hint) from None
+    faces = {name: {"squares": f.squares, "first_id": f.first_id} for name, f in box.faces.items()}
+    try:
+        return BoxTarget(box.size_m, box.dictionary, box.square_m, box.marker_m, faces, box.texel_m, source=str(path))
     except (ValueError, TypeError, KeyError) as e:
-        raise ConfigError(f"{path}: {e}") from None
+        raise ConfigError(f"{path}: {e}", hint=hint) from None

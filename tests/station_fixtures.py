@@ -52,3 +52,23 @@ def truth_calibration(config):
     config.calibration_file.parent.mkdir(parents=True, exist_ok=True)
     save_calibration(calib, config.calibration_file)
     return calib
+
+
+def nominal_calibration(config, seed: int = 2):
+    """A calibration of ``config``'s cameras at their nominal poses, with plausible intrinsics
+    (fx about 1800 px at 1280x1024), distortion and standard deviations (not saved)."""
+    import numpy as np
+
+    from calibration.calib_file import CameraCalibration, StationCalibration
+    from calibration.camera_model import CameraModel, look_at
+
+    cams = {}
+    rng = np.random.default_rng(seed)
+    for cam_id, c in config.cameras.items():
+        R, t = look_at(np.array(c.nominal.position_m), np.array(c.nominal.look_at_m))
+        K = np.array([[1800 + rng.normal(0, 10), 0, 640 + rng.normal(0, 5)], [0, 1801.0, 512.3], [0, 0, 1]])
+        dist = np.array([-0.1, 0.05, 1e-4, -2e-4, 0.01]) * rng.uniform(0.5, 1.5)
+        cams[cam_id] = CameraCalibration(CameraModel(cam_id, c.width, c.height, K, dist, R, t), 0.11, 3000,
+                                         {"fx": 0.08, "fy": 0.08, "position_m": [1e-5, 2e-5, 3e-5]})
+    pairs = {w: (p.precision, p.reference) for w, p in config.pairs.items()}
+    return StationCalibration(cams, pairs, station_name=config.name)

@@ -92,14 +92,10 @@ def test_box_print_bad_dpi(tmp_path, capsys):
 
 
 def test_tables_show_every_camera_parameter_std_and_pair(capsys):
-    sys_path = str(Path(__file__).resolve().parent)
-    import sys
-    if sys_path not in sys.path:
-        sys.path.insert(0, sys_path)
-    from test_calibration_file import _calibration
     from station.commands.calibrate import print_tables
     from station.config import load_config
-    calib = _calibration(load_config())
+    from tests.station_fixtures import nominal_calibration
+    calib = nominal_calibration(load_config())
     print_tables(calib)
     out = capsys.readouterr().out
     assert all(f"cam{i} " in out for i in range(1, 9))

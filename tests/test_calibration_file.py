@@ -7,25 +7,11 @@ import json
 import numpy as np
 import pytest
 
-from calibration.calib_file import (CameraCalibration, StationCalibration, export_opencv, import_opencv,
-                                    load_calibration, save_calibration)
-from calibration.camera_model import CameraModel, look_at
+from calibration.calib_file import CameraCalibration, export_opencv, import_opencv, load_calibration, save_calibration
 from calibration.errors import CalibrationError, CalibrationMismatch
 from calibration.stereo import StereoPair, epipolar_distance, pair_extrinsics
 from station.config import load_config
-
-
-def _calibration(config) -> StationCalibration:
-    cams = {}
-    rng = np.random.default_rng(2)
-    for cam_id, c in config.cameras.items():
-        R, t = look_at(np.array(c.nominal.position_m), np.array(c.nominal.look_at_m))
-        K = np.array([[1800 + rng.normal(0, 10), 0, 640 + rng.normal(0, 5)], [0, 1801.0, 512.3], [0, 0, 1]])
-        dist = np.array([-0.1, 0.05, 1e-4, -2e-4, 0.01]) * rng.uniform(0.5, 1.5)
-        cams[cam_id] = CameraCalibration(CameraModel(cam_id, c.width, c.height, K, dist, R, t), 0.11, 3000,
-                                         {"fx": 0.08, "fy": 0.08, "position_m": [1e-5, 2e-5, 3e-5]})
-    pairs = {w: (p.precision, p.reference) for w, p in config.pairs.items()}
-    return StationCalibration(cams, pairs, station_name=config.name)
+from tests.station_fixtures import nominal_calibration
 
 
 @pytest.fixture(scope="module")
@@ -34,7 +20,7 @@ def config():
 
 
 def test_json_round_trip_is_exact(config, tmp_path):
-    calib = _calibration(config)
+    calib = nominal_calibration(config)
     path = save_calibration(calib, tmp_path / "c.json")
     back = load_calibration(path, config)
     assert back.calibration_id == calib.calibration_id and back.software_version == calib.software_version
@@ -48,7 +34,7 @@ def test_json_round_trip_is_exact(config, tmp_path):
 
 
 def test_opencv_export_import_round_trip(config, tmp_path):
-    calib = _calibration(config)
+    calib = nominal_calibration(config)
     files = export_opencv(calib, tmp_path / "ocv")
     assert len(files) == 8
     back = import_opencv({f.stem: f for f in files}, calib.pairs)
@@ -61,7 +47,7 @@ def test_opencv_export_import_round_trip(config, tmp_path):
 
 
 def test_nan_in_file_is_refused_and_named(config, tmp_path):
-    path = save_calibration(_calibration(config), tmp_path / "c.json")
+    path = save_calibration(nominal_calibration(config), tmp_path / "c.json")
     d = json.loads(path.read_text())
     d["cameras"]["cam3"]["K"][0][0] = float("nan")
     path.write_text(json.dumps(d))
@@ -70,10 +56,10 @@ def test_nan_in_file_is_refused_and_named(config, tmp_path):
 
 
 def test_failed_save_keeps_the_good_file(config, tmp_path):
-    good = _calibration(config)
+    good = nominal_calibration(config)
     path = save_calibration(good, tmp_path / "c.json")
     before = path.read_bytes()
-    bad = _calibration(config)
+    bad = nominal_calibration(config)
     bad.pairs["FR"] = ("cam1", "cam99")
     with pytest.raises(CalibrationError):
         save_calibration(bad, path)
@@ -82,7 +68,7 @@ def test_failed_save_keeps_the_good_file(config, tmp_path):
 
 
 def test_camera_ids_must_match_the_configuration(config, tmp_path):
-    calib = _calibration(config)
+    calib = nominal_calibration(config)
     calib.cameras["cam9"] = CameraCalibration(calib.model("cam1"))
     path = save_calibration(calib, tmp_path / "c.json")
     with pytest.raises(CalibrationMismatch, match="cam9"):
@@ -95,7 +81,7 @@ def test_camera_ids_must_match_the_configuration(config, tmp_path):
 
 
 def test_stereo_eqs_34_35_29_33(config):
-    calib = _calibration(config)
+    calib = nominal_calibration(config)
     pair: StereoPair = calib.pair("FR")
     L, R_ = pair.left, pair.right
     R, t = pair_extrinsics(L.R_cam_station, L.t_cam_station, R_.R_cam_station, R_.t_cam_station)
@@ -113,18 +99,27 @@ def test_stereo_eqs_34_35_29_33(config):
 
 
 def test_pair_covariance_round_trips_and_a_malformed_one_is_refused(config, tmp_path):
-    calib = _calibration(config)
-    A = np.random.default_rng(3).normal(size=(30, 30))
-    calib.pair_covariance = {"FR": A @ A.T * 1e-8}
+    calib = nominal_calibration(config)
+    rng = np.random.default_rng(3)
+    covs = {}
+    for wheel in calib.pairs:
+        A = rng.normal(size=(30, 30))
+        covs[wheel] = A @ A.T * 1e-8
+    calib.pair_covariance = covs
     path = save_calibration(calib, tmp_path / "c.json")
     back = load_calibration(path, config)
-    assert set(back.pair_covariance) == {"FR"}
+    assert set(back.pair_covariance) == set(calib.pairs)
     np.testing.assert_array_equal(back.pair_covariance["FR"], calib.pair_covariance["FR"])
     d = json.loads(path.read_text())
     d["pairs"]["FR"]["covariance"] = d["pairs"]["FR"]["covariance"][:29]
     path.write_text(json.dumps(d))
-    with pytest.raises(CalibrationError, match="pair FR: covariance must be a symmetric 30x30"):
+    with pytest.raises(CalibrationError, match="pairs.FR.covariance: must be a symmetric 30x30"):
         load_calibration(path)
-    del d["pairs"]["FR"]["covariance"]  # files written before it: no covariance, still valid
+    del d["pairs"]["FR"]["covariance"]  # one pair without: the file is damaged
+    path.write_text(json.dumps(d))
+    with pytest.raises(CalibrationError, match="pairs.FR.covariance: missing while"):
+        load_calibration(path)
+    for p in d["pairs"].values():  # files written before it (or imported): none, still valid
+        p.pop("covariance", None)
     path.write_text(json.dumps(d))
     assert load_calibration(path, config).pair_covariance == {}

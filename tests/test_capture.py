@@ -245,5 +245,8 @@ def test_station_cycle_saves_under_data_dir_unless_told_not_to(tmp_path, world):
     config2.path.write_text(config2.path.read_text().replace("keep_captures: true", "keep_captures: false"))
     from station.config import load_config
     config2 = load_config(config2.path)
+    captures = config2.data_path("captures")
+    kept = sorted(captures.iterdir()) if captures.exists() else []
     frames, path = capture_station_cycle(cams, config2)
-    assert path is None and len(frames) == 8 and not config2.data_path("captures").exists()
+    assert path is None and len(frames) == 8
+    assert (sorted(captures.iterdir()) if captures.exists() else []) == kept  # nothing new saved

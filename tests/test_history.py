@@ -94,7 +94,8 @@ def test_csv_export_and_formula_injection(hist, tmp_path):
     assert export_csv(rows, out) == 2
     parsed = list(csv.DictReader(out.open()))
     assert parsed[0]["job_id"] == "'=HYPERLINK(\"http://x\")"
-    assert parsed[1]["job_id"] == 'VIN,with "quotes"\nand newline'
+    assert parsed[1]["job_id"] == 'VIN,with "quotes"\\nand newline'  # control characters escaped: one line a cycle
+    assert len(out.read_text().splitlines()) == 3
     assert float(parsed[0]["FL.toe"]) == pytest.approx(rows[0]["angles"]["FL.toe"], abs=1e-4)
     assert list(parsed[0]) [:6] == ["cycle_id", "time_utc", "job_id", "vehicle_spec", "valid", "passed"]
     buf = io.StringIO()

@@ -100,7 +100,8 @@ def test_unknown_axle_is_refused(station):
 
 
 def _cli(config, cache, *extra):
-    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    # the station the module fixture built (its calibration is there), not this test's own data dir
+    env = {**os.environ, "PYTHONUNBUFFERED": "1", "STATION_DATA_DIR": str(config.data_dir)}
     return [sys.executable, "-m", "station.cli", "--config", str(config.path), "live", "--seed", str(SEED),
             "--cache", str(cache), *extra], env
 

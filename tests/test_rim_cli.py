@@ -82,6 +82,29 @@ def test_bad_input_gives_a_message_and_nonzero_exit(wheel, capsys, case, expect)
     assert "Traceback" not in err and "internal error" not in err
 
 
+@pytest.mark.parametrize("out", ["out.xyz", "out", "out.exr"])
+def test_a_drawing_path_without_an_image_suffix_is_refused_before_detecting(wheel, capsys, out):
+    d, _ = wheel
+    with pytest.raises(SystemExit) as e:
+        main(["detect", str(d / "wheel.png"), "--draw", str(d / out)])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and "--draw" in err and "use .png or .jpg" in err
+    assert "Traceback" not in err and "internal error" not in err and not (d / out).exists()
+
+
+def test_a_drawing_opencv_cannot_write_is_an_image_error(wheel, tmp_path):
+    from station.commands.detect import draw, read_image
+    from station.errors import ImageError
+    from station.rim import detect_rim
+
+    d, _ = wheel
+    image = read_image(d / "wheel.png")
+    with pytest.raises(ImageError, match="cannot write the drawing"):
+        draw(image, detect_rim(image), tmp_path / "out.xyz")
+    with pytest.raises(ImageError, match="cannot write the drawing"):
+        draw(image, detect_rim(image), tmp_path / "no" / "dir" / "out.png")
+
+
 def test_an_srgb_photograph_is_measured_once_its_gamma_is_undone(tmp_path, capsys):
     """A phone or webcam JPEG encodes grey as light^0.45: the blurred edge's middle grey moves
     toward the dark tyre and the rim comes out too large; --response-gamma 0.45 undoes it."""

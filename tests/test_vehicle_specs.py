@@ -59,6 +59,8 @@ def test_missing_tolerance_names_file_vehicle_and_key(tmp_path):
     (lambda r: r["vehicles"]["dodge-caravan-2007"]["angles"].update({"front.cambre": None}), "did you mean 'front.camber'"),
     (lambda r: r["vehicles"]["dodge-caravan-2007"].pop("source"), "source"),
     (lambda r: r.update(version=2), "version"),
+    (lambda r: r["vehicles"]["dodge-caravan-2007"]["angles"]["rear.toe"].update(nominal_deg=10**400),
+     "angles.rear.toe.nominal_deg: expected a number of degrees"),
 ])
 def test_bad_files_are_config_errors(tmp_path, mutate, needle):
     p = _write(tmp_path, mutate)

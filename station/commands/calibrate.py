@@ -15,12 +15,13 @@ from pathlib import Path
 
 
 from calibration.errors import CalibrationError, CalibrationRejected
+from station.commands.arguments import seed
 from station.config import load_box, load_config
 
 
 def add_arguments(parser) -> None:
     parser.add_argument("--json", metavar="PATH", help="also write the calibration as JSON to PATH")
-    parser.add_argument("--seed", type=int, default=0, help="simulated operator's seed (box poses)")
+    parser.add_argument("--seed", type=seed, default=0, help="simulated operator's seed (box poses)")
     parser.add_argument("--poses", type=int, default=None,
                         help="box poses per pair for the intrinsics (default: calibration.intrinsic_poses)")
 

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+from station.commands.arguments import seed
+
 
 def add_arguments(parser):
     parser.add_argument("--out", metavar="DIR", help="directory to create for the set "
                         "(default: <data_dir>/captures/<cycle id>)")
-    parser.add_argument("--seed", type=int, default=None,
+    parser.add_argument("--seed", type=seed, default=None,
                         help="simulated station only: the random vehicle on the lift (default: none)")
     parser.add_argument("--timeout", type=float, default=None, help="capture deadline in s (default: capture.timeout_s)")
     parser.add_argument("--frames", type=int, default=None, metavar="N",

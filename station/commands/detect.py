@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 from pathlib import Path
 
@@ -17,13 +18,26 @@ SRGB_GAMMA = 0.45  # sRGB's curve, as one exponent
 def add_arguments(parser):
     parser.add_argument("image", metavar="IMAGE", help="the photograph (PNG, JPEG, BMP, TIFF)")
     parser.add_argument("--json", metavar="PATH", help="write the detection as JSON to PATH ('-': stdout)")
-    parser.add_argument("--draw", metavar="OUT.png", help="draw the rim ellipse and its edge points on the image")
+    parser.add_argument("--draw", metavar="OUT.png", type=drawing_path,
+                        help="draw the rim ellipse and its edge points on the image (.png, .jpg, .bmp, .tif, ...)")
     parser.add_argument("--equalization", choices=("clahe", "global", "none"), default="clahe",
                         help="equalisation before Canny: clahe (default), global (the paper's), none")
     parser.add_argument("--response-gamma", type=float, default=None, metavar="G",
                         help="the exponent the camera applied to light (grey = light^G), undone before the "
                              "sub-pixel edges: 1 for a linear machine-vision camera, about 0.45 for sRGB; "
                              "default: 0.45 for a JPEG (a phone's or webcam's photograph), 1 for any other file")
+
+
+def drawing_path(text: str) -> str:
+    """--draw's path: its suffix must name a format OpenCV writes (checked before the detection)."""
+    import cv2
+
+    if not cv2.haveImageWriter(text):
+        suffix = Path(text).suffix
+        raise argparse.ArgumentTypeError(
+            f"cannot write a drawing to {text!r}: " + (f"no image format has the suffix {suffix!r}" if suffix
+                                                     else "the name has no image suffix") + "; use .png or .jpg")
+    return text
 
 
 def read_image(path: str | Path) -> np.ndarray:
@@ -80,7 +94,11 @@ def draw(image: np.ndarray, det, path: str | Path) -> None:
     cv2.drawMarker(out, tuple(int(x) >> shift for x in c), (0, 255, 255), cv2.MARKER_CROSS, 10 * thick, thick)
     label = f"rim a={e.axes_px[0]:.1f} b={e.axes_px[1]:.1f} px  score {det.score:.2f}"
     cv2.putText(out, label, (10, 10 + 20 * thick), cv2.FONT_HERSHEY_SIMPLEX, 0.6 * thick, (0, 0, 255), thick, cv2.LINE_AA)
-    if not cv2.imwrite(str(path), out):
+    try:
+        written = cv2.imwrite(str(path), out)
+    except cv2.error as e:  # OpenCV raises for a suffix it has no writer for
+        raise ImageError(f"{path}: cannot write the drawing ({e.err})", hint="use a .png or .jpg path") from e
+    if not written:
         raise ImageError(f"{path}: cannot write the drawing (is the directory there, is the suffix .png/.jpg?)")
 
 

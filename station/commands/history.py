@@ -8,6 +8,7 @@ import sys
 
 from station.config import load_config
 from station.records.history import History, export_csv
+from station.records.printable import visible
 
 
 def _when(text: str) -> str:
@@ -42,7 +43,7 @@ def run(args) -> int:
         if args.jobs:
             print(f"{'job':<24} {'cycles':>6}  last (UTC)")
             for job, n, last in history.job_ids():
-                print(f"{job[:24]:<24} {n:>6}  {last}")
+                print(f"{visible(job)[:24]:<24} {n:>6}  {visible(str(last))}")
             return 0
         rows = history.query(job=args.job, since=args.since, until=args.until, vehicle=args.vehicle,
                              passed=args.passed, limit=args.limit)
@@ -64,8 +65,9 @@ def run(args) -> int:
         verdict = "FAIL*" if not r["valid"] else {True: "pass", False: "FAIL", None: "-"}[r["passed"]]
         vals = [a["FL.toe"], a["FR.toe"], a["RL.toe"], a["RR.toe"],
                 a["FL.camber"], a["FR.camber"], a["RL.camber"], a["RR.camber"], a["thrust"]]
-        job = (r["job_id"] or "-").replace("\n", " ")[:18]
-        print(f"{r['time_utc'][:19]:<20} {r['cycle_id'][:24]:<24} {job:<18} {(r['vehicle_spec'] or '-')[:20]:<20} "
+        time_utc, cycle, job, vehicle = (visible(str(r[k] or "-"))
+                                         for k in ("time_utc", "cycle_id", "job_id", "vehicle_spec"))
+        print(f"{time_utc[:19]:<20} {cycle[:24]:<24} {job[:18]:<18} {vehicle[:20]:<20} "
               f"{verdict:<6} " + " ".join(_fmt(v) for v in vals))
     if any(not r["valid"] for r in rows):
         print("FAIL*: the cycle itself failed (no angles); see `station review CYCLE`")

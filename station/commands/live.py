@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import sys
 
+from station.commands.arguments import seed
 from station.config import load_config
 
 
@@ -12,7 +13,7 @@ def add_arguments(parser):
                         help="the wheels to follow (default front; all: the four wheels)")
     parser.add_argument("--vehicle", metavar="NAME", help="vehicle spec from config/vehicles.yaml: adds OK/ADJUST")
     parser.add_argument("--seconds", type=float, default=None, help="stop after S seconds (default: until Ctrl-C)")
-    parser.add_argument("--seed", type=int, default=1,
+    parser.add_argument("--seed", type=seed, default=1,
                         help="simulated station only: which random vehicle stands on the lift (default 1)")
     parser.add_argument("--cache", metavar="DIR",
                         help="simulated station only: where the pre-rendered adjustment frames are kept "

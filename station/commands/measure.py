@@ -7,6 +7,7 @@ import random
 import sys
 
 from calibration.station_frame import AXLES, WHEELS
+from station.commands.arguments import job_id, seed
 from station.config import load_config
 from station.errors import StorageError, user_message
 from station.result import Measurement
@@ -29,10 +30,11 @@ EXIT_STATUS_HELP = """exit status:
 def add_arguments(parser):
     parser.epilog = EXIT_STATUS_HELP
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
-    parser.add_argument("--seed", type=int, default=None,
+    parser.add_argument("--seed", type=seed, default=None,
                         help="simulated station only: which random vehicle stands on the lift (default: a new one)")
     parser.add_argument("--vehicle", metavar="NAME", help="vehicle spec from config/vehicles.yaml: adds pass/fail")
-    parser.add_argument("--job", metavar="ID", help="job id / VIN stored with the cycle")
+    parser.add_argument("--job", metavar="ID", type=job_id,
+                        help="job id / VIN stored with the cycle (printable characters, no control characters)")
     parser.add_argument("--json", metavar="PATH", help="also write the result as JSON (docs/result-schema.md)")
     parser.add_argument("--method", choices=["circle", "paper"], default="circle",
                         help="3-D wheel: the refined 3-D circle fit (default) or the paper's section 3.2")

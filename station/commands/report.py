@@ -5,6 +5,7 @@ from __future__ import annotations
 from station.config import load_config
 from station.errors import ConfigError, StorageError
 from station.records.history import History
+from station.records.printable import visible
 from station.records.report import build_report, render_with_chromium, safe_filename, write_report
 from station.records.vehicle_specs import load_vehicle_specs
 
@@ -20,7 +21,7 @@ def run(args) -> int:
     with History(config.data_path("history.sqlite")) as history:
         results = history.jobs(args.job)
         if not results:
-            known = [j for j, _, _ in history.job_ids()[:5]]
+            known = [visible(j) for j, _, _ in history.job_ids()[:5]]
             raise StorageError(f"job {args.job!r}: no cycles in the history",
                                hint="the newest jobs are: " + ", ".join(known) if known
                                else "no job has been measured yet")

@@ -32,6 +32,7 @@ from urllib.parse import quote
 
 from station.compute.orphans import remove_orphans
 from station.records.atomic_file import write_atomic
+from station.records.printable import visible
 from station.errors import StorageError
 from station.result import ANGLE_NAMES, Measurement
 
@@ -395,14 +396,15 @@ CSV_COLUMNS = ("cycle_id", "time_utc", "job_id", "vehicle_spec", "valid", "passe
 
 
 def _cell(v):
-    """A CSV cell; text that a spreadsheet would run as a formula is quoted with a leading '."""
+    """A CSV cell; control characters are written escaped (records/printable.py) and text that a
+    spreadsheet would run as a formula is quoted with a leading '."""
     if v is None:
         return ""
     if isinstance(v, bool):
         return "1" if v else "0"
     if isinstance(v, float):
         return f"{v:.4f}"
-    v = str(v)
+    v = visible(str(v))
     return "'" + v if v[:1] in ("=", "+", "-", "@", "\t", "\r") else v
 
 

@@ -3,7 +3,8 @@
 "Before" is the first valid cycle of the job in the history, "after" the last (the technician
 measures, adjusts, measures again). Each angle is shown against the vehicle's spec with colours;
 a top-view drawing (station/records/report_svg.py) shows the four wheels' toe and camber. Everything
-that comes from a user (job id, VIN, names, warnings) is HTML-escaped. ``render_with_chromium``
+that comes from a user (job id, VIN, names, warnings) is HTML-escaped, its control characters
+written as escapes (station/records/printable.py). ``render_with_chromium``
 prints the HTML to PDF or PNG with a headless Chromium (Debian's ``chromium``).
 """
 
@@ -19,6 +20,7 @@ from html import escape
 from pathlib import Path
 
 from station.records.atomic_file import write_text_atomic
+from station.records.printable import visible
 from station.errors import StorageError
 from station.records.report_svg import top_view_svg
 from station.records.vehicle_specs import VehicleSpec, angle_value, evaluate
@@ -48,6 +50,11 @@ def safe_filename(job_id: str) -> str:
     """A file name for a job id with any characters: readable part + a short hash (no collisions)."""
     readable = re.sub(r"[^A-Za-z0-9-]+", "_", job_id).strip("_-")[:60] or "job"
     return f"{readable}-{hashlib.sha1(job_id.encode()).hexdigest()[:8]}"
+
+
+def _text(value) -> str:
+    """Any text for the HTML: control characters escaped (visible), then HTML-escaped."""
+    return escape(visible(str(value)))
 
 
 def _status(v: bool | None) -> tuple[str, str]:
@@ -82,7 +89,7 @@ def build_report(job_id: str, results: list[Measurement], spec: VehicleSpec | No
     same = before is after
     vb, va = _verdicts(before, spec), _verdicts(after, spec)
     xb, xa = _values(before), _values(after)
-    e = escape
+    e = _text
     vehicle = spec.name if spec else (after.vehicle_spec or "no vehicle spec")
     overall = va.get("overall")
     vcls, vtext = {True: ("pass", "PASS"), False: ("fail", "FAIL"), None: ("none", "NOT CHECKED")}[overall]

@@ -124,9 +124,13 @@ def _angle(v, where: str, bad) -> AngleSpec | None:
     nums = {}
     for field in ("nominal_deg", "tolerance_deg"):
         x = v[field]
-        if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x):
-            raise bad(f"{where}.{field}", f"expected a number of degrees, got {x!r}")
-        nums[field] = float(x)
+        try:
+            number = math.nan if isinstance(x, bool) or not isinstance(x, (int, float)) else float(x)
+        except OverflowError:  # an integer of hundreds of digits
+            number = math.inf
+        if not math.isfinite(number):
+            raise bad(f"{where}.{field}", f"expected a number of degrees, got {x!r}"[:200])
+        nums[field] = number
     if not 0 < nums["tolerance_deg"] <= 10:
         raise bad(f"{where}.tolerance_deg", f"expected a tolerance in (0, 10] degrees, got {nums['tolerance_deg']}")
     if abs(nums["nominal_deg"]) > 15:
