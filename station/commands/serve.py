@@ -47,13 +47,14 @@ def _transport(args, plc) -> tuple[str, dict]:
     return "tcp", {"host": args.host or plc.host, "port": port}
 
 
-async def _serve(args, runner, transport, where, device_id, allowed) -> int:
+async def _serve(args, runner, transport, where, device_id, plc) -> int:
     from station.plc.device import PlcDevice
     from station.plc.server import PlcServer, wait_until
 
     device = PlcDevice(runner, device_id=device_id, heartbeat_s=args.heartbeat_s,
                        cycle_timeout_s=args.cycle_timeout_s)
-    server = PlcServer(device, allowed_clients=allowed)
+    server = PlcServer(device, allowed_clients=plc.allowed_clients, max_connections=plc.max_connections,
+                       idle_timeout_s=plc.idle_timeout_s)
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -75,9 +76,15 @@ async def _serve(args, runner, transport, where, device_id, allowed) -> int:
             await stop.wait()
     finally:
         await server.stop()
-    s = device.stats
+    s, c = device.stats, server.counters
     print(f"served {s['started']} cycles ({s['done']} done, {s['fault']} fault), "
           f"{s['refused']} commands refused, {server.refused_clients} clients refused", flush=True)
+    notes = [f"{n} {what}" for what, n in (("connections refused beyond plc.max_connections", c.over_limit),
+                                            ("idle connections closed", c.idle_closed),
+                                            ("connections closed for bytes that are not Modbus TCP", c.bad_frames),
+                                            ("writes from read-only clients refused", c.read_only_writes)) if n]
+    if notes:
+        print("; ".join(notes), flush=True)
     return 0
 
 
@@ -96,4 +103,4 @@ def run(args) -> int:
     logging.basicConfig(level=getattr(logging, args.log_level.upper()), stream=sys.stderr,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     logging.getLogger("pymodbus").setLevel(logging.CRITICAL)  # its errors are ours, reported above
-    return asyncio.run(_serve(args, runner, transport, where, device_id, plc.allowed_clients))
+    return asyncio.run(_serve(args, runner, transport, where, device_id, plc))
