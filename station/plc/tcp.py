@@ -20,6 +20,7 @@ instead of a traceback per attempt when the process runs out of file descriptors
 from __future__ import annotations
 
 import asyncio
+import errno
 import logging
 import resource
 import socket
@@ -38,6 +39,9 @@ log = logging.getLogger("station.plc")
 MBAP = struct.Struct(">HHHB")  # transaction id, protocol id, length (unit id + PDU), unit id
 MIN_LENGTH, MAX_LENGTH = 2, 254  # unit id + function code .. unit id + the largest PDU (253)
 QUEUE_PAUSE = 64  # requests waiting on one connection: stop reading it until they are answered
+ACCEPT_RETRY_S = 0.5  # after accept() failed for lack of file descriptors
+FILES_BESIDES_CONNECTIONS = 64  # cameras, images, the history, recordings, worker pipes
+OUT_OF_RESOURCES = (errno.EMFILE, errno.ENFILE, errno.ENOBUFS, errno.ENOMEM)
 
 
 @dataclass
@@ -65,7 +69,13 @@ def _keepalive(sock) -> None:
 
 
 class TcpListener:
-    """Serves ``handler`` on ``host:port``. ``active_connections``: peer "ip:port" -> connection."""
+    """Serves ``handler`` on ``host:port``. ``active_connections``: peer "ip:port" -> connection.
+
+    Connections are accepted here rather than by asyncio's server: a client that is not allowed
+    or beyond ``max_connections`` is closed before a transport is made for it, and when accept()
+    fails for lack of file descriptors, listening pauses for ``ACCEPT_RETRY_S`` with one log
+    line per burst (asyncio 3.11 retries up to 100 times per wake-up, each with a traceback).
+    """
 
     def __init__(self, handler: RequestHandler, answered_ids, *, clients: ClientAccess,
                  max_connections: int = 8, idle_timeout_s: float = 60.0,
@@ -78,48 +88,116 @@ class TcpListener:
         self.counters = counters or ServerCounters()
         self.bursts = bursts or BurstLog(log)
         self.active_connections: dict[str, Connection] = {}
-        self.transport: asyncio.Server | None = None
+        self.sockets: list[socket.socket] = []
+        self._starting = 0  # accepted, transport being made
         self._loop: asyncio.AbstractEventLoop | None = None
-        self._previous_handler = None
+        self._retry: asyncio.TimerHandle | None = None
 
     async def start(self, host: str, port: int) -> int:
         """Listen; returns the bound port. Raises OSError when the address cannot be bound."""
         self._loop = asyncio.get_running_loop()
-        self.transport = await self._loop.create_server(lambda: Connection(self), host, port,
-                                                        reuse_address=True)
-        self._previous_handler = self._loop.get_exception_handler()
-        self._loop.set_exception_handler(self._loop_exception)
-        return self.transport.sockets[0].getsockname()[1]
+        infos = await self._loop.getaddrinfo(host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+        try:
+            for family, kind, proto, _name, address in dict.fromkeys(infos):
+                sock = socket.socket(family, kind, proto)
+                self.sockets.append(sock)
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+                if family == socket.AF_INET6:
+                    sock.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 1)
+                if port == 0 and len(self.sockets) > 1:  # one free port for every address
+                    address = (address[0], self.sockets[0].getsockname()[1], *address[2:])
+                sock.bind(address)
+                sock.listen(128)
+                sock.setblocking(False)
+        except OSError:
+            self._close_sockets()
+            raise
+        for sock in self.sockets:
+            self._loop.add_reader(sock.fileno(), self._accept, sock)
+        soft, _hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+        if soft != resource.RLIM_INFINITY and self.max_connections + FILES_BESIDES_CONNECTIONS > soft:
+            log.warning("plc.max_connections is %d, but this process may open only %d files (the station needs "
+                        "about %d besides its PLC connections); lower plc.max_connections or raise the "
+                        "limit (ulimit -n)", self.max_connections, soft, FILES_BESIDES_CONNECTIONS)
+        return self.sockets[0].getsockname()[1]
 
     async def close(self) -> None:
-        if self.transport is not None:
-            self.transport.close()
-            self.transport = None
+        self._close_sockets()
         workers = [c.worker for c in self.active_connections.values() if c.worker is not None]
         for connection in list(self.active_connections.values()):
             connection.transport.abort()
         if workers:
             await asyncio.wait(workers, timeout=5)
-        if self._loop is not None:
-            self._loop.set_exception_handler(self._previous_handler)
         self.bursts.flush()
 
-    def _loop_exception(self, loop, context) -> None:
-        """asyncio logs a traceback each time accept() fails for lack of file descriptors (and
-        retries a second later): one line per burst instead, saying what it means."""
-        if str(context.get("message", "")).startswith("socket.accept() out of system resource"):
-            self.counters.accept_failures += 1
-            exc = context.get("exception")
-            soft, _hard = resource.getrlimit(resource.RLIMIT_NOFILE)
-            self.bursts("PLC connections not accepted for lack of file descriptors",
-                        "cannot accept PLC connections: %s (%d PLC connections open, open-file limit %d); "
-                        "retrying every second; lower plc.max_connections or raise the limit (ulimit -n)",
-                        getattr(exc, "strerror", None) or exc, len(self.active_connections), soft)
-            return
-        if self._previous_handler is not None:
-            self._previous_handler(loop, context)
-        else:
-            loop.default_exception_handler(context)
+    def _close_sockets(self) -> None:
+        if self._retry is not None:
+            self._retry.cancel()
+        for sock in self.sockets:
+            if self._loop is not None and sock.fileno() >= 0:
+                self._loop.remove_reader(sock.fileno())
+            sock.close()
+        self.sockets = []
+
+    def _accept(self, sock: socket.socket) -> None:
+        for _ in range(32):  # then let the loop serve the open connections
+            try:
+                conn, peer = sock.accept()
+            except (BlockingIOError, InterruptedError):
+                return
+            except ConnectionAbortedError:
+                continue
+            except OSError as e:
+                if e.errno not in OUT_OF_RESOURCES:
+                    raise
+                self._out_of_files(e)
+                return
+            host = str(peer[0]) if isinstance(peer, tuple) else str(peer)
+            access, rule = self.clients.of(host)
+            if access is Access.REFUSED:
+                self.counters.refused_clients += 1
+                self.bursts(f"PLC client {host} refused", "PLC client %s refused: not in plc.allowed_clients "
+                            "(add its address or network there to let it connect)", host)
+                conn.close()
+            elif len(self.active_connections) + self._starting >= self.max_connections:
+                self.counters.over_limit += 1
+                self.bursts("PLC connections refused beyond plc.max_connections",
+                            "PLC client %s refused: %d connections are open, plc.max_connections is %d "
+                            "(idle ones close after plc.idle_timeout_s = %g s)", host,
+                            len(self.active_connections) + self._starting, self.max_connections,
+                            self.idle_timeout_s)
+                conn.close()
+            else:
+                conn.setblocking(False)
+                _keepalive(conn)
+                self._starting += 1
+                self._loop.create_task(self._connect(conn, access, rule))
+
+    async def _connect(self, conn: socket.socket, access: Access, rule: str) -> None:
+        try:
+            await self._loop.connect_accepted_socket(lambda: Connection(self, access, rule), conn)
+        except OSError as e:  # the client went away, or no memory for the transport
+            log.info("PLC connection not set up: %s", e)
+            conn.close()
+        finally:
+            self._starting -= 1
+
+    def _out_of_files(self, error: OSError) -> None:
+        """accept() failed for lack of file descriptors: stop listening for a moment."""
+        self.counters.accept_failures += 1
+        soft, _hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+        self.bursts("PLC connections not accepted for lack of file descriptors",
+                    "cannot accept PLC connections: %s (%d PLC connections open, open-file limit %d); "
+                    "retrying every %g s; lower plc.max_connections or raise the limit (ulimit -n)",
+                    error.strerror or error, len(self.active_connections) + self._starting, soft, ACCEPT_RETRY_S)
+        for sock in self.sockets:
+            self._loop.remove_reader(sock.fileno())
+        self._retry = self._loop.call_later(ACCEPT_RETRY_S, self._listen_again)
+
+    def _listen_again(self) -> None:
+        self._retry = None
+        for sock in self.sockets:
+            self._loop.add_reader(sock.fileno(), self._accept, sock)
 
     async def answer(self, frame: bytes, connection: Connection) -> bytes:
         """The response frame to one request frame (its MBAP header checked)."""
@@ -151,11 +229,11 @@ class TcpListener:
 class Connection(asyncio.Protocol):
     """One client connection: MBAP framing, requests answered one at a time in arrival order."""
 
-    def __init__(self, listener: TcpListener):
+    def __init__(self, listener: TcpListener, access: Access = Access.WRITE, rule: str = ""):
         self.listener = listener
         self.transport: asyncio.Transport | None = None
         self.peer = self.host = "?"
-        self.access, self.rule = Access.WRITE, ""
+        self.access, self.rule = access, rule  # the allow-list's verdict and its entry
         self.worker: asyncio.Task | None = None
         self._buffer = bytearray()
         self._requests: deque[bytes] = deque()
@@ -171,27 +249,12 @@ class Connection(asyncio.Protocol):
     # --- asyncio.Protocol ---------------------------------------------------------------------
     def connection_made(self, transport) -> None:
         self.transport = transport
-        listener = self.listener
         peer = transport.get_extra_info("peername")
         if isinstance(peer, tuple):
             self.host, self.peer = str(peer[0]), f"{peer[0]}:{peer[1]}"
-        self.access, self.rule = listener.clients.of(self.host)
-        if self.access is Access.REFUSED:
-            listener.counters.refused_clients += 1
-            listener.bursts(f"PLC client {self.host} refused", "PLC client %s refused: not in plc.allowed_clients "
-                            "(add its address or network there to let it connect)", self.host)
-            return self._refuse()
-        if len(listener.active_connections) >= listener.max_connections:
-            listener.counters.over_limit += 1
-            listener.bursts("PLC connections refused beyond plc.max_connections",
-                            "PLC client %s refused: %d connections are open, plc.max_connections is %d "
-                            "(idle ones close after plc.idle_timeout_s = %g s)", self.host,
-                            len(listener.active_connections), listener.max_connections, listener.idle_timeout_s)
-            return self._refuse()
-        _keepalive(transport.get_extra_info("socket"))
-        listener.active_connections[self.peer] = self
-        if listener.idle_timeout_s > 0:
-            self._arm_idle(listener.idle_timeout_s)
+        self.listener.active_connections[self.peer] = self
+        if self.listener.idle_timeout_s > 0:
+            self._arm_idle(self.listener.idle_timeout_s)
         self.worker = asyncio.get_running_loop().create_task(self._serve(), name=f"plc {self.peer}")
 
     def data_received(self, data: bytes) -> None:
@@ -272,10 +335,6 @@ class Connection(asyncio.Protocol):
             self._reading = False
             self.transport.pause_reading()
         self._wake.set()
-
-    def _refuse(self) -> None:
-        self._closed = True
-        self.transport.abort()
 
     def _arm_idle(self, delay: float) -> None:
         self._idle_timer = asyncio.get_running_loop().call_later(delay, self._idle_check)
