@@ -33,6 +33,11 @@ class Simulation(Protocol):
         and back, one step every ``hold`` frames of the ``live_cams``, as a technician turning
         its tie rod (rendered once into ``cache_dir``); :meth:`truth` follows it."""
 
+    def place_vehicle(self, seed: int) -> None:
+        """Put the random vehicle ``seed`` (``simulators.world.SimWorld.vehicle_scene(seed)``) on
+        the lift: the cameras see it from the next frame on; :meth:`truth` and
+        :meth:`replay_set` follow it."""
+
     def replay_set(self, noise_sigma: float | None = None) -> tuple[dict, dict, dict]:
         """({camera id: image}, truth, what was rendered) of the vehicle on the lift, rendered
         once with sensor noise ``noise_sigma`` (grey levels; None: the configuration's)."""

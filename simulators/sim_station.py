@@ -1,6 +1,6 @@
 """The simulated station behind sim:// cameras, and what it adds to the station
 (drivers.context.Simulation): the truth, the calibration operator, a toe adjustment for
-``station live``, a replay set of the vehicle on the lift.
+``station live``, another vehicle on the lift, a replay set of the vehicle on the lift.
 
 The sim:// cameras (simulators/sim_camera.py) render :attr:`SimulatedStation.world`, listen on
 its trigger wires and draw their noise from its seed.
@@ -52,6 +52,10 @@ class SimulatedStation:
         frames = prerender(world, self.vehicle_seed, wheel, steps, live_cams, cache_dir, progress)
         self.world = AdjustmentWorld(world, adjustment_scenes(world, self.vehicle_seed, wheel, steps), frames,
                                      hold=hold, seed=self.vehicle_seed)
+
+    def place_vehicle(self, seed: int) -> None:
+        self.vehicle_seed = int(seed)
+        self.world.set_scene(self.world.vehicle_scene(self.vehicle_seed))
 
     def replay_set(self, noise_sigma: float | None = None) -> tuple[dict, dict, dict]:
         from simulators.world import SimWorld

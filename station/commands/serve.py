@@ -25,7 +25,8 @@ def add_arguments(parser):
                         help="with --dry-run: jobs whose number is a multiple of N fail with fault "
                              "401, so the PLC's fault branch is exercised (0: never; default 10)")
     parser.add_argument("--seed", type=int, default=None,
-                        help="simulated station only: which random vehicle stands on the lift")
+                        help="simulated station only: this random vehicle stands on the lift for every "
+                             "cycle (default: each cycle measures the vehicle of its cycle number)")
     parser.add_argument("--cycles", type=int, metavar="N",
                         help="stop after N cycles have been acknowledged (tests, demos)")
     parser.add_argument("--heartbeat-s", type=float, default=0.1, help="heartbeat period (s)")
