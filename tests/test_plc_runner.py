@@ -39,3 +39,4 @@ def test_a_plc_cycle_without_a_seed_measures_the_vehicle_of_its_cycle_number(tmp
     for wheel in ("FL", "FR", "RL", "RR"):  # the cameras saw vehicle 2, and it was measured
         assert result.truth["wheels"][wheel]["toe_deg"] == pytest.approx(want[wheel], abs=1e-9)
         assert result.wheels[wheel].toe_deg == pytest.approx(want[wheel], abs=0.5)
+
