@@ -65,9 +65,8 @@ def measurement_runner(config, seed: int | None = None) -> CycleRunner:
             return station().calibration_check()
         try:
             assembled = station()
-            simulation = assembled.context.simulation
-            if seed is None and simulation is not None:
-                simulation.place_vehicle(request.cycle)
+            if seed is None and assembled.context.simulation is not None:
+                assembled.context.simulation.place_vehicle(request.cycle)
             return assembled.measure(job_id=request.job_id, vehicle_spec=request.vehicle_spec)
         except CalibrationError:
             holder.pop("station", None)

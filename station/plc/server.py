@@ -24,7 +24,7 @@ import time
 from pymodbus.constants import ExcCodes
 from pymodbus.exceptions import NoSuchIdException
 from pymodbus.framer import FramerType
-from pymodbus.pdu import ExceptionResponse, ModbusPDU
+from pymodbus.pdu import DecodePDU, ExceptionResponse, ModbusPDU
 from pymodbus.server import ModbusSerialServer
 from pymodbus.server.requesthandler import ServerRequestHandler
 from pymodbus.simulator.simcore import SimCore
@@ -32,7 +32,8 @@ from pymodbus.simulator.simcore import SimCore
 from station.errors import PlcError
 from station.plc.clients import ClientAccess
 from station.plc.device import PlcDevice
-from station.plc.functions import FUNCTIONS, ILLEGAL_FUNCTION, RequestHandler, report_server_id
+from station.plc.functions import (FUNCTIONS, ILLEGAL_DATA_VALUE, ILLEGAL_FUNCTION, RequestHandler,
+                                   report_server_id)
 from station.plc.log_bursts import BurstLog
 from station.plc.tcp import ServerCounters, TcpListener
 
@@ -79,6 +80,24 @@ class _PduBytes(ModbusPDU):
         return self._data
 
 
+class _MalformedRequest(ModbusPDU):
+    """A framed request pymodbus could not decode (a count of 0, a byte count that does not
+    match): it keeps the function code, so the answer can carry it."""
+
+    def __init__(self, function_code: int):
+        super().__init__()
+        self.function_code = function_code
+
+
+class _SerialDecoder(DecodePDU):
+    """pymodbus's decoder returns None for a request it cannot decode, and its handler then
+    answers with function code 0 ("80 01"); this one keeps the request's code."""
+
+    def decode(self, frame: bytes) -> ModbusPDU | None:
+        pdu = super().decode(frame)
+        return _MalformedRequest(frame[0]) if pdu is None and frame else pdu
+
+
 class _SerialHandler(ServerRequestHandler):
     """The serial line: other device ids, RTU silence framing, the station's functions only."""
 
@@ -99,6 +118,8 @@ class _SerialHandler(ServerRequestHandler):
         answer = None
         if pdu.function_code not in FUNCTIONS:
             answer = ExceptionResponse(pdu.function_code, ExcCodes(ILLEGAL_FUNCTION))
+        elif isinstance(pdu, _MalformedRequest):
+            answer = ExceptionResponse(pdu.function_code, ExcCodes(ILLEGAL_DATA_VALUE))
         elif pdu.function_code == 17:
             answer = _PduBytes(report_server_id(self._plc.device.device_id), pdu.dev_id)
         if answer is None:
@@ -175,6 +196,7 @@ class PlcServer:
                                baudrate=baudrate, parity=parity, ignore_missing_devices=True,
                                reconnect_delay=1.0)
         server.plc_server = self
+        server.decoder = _SerialDecoder(is_server=True)
         server.context = self._core((self.device.device_id,))
         where = f"serial line {port}"
         try:
