@@ -242,3 +242,10 @@ def test_a_client_that_reads_its_answers_late_gets_them_all(served):
         answers, closed = receive(s, n, timeout=10)
         sender.join(10)
     assert not closed and [tid for tid, _, _ in answers] == [i % 65536 for i in range(n)]
+
+
+def test_the_function_code_table_in_the_docs_is_generated_from_the_code():
+    from station.plc.docs import DOC, render
+
+    doc = DOC.read_text()
+    assert render(doc) == doc, "docs/plc.md is stale: python -m station.plc.docs"
