@@ -107,7 +107,7 @@ class TcpListener:
                 if port == 0 and len(self.sockets) > 1:  # one free port for every address
                     address = (address[0], self.sockets[0].getsockname()[1], *address[2:])
                 sock.bind(address)
-                sock.listen(128)
+                sock.listen(socket.SOMAXCONN)  # a flood is refused from the queue, not by dropped SYNs
                 sock.setblocking(False)
         except OSError:
             self._close_sockets()
@@ -140,7 +140,7 @@ class TcpListener:
         self.sockets = []
 
     def _accept(self, sock: socket.socket) -> None:
-        for _ in range(32):  # then let the loop serve the open connections
+        for _ in range(128):  # then let the loop serve the open connections
             try:
                 conn, peer = sock.accept()
             except (BlockingIOError, InterruptedError):
