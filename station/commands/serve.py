@@ -80,10 +80,12 @@ async def _serve(args, runner, transport, where, device_id, plc) -> int:
     s, c = device.stats, server.counters
     print(f"served {s['started']} cycles ({s['done']} done, {s['fault']} fault), "
           f"{s['refused']} commands refused, {server.refused_clients} clients refused", flush=True)
-    notes = [f"{n} {what}" for what, n in (("connections refused beyond plc.max_connections", c.over_limit),
-                                            ("idle connections closed", c.idle_closed),
-                                            ("connections closed for bytes that are not Modbus TCP", c.bad_frames),
-                                            ("writes from read-only clients refused", c.read_only_writes)) if n]
+    closed = (("connections refused beyond plc.max_connections", c.over_limit),
+              ("idle connections closed", c.idle_closed),
+              ("connections closed for bytes that are not Modbus TCP", c.bad_frames),
+              ("writes from read-only clients refused", c.read_only_writes),
+              ("accept() failures for lack of file descriptors", c.accept_failures))
+    notes = [f"{n} {what}" for what, n in closed if n]
     if notes:
         print("; ".join(notes), flush=True)
     return 0

@@ -148,9 +148,11 @@ class TcpListener:
             except ConnectionAbortedError:
                 continue
             except OSError as e:
-                if e.errno not in OUT_OF_RESOURCES:
-                    raise
-                self._out_of_files(e)
+                if e.errno in OUT_OF_RESOURCES:
+                    self._out_of_files(e)
+                else:  # a connection that failed while it waited in the queue
+                    self.bursts("PLC connections failed before they were accepted",
+                                "a PLC connection failed before it was accepted: %s", e, level=logging.INFO)
                 return
             host = str(peer[0]) if isinstance(peer, tuple) else str(peer)
             access, rule = self.clients.of(host)
@@ -168,8 +170,12 @@ class TcpListener:
                             self.idle_timeout_s)
                 conn.close()
             else:
-                conn.setblocking(False)
-                _keepalive(conn)
+                try:
+                    conn.setblocking(False)
+                    _keepalive(conn)
+                except OSError:  # reset by the client already
+                    conn.close()
+                    continue
                 self._starting += 1
                 self._loop.create_task(self._connect(conn, access, rule))
 
