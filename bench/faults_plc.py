@@ -122,16 +122,17 @@ def _spin(seconds: float) -> None:
 
 # --- outcomes -------------------------------------------------------------------------------------
 def _judge(row: FaultRow, sent: list[tuple[int, bytes]], answers, extra_ok: bool = True) -> None:
-    """One try: ``sent`` (tid, expected answer PDU or None for "any non-exception answer of the
-    request's function") against ``answers``."""
+    """One try: ``sent`` (tid, the expected answer PDU, or None for "any answer, checked by the
+    caller in ``extra_ok``") against ``answers``. Wrong: an answer with another transaction id or
+    other contents, one too many, or a failed check of the caller; else lost: an answer missing."""
     got = [(tid, pdu) for tid, _unit, pdu in answers]
-    if any(tid != want for (tid, _), (want, _) in zip(got, sent)) or len(got) > len(sent):
+    wrong = len(got) > len(sent) or any(
+        tid != want_tid or (expected is not None and pdu != expected)
+        for (tid, pdu), (want_tid, expected) in zip(got, sent))
+    if wrong or (len(got) == len(sent) and not extra_ok):
         row.wrong += 1
     elif len(got) < len(sent):
         row.lost += 1
-    elif any(expected is not None and pdu != expected for (_, pdu), (_, expected) in zip(got, sent)) \
-            or not extra_ok:
-        row.wrong += 1
     else:
         row.correct += 1
 
