@@ -40,6 +40,11 @@ class Simulation(Protocol):
         """The simulated technician turns the steering wheel: the front wheels point about
         ``angle_deg`` to the left (+) or right (-) of straight ahead."""
 
+    def place_vehicle(self, seed: int) -> None:
+        """Put the random vehicle ``seed`` (``simulators.world.SimWorld.vehicle_scene(seed)``) on
+        the lift: the cameras see it from the next frame on; :meth:`truth` and
+        :meth:`replay_set` follow it."""
+
     def replay_set(self, noise_sigma: float | None = None) -> tuple[dict, dict, dict]:
         """({camera id: image}, truth, what was rendered) of the vehicle on the lift, rendered
         once with sensor noise ``noise_sigma`` (grey levels; None: the configuration's)."""

@@ -1,6 +1,6 @@
 """The simulated station behind sim:// cameras, and what it adds to the station
 (drivers.context.Simulation): the truth, the calibration operator, a toe adjustment for
-``station live``, a replay set of the vehicle on the lift.
+``station live``, another vehicle on the lift, a replay set of the vehicle on the lift.
 
 The sim:// cameras (simulators/sim_camera.py) render :attr:`SimulatedStation.world`, listen on
 its trigger wires and draw their noise from its seed.
@@ -67,6 +67,10 @@ class SimulatedStation:
 
         scene = self.world.scene
         self.world.set_scene(replace(scene, vehicle=replace(scene.vehicle, **change)))
+
+    def place_vehicle(self, seed: int) -> None:
+        self.vehicle_seed = int(seed)
+        self.world.set_scene(self.world.vehicle_scene(self.vehicle_seed))
 
     def replay_set(self, noise_sigma: float | None = None) -> tuple[dict, dict, dict]:
         from simulators.world import SimWorld

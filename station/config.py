@@ -258,7 +258,9 @@ SCHEMA = {
         "baudrate": Field(_number(300, 1_000_000, integer=True), default=19200),
         "parity": Field(_string(("N", "E", "O")), default="E"),
         "device_id": Field(_number(1, 247, integer=True), default=1),
-        "allowed_clients": Field(_string_list, default=[]),
+        "allowed_clients": Field(_string_list, default=[]),  # "ADDRESS[/PREFIX] [read|write]" (station/plc/clients.py)
+        "max_connections": Field(_number(1, 1000, integer=True), default=8),
+        "idle_timeout_s": Field(_number(0, 86400), default=60.0),  # 0: never close an idle connection
     }), default={}),
     "recording": Field(_section({
         "enabled": Field(_bool, default=True),

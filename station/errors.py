@@ -71,8 +71,9 @@ class WorkerFailure(MeasurementError):
 
 
 class ProcedureError(MeasurementError):
-    """An alignment procedure of several captures (rolling the car, steering) cannot give its
-    result: the sentence says what happened, the hint what to do."""
+    """A procedure of several captures (rolling the car, steering) cannot give its result.
+
+    The message says what happened, the hint what to do."""
 
     code = 410
 

@@ -177,3 +177,36 @@ def test_broadcast_trigger_is_not_executed(rtu):
     finally:
         os.close(fd)
     assert state(client) == 0 and bg.device.stats["started"] == 0
+
+
+def _exchange(fd, body: bytes, want: int) -> bytes:
+    os.write(fd, body + crc16(body))
+    answer = b""
+    deadline = time.monotonic() + 2
+    while len(answer) < want and time.monotonic() < deadline:
+        if select.select([fd], [], [], 0.1)[0]:
+            answer += os.read(fd, 256)
+    time.sleep(0.06)  # line silence before the next frame
+    return answer
+
+
+def test_rtu_answers_the_same_functions_as_tcp(rtu):
+    """Report server id names the station; functions 22 and 23 are refused with exception 1
+    and write nothing; a malformed read gets exception 3 with its own function code (docs/plc.md,
+    "Function codes")."""
+    bg, client, plc_side = rtu
+    fd = os.open(plc_side, os.O_RDWR | os.O_NOCTTY)
+    try:
+        ident = _exchange(fd, bytes([3, 17]), 60)
+        mask = _exchange(fd, bytes([3, 22, 0, 0, 0, 0, 0, 1]), 5)  # command := 1
+        rw = _exchange(fd, bytes([3, 23, 0, 100, 0, 1, 0, 0, 0, 1, 2, 0, 1]), 5)  # write 1 into 0
+        count0 = _exchange(fd, bytes([3, 3, 0, 100, 0, 0]), 5)
+    finally:
+        os.close(fd)
+    assert ident[:2] == bytes([3, 17]) and ident[-2:] == crc16(ident[:-2])
+    assert ident[3:5] == bytes([3, 0xFF]) and b"wheel alignment station" in ident and b"Pymodbus" not in ident
+    assert mask == bytes([3, 0x96, 1]) + crc16(bytes([3, 0x96, 1]))
+    assert rw == bytes([3, 0x97, 1]) + crc16(bytes([3, 0x97, 1]))
+    assert count0 == bytes([3, 0x83, 3]) + crc16(bytes([3, 0x83, 3]))  # not "80 01"
+    assert state(client) == 0 and bg.device.stats["started"] == 0
+    assert client.read_holding_registers(0, count=1, device_id=3).registers == [0]

@@ -18,7 +18,7 @@ def add_arguments(parser):
 
 def run(args) -> int:
     config = load_config(args.config)
-    with History(config.data_path("history.sqlite")) as history:
+    with History(config.data_path("history.sqlite"), read_only=True) as history:
         results = history.jobs(args.job)
         if not results:
             known = [visible(j) for j, _, _ in history.job_ids()[:5]]

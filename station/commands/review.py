@@ -30,7 +30,7 @@ def _find(config, args) -> list[Path]:
     folder = config.data_path("recordings")
     history_path = config.data_path("history.sqlite")
     if args.job:
-        with History(history_path) as h:
+        with History(history_path, read_only=True) as h:
             paths = [Path(r["recording"]) for r in h.query(job=args.job) if r.get("recording")]
         if not paths:
             raise StorageError(f"job {args.job!r}: no recordings in the history",
@@ -41,7 +41,7 @@ def _find(config, args) -> list[Path]:
         if p.suffix == ".rrd" or p.exists():
             return [p]
         if history_path.exists():
-            with History(history_path) as h:
+            with History(history_path, read_only=True) as h:
                 row = h.get(args.cycle)
             if row and row.get("recording"):
                 return [Path(row["recording"])]

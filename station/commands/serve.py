@@ -7,6 +7,7 @@ import logging
 import signal
 import sys
 
+from station.commands.arguments import seed
 from station.config import load_config
 from station.errors import ConfigError
 
@@ -24,8 +25,9 @@ def add_arguments(parser):
     parser.add_argument("--fail-every", type=int, default=10, metavar="N",
                         help="with --dry-run: jobs whose number is a multiple of N fail with fault "
                              "401, so the PLC's fault branch is exercised (0: never; default 10)")
-    parser.add_argument("--seed", type=int, default=None,
-                        help="simulated station only: which random vehicle stands on the lift")
+    parser.add_argument("--seed", type=seed, default=None,
+                        help="simulated station only: this random vehicle stands on the lift for every "
+                             "cycle (default: each cycle measures the vehicle of its cycle number)")
     parser.add_argument("--cycles", type=int, metavar="N",
                         help="stop after N cycles have been acknowledged (tests, demos)")
     parser.add_argument("--heartbeat-s", type=float, default=0.1, help="heartbeat period (s)")
@@ -47,13 +49,14 @@ def _transport(args, plc) -> tuple[str, dict]:
     return "tcp", {"host": args.host or plc.host, "port": port}
 
 
-async def _serve(args, runner, transport, where, device_id, allowed) -> int:
+async def _serve(args, runner, transport, where, device_id, plc) -> int:
     from station.plc.device import PlcDevice
     from station.plc.server import PlcServer, wait_until
 
     device = PlcDevice(runner, device_id=device_id, heartbeat_s=args.heartbeat_s,
                        cycle_timeout_s=args.cycle_timeout_s)
-    server = PlcServer(device, allowed_clients=allowed)
+    server = PlcServer(device, allowed_clients=plc.allowed_clients, max_connections=plc.max_connections,
+                       idle_timeout_s=plc.idle_timeout_s)
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -75,9 +78,17 @@ async def _serve(args, runner, transport, where, device_id, allowed) -> int:
             await stop.wait()
     finally:
         await server.stop()
-    s = device.stats
+    s, c = device.stats, server.counters
     print(f"served {s['started']} cycles ({s['done']} done, {s['fault']} fault), "
           f"{s['refused']} commands refused, {server.refused_clients} clients refused", flush=True)
+    closed = (("connections refused beyond plc.max_connections", c.over_limit),
+              ("idle connections closed", c.idle_closed),
+              ("connections closed for bytes that are not Modbus TCP", c.bad_frames),
+              ("writes from read-only clients refused", c.read_only_writes),
+              ("accept() failures for lack of file descriptors", c.accept_failures))
+    notes = [f"{n} {what}" for what, n in closed if n]
+    if notes:
+        print("; ".join(notes), flush=True)
     return 0
 
 
@@ -96,4 +107,4 @@ def run(args) -> int:
     logging.basicConfig(level=getattr(logging, args.log_level.upper()), stream=sys.stderr,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     logging.getLogger("pymodbus").setLevel(logging.CRITICAL)  # its errors are ours, reported above
-    return asyncio.run(_serve(args, runner, transport, where, device_id, plc.allowed_clients))
+    return asyncio.run(_serve(args, runner, transport, where, device_id, plc))

@@ -1,7 +1,8 @@
 """Regenerate the generated parts of docs/plc.md from the code: ``python -m station.plc.docs``.
 
 The register tables come from :mod:`station.plc.register_map`, the handshake table from
-:mod:`station.plc.handshake`, the fault codes from :mod:`station.errors`; each sits between
+:mod:`station.plc.handshake`, the function codes from :mod:`station.plc.functions`, the fault
+codes from :mod:`station.errors`; each sits between
 ``<!-- generated: NAME -->`` and ``<!-- end generated -->`` markers.
 """
 
@@ -12,7 +13,7 @@ import sys
 from pathlib import Path
 
 from station.errors import all_error_classes
-from station.plc import handshake, register_map
+from station.plc import functions, handshake, register_map
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "plc.md"
 
@@ -27,7 +28,7 @@ def fault_table() -> str:
 
 
 SECTIONS = {"register map": register_map.markdown_tables, "handshake": handshake.markdown_table,
-            "fault codes": fault_table}
+            "function codes": functions.markdown_table, "fault codes": fault_table}
 
 
 def render(text: str) -> str:

@@ -215,6 +215,19 @@ def header() -> str:
     return f"{'#':>4} {'job':<12} {'state':<9} {names} {'spec':>4} {'hs ms':>6}"
 
 
+HEARTBEAT_WINDOW_S = 1.0  # docs/plc.md: a heartbeat unchanged for a second means the station is down
+
+
+def watch_heartbeat(sim: PlcSimulator, first: int, since: float) -> int:
+    """The heartbeat register now, read again until it differs from ``first`` or
+    HEARTBEAT_WINDOW_S has passed since ``since`` (a short run must not pass for a stopped one)."""
+    while True:
+        now = sim.read_block(status_only=True)["heartbeat"]
+        if now != first or time.perf_counter() - since >= HEARTBEAT_WINDOW_S:
+            return now
+        time.sleep(0.02)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m station.plc.master", description=__doc__.split("\n\n")[0])
     ap.add_argument("--host", default="127.0.0.1")
@@ -256,16 +269,16 @@ def main(argv=None) -> int:
                 print(format_row(i + 1, rep))
                 for p in rep.problems:
                     print(f"       problem: {p}")
-        hb1 = sim.read_block()["heartbeat"]
+        hb1 = watch_heartbeat(sim, hb0, t_start)
     except (ModbusFailure, ModbusException) as e:
         print(f"plc_sim: the station stopped answering: {e}", file=sys.stderr)
         return 2
     finally:
         client.close()
-    elapsed = time.perf_counter() - t_start
-    beat = "advancing" if hb1 != hb0 or elapsed < 0.5 else "STOPPED"
-    print(f"{args.cycles} cycles, {bad} with problems; heartbeat {beat} ({hb0} -> {hb1})")
-    return 1 if bad or beat == "STOPPED" else 0
+    beat = (f"advancing ({hb0} -> {hb1})" if hb1 != hb0
+            else f"STOPPED (still {hb0} after {time.perf_counter() - t_start:.1f} s)")
+    print(f"{args.cycles} cycles, {bad} with problems; heartbeat {beat}")
+    return 1 if bad or hb1 == hb0 else 0
 
 
 if __name__ == "__main__":

@@ -47,7 +47,9 @@ def measurement_runner(config, seed: int | None = None) -> CycleRunner:
 
     The station (cameras, calibration) is assembled once, at the first command, and kept; a
     failure to assemble it (no calibration, a missing camera) faults that cycle with its code,
-    and the next command tries again. ``seed``: the simulated vehicle on the lift (sim:// only).
+    and the next command tries again. On a simulated station (sim://) each measuring cycle
+    measures the random vehicle of its cycle number; ``seed`` keeps that one vehicle on the lift
+    for every cycle instead.
     """
     from station.cycle import Station
 
@@ -62,7 +64,10 @@ def measurement_runner(config, seed: int | None = None) -> CycleRunner:
         if request.command == "calibration_check":
             return station().calibration_check()
         try:
-            return station().measure(job_id=request.job_id, vehicle_spec=request.vehicle_spec)
+            assembled = station()
+            if seed is None and assembled.context.simulation is not None:
+                assembled.context.simulation.place_vehicle(request.cycle)
+            return assembled.measure(job_id=request.job_id, vehicle_spec=request.vehicle_spec)
         except CalibrationError:
             holder.pop("station", None)
             raise

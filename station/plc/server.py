@@ -1,53 +1,49 @@
 """The Modbus transports: TCP (default 127.0.0.1:5020) or RTU on a serial line, same map.
 
-On top of pymodbus 3.16:
-
-* **unknown device id**: over TCP the station answers to its device id and to 0 and 255 (the
-  "this device" unit ids of Modbus/TCP); any other id gets exception 0x0B (gateway target failed
-  to respond). On RTU it answers only to its own id and stays silent otherwise, as a device on a
-  shared RS-485 line must (pymodbus alone logs a traceback and answers exception 4).
-* **garbage on the serial line**: RTU frames are delimited by silence. pymodbus hunts for a
+* **TCP** is the station's own asyncio transport (:mod:`station.plc.tcp`): pipelined requests
+  answered once each, in order, with their own transaction ids; the allow-list with read-only
+  clients, a connection limit and an idle timeout. The station answers to its device id and to
+  0 and 255 (the "this device" unit ids of Modbus/TCP); any other id gets exception 0x0B
+  (gateway target failed to respond).
+* **RTU** stays on pymodbus 3.16's serial server: the station answers only to its own id and
+  stays silent otherwise, as a device on a shared RS-485 line must (pymodbus alone logs a
+  traceback and answers exception 4). RTU frames are delimited by silence; pymodbus hunts for a
   frame in whatever it has buffered, so noise can hold a later good frame hostage; the handler
   here drops a partial buffer after ``rtu_gap_s`` of silence (3.5 characters by the standard,
   widened for USB adapters), so the next request after noise is answered.
-* **allow-list**: ``allowed_clients`` (IP addresses or networks); a TCP client from elsewhere is
-  disconnected at once and logged.
+
+Both answer the same functions (:mod:`station.plc.functions`) from the same register memory.
 """
 
 from __future__ import annotations
 
 import asyncio
-import ipaddress
 import logging
-import socket
 import time
 
 from pymodbus.constants import ExcCodes
 from pymodbus.exceptions import NoSuchIdException
 from pymodbus.framer import FramerType
-from pymodbus.pdu import ExceptionResponse
-from pymodbus.server import ModbusSerialServer, ModbusTcpServer
+from pymodbus.pdu import DecodePDU, ExceptionResponse, ModbusPDU
+from pymodbus.server import ModbusSerialServer
 from pymodbus.server.requesthandler import ServerRequestHandler
 from pymodbus.simulator.simcore import SimCore
-from pymodbus.transport import CommType
 
-from station.errors import ConfigError, PlcError
+from station.errors import PlcError
+from station.plc.clients import ClientAccess
 from station.plc.device import PlcDevice
+from station.plc.functions import (FUNCTIONS, ILLEGAL_DATA_VALUE, ILLEGAL_FUNCTION, RequestHandler,
+                                   report_server_id)
+from station.plc.log_bursts import BurstLog
+from station.plc.tcp import ServerCounters, TcpListener
 
 log = logging.getLogger("station.plc")
 TCP_SELF_IDS = (0, 255)
 
 
-def parse_allowed(entries) -> list:
-    """Allow-list entries -> ip networks; raises ConfigError naming a bad entry."""
-    nets = []
-    for entry in entries or ():
-        try:
-            nets.append(ipaddress.ip_network(str(entry), strict=False))
-        except ValueError:
-            raise ConfigError(f"plc.allowed_clients: {entry!r} is not an IP address or network",
-                              hint="write addresses like 127.0.0.1 or networks like 10.0.0.0/24") from None
-    return nets
+def parse_allowed(entries) -> ClientAccess:
+    """``plc.allowed_clients`` -> the access rules; raises ConfigError naming a bad entry."""
+    return ClientAccess(entries)
 
 
 class _Core(SimCore):
@@ -72,95 +68,125 @@ class _Core(SimCore):
         return await super().async_setValues(device_id, func_code, address, values)
 
 
-def _keepalive(sock) -> None:
-    """TCP keepalive on a PLC connection: a PLC that was switched off without closing its
-    connection is noticed within about 25 s instead of leaving a dead connection open forever."""
-    if sock is None or sock.family not in (socket.AF_INET, socket.AF_INET6):
-        return
-    sock.setsockopt(socket.SOL_SOCKET, socket.SO_KEEPALIVE, 1)
-    for name, value in (("TCP_KEEPIDLE", 10), ("TCP_KEEPINTVL", 5), ("TCP_KEEPCNT", 3)):
-        if hasattr(socket, name):
-            sock.setsockopt(socket.IPPROTO_TCP, getattr(socket, name), value)
+class _PduBytes(ModbusPDU):
+    """A response PDU given as bytes (function code first), for pymodbus's serial framer."""
+
+    def __init__(self, pdu: bytes, dev_id: int):
+        super().__init__(dev_id=dev_id)
+        self.function_code = pdu[0]
+        self._data = pdu[1:]
+
+    def encode(self) -> bytes:
+        return self._data
 
 
-class _Handler(ServerRequestHandler):
-    """One connection (TCP) or the serial line: allow-list and RTU silence framing."""
+class _MalformedRequest(ModbusPDU):
+    """A framed request pymodbus could not decode (a count of 0, a byte count that does not
+    match): it keeps the function code, so the answer can carry it."""
+
+    def __init__(self, function_code: int):
+        super().__init__()
+        self.function_code = function_code
+
+
+class _SerialDecoder(DecodePDU):
+    """pymodbus's decoder returns None for a request it cannot decode, and its handler then
+    answers with function code 0 ("80 01"); this one keeps the request's code."""
+
+    def decode(self, frame: bytes) -> ModbusPDU | None:
+        pdu = super().decode(frame)
+        return _MalformedRequest(frame[0]) if pdu is None and frame else pdu
+
+
+class _SerialHandler(ServerRequestHandler):
+    """The serial line: other device ids, RTU silence framing, the station's functions only."""
 
     def __init__(self, owner, *args):
         super().__init__(owner, *args)
         self._plc = owner.plc_server
         self._last_rx = 0.0
 
-    def connection_made(self, transport):
-        super().connection_made(transport)
-        _keepalive(transport.get_extra_info("socket"))
-        peer = transport.get_extra_info("peername")
-        if self._plc.allowed and isinstance(peer, tuple):
-            ip = ipaddress.ip_address(peer[0])
-            if not any(ip in net for net in self._plc.allowed):
-                self._plc.refused_clients += 1
-                log.warning("PLC client %s refused: not in plc.allowed_clients", peer[0])
-                self.close()
-
     async def handle_request(self):
         pdu = self.last_pdu
-        if pdu is not None and pdu.dev_id not in self.server.context.devices:
-            self._plc.unknown_ids += 1
+        if pdu is None:
+            return
+        if pdu.dev_id not in self.server.context.devices:
+            self._plc.counters.unknown_ids += 1
             log.info("request for device id %d ignored: this station is %d", pdu.dev_id,
                      self._plc.device.device_id)
-            if self.comm_params.comm_type != CommType.SERIAL:  # RTU: silence, the line is shared
-                response = ExceptionResponse(pdu.function_code, ExcCodes.GATEWAY_NO_RESPONSE)
-                response.transaction_id, response.dev_id = pdu.transaction_id, pdu.dev_id
-                self.server_send(response, self.last_addr)
+            return  # silence: the line is shared
+        answer = None
+        if pdu.function_code not in FUNCTIONS:
+            answer = ExceptionResponse(pdu.function_code, ExcCodes(ILLEGAL_FUNCTION))
+        elif isinstance(pdu, _MalformedRequest):
+            answer = ExceptionResponse(pdu.function_code, ExcCodes(ILLEGAL_DATA_VALUE))
+        elif pdu.function_code == 17:
+            answer = _PduBytes(report_server_id(self._plc.device.device_id), pdu.dev_id)
+        if answer is None:
+            await super().handle_request()
             return
-        await super().handle_request()
+        answer.transaction_id, answer.dev_id = pdu.transaction_id, pdu.dev_id
+        self.server_send(answer, self.last_addr)
 
     def datagram_received(self, data, addr):
         now = time.monotonic()
-        if (self.comm_params.comm_type == CommType.SERIAL and self.recv_buffer
-                and now - self._last_rx > self._plc.rtu_gap_s):
+        if self.recv_buffer and now - self._last_rx > self._plc.rtu_gap_s:
             log.debug("RTU: dropped %d bytes of an unfinished frame after silence", len(self.recv_buffer))
             self.recv_buffer = b""
         self._last_rx = now
         super().datagram_received(data, addr)
 
 
-class _TcpServer(ModbusTcpServer):
-    def callback_new_connection(self):
-        return _Handler(self, self.trace_packet, self.trace_pdu, self.trace_connect)
-
-
 class _SerialServer(ModbusSerialServer):
     def callback_new_connection(self):
-        return _Handler(self, self.trace_packet, self.trace_pdu, self.trace_connect)
+        return _SerialHandler(self, self.trace_packet, self.trace_pdu, self.trace_connect)
 
 
 class PlcServer:
     """``device`` served on one transport. ``await start_tcp(...)`` or ``start_rtu(...)``,
-    then ``await stop()``."""
+    then ``await stop()``. ``counters`` counts what was refused or closed."""
 
-    def __init__(self, device: PlcDevice, *, allowed_clients=(), rtu_gap_s: float = 0.05):
+    def __init__(self, device: PlcDevice, *, allowed_clients=(), max_connections: int = 8,
+                 idle_timeout_s: float = 60.0, rtu_gap_s: float = 0.05):
         self.device = device
-        self.allowed = parse_allowed(allowed_clients)
+        self.clients = parse_allowed(allowed_clients)
+        self.max_connections = max_connections
+        self.idle_timeout_s = idle_timeout_s
         self.rtu_gap_s = rtu_gap_s
-        self.refused_clients = 0
-        self.unknown_ids = 0
-        self.server = None
+        self.counters = ServerCounters()
+        self.bursts = BurstLog(log)
+        self.server: TcpListener | _SerialServer | None = None
         self.address: str = ""
 
-    def _install(self, server, ids) -> None:
-        server.plc_server = self
+    @property
+    def refused_clients(self) -> int:
+        """Clients refused because plc.allowed_clients does not name them."""
+        return self.counters.refused_clients
+
+    @property
+    def unknown_ids(self) -> int:
+        return self.counters.unknown_ids
+
+    def _core(self, ids) -> _Core:
+        """The register memory, answering to ``ids``, bound to the device."""
         core = _Core(self.device.simdevice(), ids)
-        server.context = core
         start, _count, registers, _flags = core.devices[self.device.device_id].block["x"]
         self.device.bind(registers, start)
+        return core
 
     async def start_tcp(self, host: str = "127.0.0.1", port: int = 5020) -> int:
         """Listen on host:port (port 0: any free port); returns the bound port."""
-        server = _TcpServer(self.device.simdevice(), address=(host, port))
-        self._install(server, (self.device.device_id, *TCP_SELF_IDS))
-        await self._listen(server, f"tcp {host}:{port}")
-        port = server.transport.sockets[0].getsockname()[1]
+        ids = (self.device.device_id, *TCP_SELF_IDS)
+        listener = TcpListener(RequestHandler(self._core(ids), self.device.device_id), ids,
+                               clients=self.clients, max_connections=self.max_connections,
+                               idle_timeout_s=self.idle_timeout_s, counters=self.counters, bursts=self.bursts)
+        try:
+            port = await listener.start(host, port)
+        except (OSError, OverflowError) as e:
+            raise PlcError(f"cannot open tcp {host}:{port} for the PLC ({e})",
+                           hint="check that the address exists on this machine and the port is not in use; "
+                                "plc.host/plc.port in config/station.yaml, or --host/--port") from None
+        self._started(listener, f"tcp {host}:{port}")
         self.address = f"Modbus TCP {host}:{port}"
         return port
 
@@ -169,31 +195,36 @@ class PlcServer:
         server = _SerialServer(self.device.simdevice(), framer=FramerType.RTU, port=port,
                                baudrate=baudrate, parity=parity, ignore_missing_devices=True,
                                reconnect_delay=1.0)
-        self._install(server, (self.device.device_id,))
-        await self._listen(server, f"serial line {port}")
-        self.address = f"Modbus RTU {port} {baudrate} 8{parity}1"
-
-    async def _listen(self, server, where: str) -> None:
+        server.plc_server = self
+        server.decoder = _SerialDecoder(is_server=True)
+        server.context = self._core((self.device.device_id,))
+        where = f"serial line {port}"
         try:
             await server.serve_forever(background=True)
         except Exception as e:  # noqa: BLE001 - RuntimeError, OSError, termios.error, SerialException
             server.close()
             raise PlcError(f"cannot open {where} for the PLC ({e})",
-                           hint="check that the address or serial device exists and is not in use, "
-                                "and its settings (a pseudo-terminal takes parity N only); "
-                                "plc.* in config/station.yaml, or --host/--port/--rtu/--parity") from None
+                           hint="check that the serial device exists and is not in use, and its settings "
+                                "(a pseudo-terminal takes parity N only); plc.* in config/station.yaml, "
+                                "or --rtu/--baudrate/--parity") from None
         if not server.transport:
             raise PlcError(f"cannot open {where} for the PLC",
-                           hint="check that the address or serial device exists and is not in use")
+                           hint="check that the serial device exists and is not in use")
+        self._started(server, where)
+        self.address = f"Modbus RTU {port} {baudrate} 8{parity}1"
+
+    def _started(self, server, where: str) -> None:
         self.server = server
         self.device.start_heartbeat()
         log.info("serving %s, device id %d", where, self.device.device_id)
 
     async def stop(self) -> None:
         await self.device.stop()
-        if self.server:
+        if isinstance(self.server, TcpListener):
+            await self.server.close()
+        elif self.server is not None:
             await self.server.shutdown()
-            self.server = None
+        self.server = None
 
 
 async def wait_until(predicate, timeout_s: float, poll_s: float = 0.01) -> bool:
