@@ -26,6 +26,7 @@ from dataclasses import replace
 import numpy as np
 
 from calibration.station_frame import WHEELS
+from simulators.vehicle import Runout
 
 SOFT_FOCUS_PX = (1.3, 2.0)
 GAMMA = 1 / 2.2
@@ -67,6 +68,7 @@ def scene_for(world, kind: str | None, seed: int, nominal, **overrides):
     if kind in WHEEL_RANGES:
         name, span = WHEEL_RANGES[kind]
         overrides[name] = float(r.uniform(*span))
+    overrides.setdefault("runout", {w: Runout() for w in WHEELS})  # the rim planes: runout is bench/runout.py's
     scene = world.vehicle_scene(seed, **overrides)
     if kind in LIGHT_RANGES:
         scene = replace(scene, lighting={c: replace(light, **{k: float(r.uniform(*span)) for k, span in LIGHT_RANGES[kind].items()})

@@ -190,6 +190,7 @@ class Vehicle:
     def truth(self) -> dict:
         """Ground truth for a measurement, in the documented JSON schema's units. Per wheel:
         ``toe_deg``/``camber_deg`` the alignment set on the car (its spin axis at straight ahead),
+        ``rim_toe_deg``/``rim_camber_deg`` those of the rim's plane as it stands now (with runout),
         ``center_station_m``/``axis_station`` the rim as the cameras see it now (with runout,
         steered, rolled), ``spin_center_station_m``/``spin_axis_station`` the hub's,
         ``roll_deg`` how far it has turned, ``steer_deg`` how far it is steered."""
@@ -199,9 +200,13 @@ class Vehicle:
             c, Rw = self.wheel_frame_station(wname)
             hub, Rs = self.spin_frame_station(wname)
             r = self.runout[wname]
+            w_vehicle = self.R_station_vehicle.T @ Rw[:, 2]
+            side = SIDE[wname] * w_vehicle[0]
             wheels[wname] = {
                 "toe_deg": float(self.toe_deg[wname]),
                 "camber_deg": float(self.camber_deg[wname]),
+                "rim_toe_deg": float(np.degrees(np.arctan2(w_vehicle[1], side))),
+                "rim_camber_deg": float(np.degrees(np.arctan2(-w_vehicle[2], side))),
                 "center_station_m": c.tolist(),
                 "axis_station": Rw[:, 2].tolist(),
                 "rim_radius_m": self.wheel.rim_radius_m,

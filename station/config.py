@@ -239,7 +239,7 @@ SCHEMA = {
     "simulation": Field(_section({
         "station_seed": Field(_number(0, 2**31, integer=True), default=7),
         "noise_sigma": Field(_number(0, 50), default=2.0),
-        "runout_max_deg": Field(_number(0, 5), default=0.0),
+        "runout_max_deg": Field(_number(0, 5), default=0.3),
     }), default={}),
     "capture": Field(_section({
         "timeout_s": Field(_number(0.01, 600), default=3.0),

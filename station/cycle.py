@@ -27,8 +27,11 @@ from station.capture.saving import capture_and_keep, new_cycle_id, remove_unfini
 from station.capture.sync import capture_averaged
 from station.compute.workers import WorkerPool, default_workers
 from station.config import StationConfig
-from station.errors import CODED_ERRORS, StationError, StorageError
+from station.errors import CODED_ERRORS, ProcedureError, StationError, StorageError
 from station.measure import measure_frames
+from station.operator import AlignmentOperator
+from station.procedures.runout import ROLL_DISTANCE_M, ROLL_PLAN, compensated, wheel_rolls
+from station.procedures.runout_store import apply_kept_runout_to, keep_runout
 from station.records.atomic_file import write_text_atomic
 from station.result import Failure, Measurement, WarningFlag
 from station.sequencer import Sequencer
@@ -87,16 +90,26 @@ class Station:
 
     # --- one cycle --------------------------------------------------------------------------
     def measure(self, *, job_id: str | None = None, vehicle_spec: str | None = None,
-                method: str = "circle", record: bool = True, store: bool = True) -> Measurement:
+                method: str = "circle", record: bool = True, store: bool = True,
+                compensate: AlignmentOperator | None = None, roll_distance_m: float = ROLL_DISTANCE_M) -> Measurement:
         """Run one cycle through the sequencer's states (station/sequencer.py) and return its
         result. A capture that fails gives an invalid result, kept in the history, and leaves
         the sequencer in fault. A vehicle spec that cannot be applied is raised after the cycle
-        is kept (with a warning saying so)."""
+        is kept (with a warning saying so).
+
+        ``compensate``: measure with runout compensation (station/procedures/runout.py): this
+        operator rolls the car ``roll_distance_m`` back and forward between the captures, and the
+        runout found is kept with the job (station/procedures/runout_store.py). Without it, a
+        runout kept for ``job_id`` is applied when the wheels can still be followed."""
         cycle = _Cycle(new_cycle_id(), job_id, vehicle_spec, record and self.config.recording.enabled, store,
                        time.perf_counter())
+        if compensate is None:
+            capture, measure = (lambda: self._capture(cycle)), (lambda frames: self._measure(cycle, frames, method))
+        else:
+            capture = lambda: self._capture_rolled(cycle, compensate, roll_distance_m)  # noqa: E731
+            measure = lambda captures: self._measure_rolled(cycle, captures, method)  # noqa: E731
         try:
-            result = self.sequencer.run_cycle(capture=lambda: self._capture(cycle),
-                                              measure=lambda frames: self._measure(cycle, frames, method),
+            result = self.sequencer.run_cycle(capture=capture, measure=measure,
                                               report=lambda measured: self._report(cycle, measured))
         except CODED_ERRORS:
             if cycle.failed is None:
@@ -106,14 +119,15 @@ class Station:
             raise cycle.spec_error
         return result
 
-    def _capture(self, cycle: _Cycle) -> dict:
-        """The cycle's frames. A failed capture's result is kept (``cycle.failed``) and its error raised."""
+    def _capture(self, cycle: _Cycle, part: str | None = None) -> dict:
+        """The cycle's frames (of one ``part`` of a procedure: a folder of the cycle's captures).
+        A failed capture's result is kept (``cycle.failed``) and its error raised."""
         cfg = self.config
         cycle.truth = self.context.simulation.truth() if self.context.simulation else None
-        captures_dir = cfg.data_path("captures", cycle.cycle_id)
+        captures_dir = cfg.data_path("captures", cycle.cycle_id, *([part] if part else []))
         n = cfg.capture.frames_averaged
         self.progress(f"cycle {cycle.cycle_id}: capturing {len(self.cameras)} cameras"
-                      + (f", {n} frames each (averaged)" if n > 1 else ""))
+                      + (f", {n} frames each (averaged)" if n > 1 else "") + (f" ({part})" if part else ""))
         try:
             if cfg.capture.keep_captures:
                 frames, kept = capture_and_keep(self.cameras, self.timeout_s, captures_dir, truth=cycle.truth,
@@ -132,11 +146,58 @@ class Station:
             cycle.failed = result
             raise
         if kept is not None:
-            cycle.captures_dir = str(kept.path) if kept.path else None
-            cycle.not_kept = kept.warning
+            cycle.captures_dir = str(kept.path.parent if part and kept.path else kept.path) if kept.path else None
+            cycle.not_kept = cycle.not_kept or kept.warning
         return frames
 
-    def _measure(self, cycle: _Cycle, frames: dict, method: str) -> Measurement:
+    def _capture_rolled(self, cycle: _Cycle, operator: AlignmentOperator, distance_m: float) -> list[dict]:
+        """The frames at each position of the roll plan, the operator rolling the car between them."""
+        captures = []
+        for k, at in enumerate(ROLL_PLAN):
+            if k:
+                step = (at - ROLL_PLAN[k - 1]) * distance_m
+                self.progress(f"cycle {cycle.cycle_id}: runout compensation, roll {k} of {len(ROLL_PLAN) - 1}: "
+                              f"{'forward' if step > 0 else 'back'} {abs(step) * 100:.0f} cm")
+                operator.roll_car(step)
+            captures.append(self._capture(cycle, f"position-{k + 1}"))
+        return captures
+
+    def _measure_rolled(self, cycle: _Cycle, captures: list[dict], method: str) -> Measurement:
+        """Each position measured, then the spin axes (station/procedures/runout.py): the last
+        position's result with toe and camber of the spin axes. A position that fails, or a
+        procedure the checks refuse, gives an invalid result naming why."""
+        results = [self._measure(cycle, frames, method, apply_kept_runout=False) for frames in captures]
+        cycle.roll = results
+        result = results[-1]
+        bad = next((k for k, r in enumerate(results) if not r.valid), None)
+        if bad is not None:
+            failed = results[bad]
+            failed.warnings.insert(0, f"runout compensation: position {bad + 1} of {len(results)} failed")
+            return failed
+        t0 = time.perf_counter()
+        images = [{cid: f.image for cid, f in frames.items()} for frames in captures]
+        try:
+            rolls = wheel_rolls(results, images, self.models, self.config)
+        except ProcedureError as e:
+            failed = Measurement(station=self.config.name, failure=Failure(e.code, str(e), e.hint),
+                                 warnings=["runout compensation refused; the rim-plane values of the last position "
+                                           "are not reported"])
+            self._stamp(failed, cycle)
+            failed.captures_dir = cycle.captures_dir
+            return failed
+        result = compensated(result, rolls, self.config)
+        result.timing_s["runout"] = time.perf_counter() - t0
+        result.timing_s["capture"] = results[-1].timing_s["capture"]
+        cycle.rolls = rolls
+        try:
+            keep_runout(self.config, result, rolls, images[-1], self.models)
+        except StorageError as e:
+            _not_kept(result, f"{e}; later measurements of this job cannot apply the runout")
+        if cycle.truth is not None:
+            result.add_truth(cycle.truth)
+        return result
+
+    def _measure(self, cycle: _Cycle, frames: dict, method: str, apply_kept_runout: bool = True) -> Measurement:
         t_capture = time.perf_counter() - cycle.t0
         self.progress(f"cycle {cycle.cycle_id}: detecting rims and rebuilding the wheels")
         cycle.images = {cid: f.image for cid, f in frames.items()}
@@ -145,6 +206,8 @@ class Station:
         self._stamp(result, cycle)
         result.timing_s["capture"] = t_capture
         result.captures_dir = cycle.captures_dir
+        if apply_kept_runout and result.valid and cycle.job_id:
+            result = apply_kept_runout_to(self.config, result, cycle.images, self.models)
         if cycle.not_kept:
             _not_kept(result, cycle.not_kept)
         if cycle.truth is not None:
@@ -160,7 +223,8 @@ class Station:
             except StationError as e:
                 cycle.spec_error = e
                 result.warnings.append(f"vehicle spec {cycle.vehicle_spec!r}: {e}")
-        self._finish(result, record=cycle.record, store=cycle.store, images=cycle.images)
+        roll = (cycle.roll, cycle.rolls) if cycle.rolls else None
+        self._finish(result, record=cycle.record, store=cycle.store, images=cycle.images, roll=roll)
         result.timing_s["total"] = time.perf_counter() - cycle.t0
         self.cycle_count += 1
         return result
@@ -182,12 +246,13 @@ class Station:
         result.calibration_id = self.calibration.calibration_id
         result.job_id, result.vehicle_spec = cycle.job_id, cycle.vehicle_spec
 
-    def _finish(self, result: Measurement, *, record: bool, store: bool, images: dict | None = None) -> None:
+    def _finish(self, result: Measurement, *, record: bool, store: bool, images: dict | None = None,
+                roll: tuple | None = None) -> None:
         t0 = time.perf_counter()
         if record:
             path = self.config.data_path("recordings", f"{result.cycle_id}.rrd")
             try:
-                _record(path, self, result, images or {})
+                _record(path, self, result, images or {}, roll=roll)
                 result.recording = str(path)
             except StorageError as e:
                 _not_kept(result, str(e))
@@ -216,6 +281,8 @@ class _Cycle:
     captures_dir: str | None = None
     not_kept: str | None = None  # why the frames could not be kept (a full or read-only disk)
     images: dict | None = None
+    roll: list[Measurement] | None = None   # runout compensation: each position's result
+    rolls: dict | None = None               # and each wheel's WheelRoll (station/procedures/runout.py)
     failed: Measurement | None = None
     spec_error: StationError | None = None
 
@@ -232,7 +299,9 @@ def _apply_spec(cfg: StationConfig, result: Measurement, key: str) -> None:
     apply_spec(result, get_spec(specs, key, cfg.vehicle_specs_path))
 
 
-def _record(path: Path, station: Station, result: Measurement, images: dict) -> None:
+def _record(path: Path, station: Station, result: Measurement, images: dict, roll: tuple | None = None) -> None:
+    """The cycle's Rerun recording; ``roll``: (each position's result, each wheel's WheelRoll)
+    of a runout compensation."""
     from station.records.recording import CycleRecorder, recording_id_for
 
     rec = CycleRecorder(path, jpeg_quality=station.config.recording.jpeg_quality,
@@ -246,6 +315,12 @@ def _record(path: Path, station: Station, result: Measurement, images: dict) -> 
                 rec.log_detection(cam_id, det.ellipse.points(180), det.points_px)
             rec.log_wheel(wheel, o.paper.points_station, o.circle.center_station, o.circle.axis_station,
                           o.circle.radius_m)
+        if roll is not None:
+            positions, rolls = roll
+            for wheel, r in rolls.items():
+                circles = [p.observations[wheel].circle for p in positions]
+                rec.log_roll(wheel, [c.center_station for c in circles], [c.axis_station for c in circles],
+                             r.spin.axis_station, float(circles[-1].radius_m))
         if result.alignment_frame:
             rec.log_car_frame(result.alignment_frame["origin_station_m"], result.alignment_frame["R_station_align"])
         rec.log_result(result)

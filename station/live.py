@@ -167,7 +167,8 @@ class LiveSession:
         reading.timing_s = {"capture": t1 - t0, "wheels": t2 - t1, **work, "angles": t4 - t3, "total": t4 - t0}
         if self.simulation is not None:
             truth = self.simulation.truth()
-            reading.truth_toe_deg = {w: truth["wheels"][w]["toe_deg"] for w in self.live_wheels}
+            reading.truth_toe_deg = {w: truth["wheels"][w].get("rim_toe_deg", truth["wheels"][w]["toe_deg"])
+                                     for w in self.live_wheels}
         self.n += 1
         return reading
 

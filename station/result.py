@@ -13,7 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-from calibration.station_frame import WHEELS
+from calibration.station_frame import AXLES, WHEELS
 
 SCHEMA_VERSION = 1
 # the named angles of a result: pass/fail, the PLC map, the history, the report
@@ -192,17 +192,21 @@ class Measurement:
         return any(f.kind == kind and (wheel is None or f.wheel == wheel) for f in self.warning_flags)
 
     def add_truth(self, truth: dict) -> None:
-        """Simulation only: attach the truth and each angle's error (measured - true)."""
+        """Simulation only: attach the truth and each angle's error (measured - true): against
+        the spin axes' alignment when runout is compensated, else against the rim planes' (the
+        truth's ``rim_toe_deg``/``rim_camber_deg``, the same when the rims do not run out)."""
         self.truth = truth
         if not self.valid:
             return
+        prefix = "" if self.runout_compensated else "rim_"
+        true = {w: {k: t.get(prefix + k, t[k]) for k in ("toe_deg", "camber_deg")} for w, t in truth["wheels"].items()}
         errors: dict[str, Any] = {}
         for w in WHEELS:
-            m, t = self.wheels[w], truth["wheels"][w]
+            m, t = self.wheels[w], true[w]
             errors[w] = {"toe_error_deg": m.toe_deg - t["toe_deg"], "camber_error_deg": m.camber_deg - t["camber_deg"]}
-        errors["front.total_toe"] = self.axles["front"].total_toe_deg - truth["total_toe_front_deg"]
-        errors["rear.total_toe"] = self.axles["rear"].total_toe_deg - truth["total_toe_rear_deg"]
-        errors["thrust"] = self.thrust_deg - truth["thrust_deg"]
+        for axle, (left, right) in AXLES.items():
+            errors[f"{axle}.total_toe"] = self.axles[axle].total_toe_deg - true[left]["toe_deg"] - true[right]["toe_deg"]
+        errors["thrust"] = self.thrust_deg - (true["RL"]["toe_deg"] - true["RR"]["toe_deg"]) / 2
         self.errors = errors
 
     def angle(self, name: str) -> float | None:

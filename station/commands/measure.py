@@ -39,6 +39,10 @@ def add_arguments(parser):
     parser.add_argument("--method", choices=["circle", "paper"], default="circle",
                         help="3-D wheel: the refined 3-D circle fit (default) or the paper's section 3.2")
     parser.add_argument("--no-record", action="store_true", help="do not write a Rerun recording")
+    parser.add_argument("--compensate", action="store_true",
+                        help="runout compensation: the car is rolled about 15 cm back and forward while the "
+                             "cameras watch; toe and camber are of the wheels' spin axes, and the runout is kept "
+                             "with --job for its later measurements (docs/procedures.md)")
 
 
 def run(args) -> int:
@@ -50,8 +54,12 @@ def run(args) -> int:
         get_spec(load_vehicle_specs(config.vehicle_specs_path), args.vehicle, config.vehicle_specs_path)
     seed = args.seed if args.seed is not None else random.randrange(1_000_000)
     with Station(config, seed=seed) as station:
+        operator = None
+        if args.compensate:
+            from station.operator import TerminalOperator
+            operator = station.context.simulation or TerminalOperator()
         result = station.measure(job_id=args.job, vehicle_spec=args.vehicle, method=args.method,
-                                 record=not args.no_record)
+                                 record=not args.no_record, compensate=operator)
     if result.truth is not None:
         result.simulation_seed = seed
     print_result(result)
@@ -99,6 +107,8 @@ def print_result(result: Measurement, out=sys.stdout) -> None:
         head += f"{'toe':>7}{'camber':>8}"
     if sim:
         head += f"{'toe err':>10}{'camber err':>12}"
+    p("toe and camber of the wheels' spin axes (runout compensated)" if result.runout_compensated
+      else "toe and camber of the rim planes (runout not compensated: `station measure --compensate`)")
     p(head)
     for w in WHEELS:
         d = result.wheels[w]
@@ -117,6 +127,9 @@ def print_result(result: Measurement, out=sys.stdout) -> None:
     verdict = f"  {_verdict(verdicts.get('thrust'))}" if spec else ""
     p(f"thrust angle {_pm(result.thrust_deg, result.thrust_std_deg)} deg{verdict}   "
       f"wheelbase L {result.wheelbase_m['left']:.3f} m  R {result.wheelbase_m['right']:.3f} m")
+    if result.runout_compensated:
+        p("runout  " + "   ".join(f"{w} {result.wheels[w].runout_deg:.3f} deg at {result.wheels[w].runout_phase_deg:.0f} "
+                                   f"({result.wheels[w].runout_mm:.2f} mm)" for w in WHEELS))
     if spec:
         p(f"vehicle {spec}: {'PASS' if verdicts.get('overall') else 'FAIL'}")
     for w in result.warnings:

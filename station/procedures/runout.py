@@ -87,14 +87,20 @@ def compensated(reference: Measurement, rolls: dict[str, WheelRoll], config: Sta
     """``reference`` (the last capture's valid measurement) with each wheel's toe and camber of
     its spin axis, their uncertainty from the fit, and its runout; a warning per rim whose runout
     exceeds ``measurement.runout_limit_deg``."""
+    return with_spin_axes(reference, {w: r.spin for w, r in rolls.items()}, config)
+
+
+def with_spin_axes(reference: Measurement, spins: dict[str, SpinAxis], config: StationConfig) -> Measurement:
+    """A copy of the valid ``reference`` whose angles are of the spin axes ``spins`` (one per
+    wheel, with their covariance: it holds the normals' unseen share already), each wheel's runout
+    beside; ``runout_compensated`` set; a warning per rim that runs out beyond the limit."""
     result = replace(reference, wheels={}, axles={}, warnings=list(reference.warnings),
                      warning_flags=list(reference.warning_flags), timing_s=dict(reference.timing_s))
-    fits = {w: replace(o.circle, axis_station=rolls[w].spin.axis_station, cov_axis=rolls[w].spin.cov_axis)
+    fits = {w: replace(o.circle, axis_station=spins[w].axis_station, cov_axis=spins[w].cov_axis)
             for w, o in reference.observations.items()}
     fill_angles(result, fits, reference.observations, config, unseen=False)
     limit = config.measurement.runout_limit_deg
-    for w, roll in rolls.items():
-        s = roll.spin
+    for w, s in spins.items():
         result.wheels[w] = replace(result.wheels[w], runout_deg=s.runout_deg, runout_phase_deg=s.runout_phase_deg,
                                    runout_mm=s.runout_mm)
         if s.runout_deg > limit:

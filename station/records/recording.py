@@ -53,6 +53,7 @@ _LEVELS = {"TRACE", "DEBUG", "INFO", "WARN", "ERROR", "CRITICAL"}
 UNFINISHED = re.compile(r"\.(?P<name>.+\.rrd)\.(?P<pid>\d+)\.part")  # a recording being written
 _swept_folders: set[Path] = set()  # folders this process has cleared of killed writers' .part files
 _WHEEL_COLORS = {"FL": (230, 160, 40), "FR": (60, 170, 230), "RL": (200, 90, 200), "RR": (90, 200, 110)}
+CONE_MAGNIFIED = 50.0  # the runout cone is a few tenths of a degree: drawn with its tilt magnified
 
 
 def angle_values(result: Measurement) -> dict[str, float]:
@@ -287,6 +288,28 @@ class CycleRecorder:
         self._log(f"{base}/center", rr.Points3D([c], colors=[color], radii=0.01, labels=[wheel]))
         self._log(f"{base}/axis", rr.Arrows3D(origins=[c], vectors=[w * max(radius_m, 0.1)], colors=[color]))
         self._log(f"{base}/plane", rr.LineStrips3D([circle_station(c, w, float(radius_m))], colors=[color]))
+
+    def log_roll(self, wheel: str, centers_station, normals_station, spin_axis_station, radius_m: float) -> None:
+        """Runout compensation of a wheel: its centre (K,3) and rim normal (K,3) at each roll
+        position, the fitted spin axis (3,) from the last centre, and the cone the rim normal
+        sweeps about it, drawn at the last centre with the tilt magnified ``CONE_MAGNIFIED`` times."""
+        cs = _points(centers_station, 3, "centers_station")
+        ns = _points(normals_station, 3, "normals_station")
+        a = _vec3(spin_axis_station, "spin_axis_station")
+        a = a / np.linalg.norm(a)
+        color = _WHEEL_COLORS.get(wheel, (200, 200, 200))
+        base = f"/vehicle/{wheel}/runout"
+        length = max(radius_m, 0.1)
+        self._log(f"{base}/positions", rr.Points3D(cs, colors=[color], radii=0.006,
+                                                   labels=[f"position {k + 1}" for k in range(len(cs))]))
+        magnified = a + CONE_MAGNIFIED * (ns - a)
+        self._log(f"{base}/rim_normals", rr.Arrows3D(origins=np.repeat(cs[-1:], len(ns), axis=0),
+                                                     vectors=length * magnified, colors=[color]))
+        self._log(f"{base}/spin_axis", rr.Arrows3D(origins=[cs[-1]], vectors=[a * length * 1.2],
+                                                   colors=[(255, 255, 255)], labels=[f"{wheel} spin axis"]))
+        tilt = float(np.mean(np.arccos(np.clip(ns @ a, -1.0, 1.0))))
+        tip_circle = circle_station(cs[-1] + length * a, a, length * np.tan(tilt) * CONE_MAGNIFIED)
+        self._log(f"{base}/cone", rr.LineStrips3D([tip_circle], colors=[color]))
 
     def log_car_frame(self, origin, R_station_car) -> None:
         """The car frame: origin (3,) and R_station_car (3,3) whose columns are x', y', z'."""
