@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
@@ -160,13 +160,17 @@ class Station:
                               f"{'forward' if step > 0 else 'back'} {abs(step) * 100:.0f} cm")
                 operator.roll_car(step)
             captures.append(self._capture(cycle, f"position-{k + 1}"))
+            cycle.truths.append(cycle.truth)
         return captures
 
     def _measure_rolled(self, cycle: _Cycle, captures: list[dict], method: str) -> Measurement:
         """Each position measured, then the spin axes (station/procedures/runout.py): the last
         position's result with toe and camber of the spin axes. A position that fails, or a
         procedure the checks refuse, gives an invalid result naming why."""
-        results = [self._measure(cycle, frames, method, apply_kept_runout=False) for frames in captures]
+        results = []
+        for frames, truth in zip(captures, cycle.truths):
+            cycle.truth = truth  # each position's result against the car as it stood then
+            results.append(self._measure(cycle, frames, method, apply_kept_runout=False))
         cycle.roll = results
         result = results[-1]
         bad = next((k for k, r in enumerate(results) if not r.valid), None)
@@ -278,6 +282,7 @@ class _Cycle:
     store: bool
     t0: float
     truth: dict | None = None
+    truths: list = field(default_factory=list)  # runout compensation: the truth at each position
     captures_dir: str | None = None
     not_kept: str | None = None  # why the frames could not be kept (a full or read-only disk)
     images: dict | None = None

@@ -62,7 +62,10 @@ class LiveSession:
 
     def __init__(self, config: StationConfig, *, axle: str = "front", seed: int = 0, calibration=None,
                  cache_dir: str | Path | None = None, hold: int = 5, toe_span_deg: float = 0.6,
-                 n_steps: int = 7, progress: Callable[[str], None] = print, workers: int | None = None):
+                 n_steps: int = 7, progress: Callable[[str], None] = print, workers: int | None = None,
+                 job_id: str | None = None):
+        """job_id: a runout kept for this job (``station measure --compensate --job``) is
+        applied: the live toe and camber are of the spin axes (:attr:`runout_compensated`)."""
         from calibration.calib_file import load_calibration
         from drivers.registry import build_context
 
@@ -87,6 +90,9 @@ class LiveSession:
         self.centers: dict = {}
         self.axes: dict = {}
         self.n = 0
+        self.job_id = job_id
+        self.runout_compensated = False
+        self.to_spin: dict = {}   # wheel -> (3,3) rotation from its rim normal to its spin axis (kept runout)
         n = default_workers() if workers is None else workers
         self.workers = WorkerPool(n) if n > 1 else None
         self._pool = ThreadPoolExecutor(max_workers=2)
@@ -115,11 +121,26 @@ class LiveSession:
         if not result.valid:
             raise MeasurementError(f"the first full measurement failed: {result.failure.message}",
                                    hint="check the vehicle's position and the cameras' images (station measure)")
+        if self.job_id:
+            result = self._apply_kept_runout(result, {c: f.image for c, f in frames.items()})
         for w in WHEELS:
             self.centers[w] = np.asarray(result.wheels[w].center_station_m)
             self.axes[w] = np.asarray(result.wheels[w].axis_station)
         self.previous = {c: d for o in result.observations.values() for c, d in zip(o.cams, o.detections)}
         self.circles = {w: o.circle for w, o in result.observations.items()}
+        return result
+
+    def _apply_kept_runout(self, result: Measurement, images: dict) -> Measurement:
+        """The baseline with the job's kept runout applied; the live wheels then keep the rotation
+        from their rim normal to their spin axis (the car stands still while it is adjusted)."""
+        from station.procedures.runout_store import apply_kept_runout_to, rotation_onto
+
+        result.job_id, result.calibration_id = self.job_id, self.calibration.calibration_id
+        rim = {w: np.asarray(o.circle.axis_station) for w, o in result.observations.items()}
+        result = apply_kept_runout_to(self.config, result, images, self.models)
+        if result.runout_compensated:
+            self.runout_compensated = True
+            self.to_spin = {w: rotation_onto(rim[w], np.asarray(result.wheels[w].axis_station)) for w in WHEELS}
         return result
 
     # --- one live update ----------------------------------------------------------------------
@@ -151,7 +172,7 @@ class LiveSession:
                 reading.errors[o.wheel] = o.error
                 continue
             self.centers[o.wheel] = o.observation.circle.center_station
-            self.axes[o.wheel] = o.observation.circle.axis_station
+            self.axes[o.wheel] = self.to_spin.get(o.wheel, np.eye(3)) @ o.observation.circle.axis_station
             self.circles[o.wheel] = o.observation.circle
             reading.wheels[o.wheel] = {}
         work = {k: sum(o.timing_s[k] for o in outcomes) for k in ("detect", "reconstruct")}
@@ -167,7 +188,8 @@ class LiveSession:
         reading.timing_s = {"capture": t1 - t0, "wheels": t2 - t1, **work, "angles": t4 - t3, "total": t4 - t0}
         if self.simulation is not None:
             truth = self.simulation.truth()
-            reading.truth_toe_deg = {w: truth["wheels"][w].get("rim_toe_deg", truth["wheels"][w]["toe_deg"])
+            key = "toe_deg" if self.runout_compensated else "rim_toe_deg"
+            reading.truth_toe_deg = {w: truth["wheels"][w].get(key, truth["wheels"][w]["toe_deg"])
                                      for w in self.live_wheels}
         self.n += 1
         return reading

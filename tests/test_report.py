@@ -122,3 +122,17 @@ def test_warnings_listed_once_with_their_cycle():
     results[-1].warnings = ["pair FR drift"]
     html = build_report("J", results, CARAVAN)
     assert html.count("pair FR drift") == 1 and "before: glare on cam3" in html
+
+
+def test_the_report_says_whether_toe_and_camber_are_compensated_and_prints_the_runout():
+    before, _, after = job_results("J-RUNOUT")
+    after.runout_compensated = True
+    for k, w in enumerate(("FL", "FR", "RL", "RR")):
+        r = after.wheels[w]
+        r.runout_deg, r.runout_phase_deg, r.runout_mm = 0.05 * (k + 1), 90.0 * k, 0.4 * (k + 1)
+    html = build_report("J-RUNOUT", [before, after], None)
+    assert "before: rim planes (runout not compensated); after: spin axes (runout compensated)" in html
+    rr = re.search(r"<tr><td>RR</td>(.*?)</tr>", html.split("Rim runout")[1]).group(1)
+    assert rr == '<td class="num">0.200</td><td class="num">270</td><td class="num">1.60</td>'
+    plain = build_report("J-RUNOUT", [before], None)
+    assert "Toe and camber are of the rim planes (runout not compensated)" in plain and "Rim runout" not in plain

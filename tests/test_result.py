@@ -39,6 +39,8 @@ def test_every_key_of_the_json_is_in_the_schema_document():
     r.warn("pair FR (cam1, cam2): epipolar residual 0.9 px", WarningFlag("drift", "FR"))
     r.warning_flags.append(WarningFlag("centreline", "FL", because_of=["FR"]))
     r.warning_flags.append(WarningFlag("focus", "RL", camera="cam5"))
+    r.method, r.runout_compensated = "circle", True
+    r.wheels["FL"].runout_deg, r.wheels["FL"].runout_phase_deg, r.wheels["FL"].runout_mm = 0.1, 20.0, 0.8
     keys = _keys(r.to_json()) - {w for w in ("FL", "FR", "RL", "RR", "front", "rear", "left", "right")} - set(ANGLE_NAMES)
     assert keys <= _schema_keys() | {"overall", "because_of", "camera", "pass"}, keys - _schema_keys()
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from station.commands.arguments import seed
+from station.commands.arguments import job_id, seed
 from station.config import load_config
 
 
@@ -12,6 +12,9 @@ def add_arguments(parser):
     parser.add_argument("--axle", choices=["front", "rear", "all"], default="front",
                         help="the wheels to follow (default front; all: the four wheels)")
     parser.add_argument("--vehicle", metavar="NAME", help="vehicle spec from config/vehicles.yaml: adds OK/ADJUST")
+    parser.add_argument("--job", metavar="ID", type=job_id,
+                        help="the job being adjusted: its runout kept by `station measure --compensate --job ID` "
+                             "is applied (toe and camber of the spin axes)")
     parser.add_argument("--seconds", type=float, default=None, help="stop after S seconds (default: until Ctrl-C)")
     parser.add_argument("--seed", type=seed, default=1,
                         help="simulated station only: which random vehicle stands on the lift (default 1)")
@@ -51,11 +54,13 @@ def run(args) -> int:
             print(" | ".join(lines[1:]), flush=True)
 
     try:
-        with LiveSession(config, axle=args.axle, seed=args.seed, cache_dir=args.cache) as session:
+        with LiveSession(config, axle=args.axle, seed=args.seed, cache_dir=args.cache, job_id=args.job) as session:
             print(f"live {args.axle} axle: first a full measurement of all four wheels (the car frame)",
                   flush=True)
             for warning in session.baseline().warnings:  # they hold for every update that follows
                 print(f"warning: {warning}", flush=True)
+            print("toe and camber of the wheels' spin axes (the runout kept for this job)" if session.runout_compensated
+                  else "toe and camber of the rim planes (runout not compensated)", flush=True)
             summary = session.run(args.seconds, show, max_updates=args.max_updates)
     except KeyboardInterrupt:  # during setup: nothing measured yet, nothing to lose
         print("stopped (Ctrl-C)", file=sys.stderr)

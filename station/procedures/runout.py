@@ -36,7 +36,8 @@ ROLL_PLAN = (0.0, -1.0, 1.0, 0.0)  # where the car stands at each capture, in ro
 TYRE_BEYOND_LIP_M = 0.10       # a rolling radius to expect from the lip's (only to tell a rim's N-fold symmetry apart)
 MIN_ROLL_DEG = 10.0            # the captures must turn every wheel through at least this
 MIN_PATTERN_PEAK = 0.7         # a face followed from one capture to another correlates at least this well
-PATTERN_AGREEMENT_DEG = 0.5    # and both cameras of the pair agree on its turn within this
+PATTERN_AGREEMENT_DEG = 0.5    # and both cameras of the pair agree on its turn within this,
+FALLBACK_DEG = 1.0             # else the one within this of the turn the car's travel predicts is taken
 SLIP_SHARE = 0.04              # a wheel's rolling radius (its centre's travel over its turn) off the car's by more: slipped
 SIDEWAYS_M = 0.015             # a wheel centre off the line of the car's travel by more: the car moved across or turned
 
@@ -58,29 +59,93 @@ def wheel_rolls(results: list[Measurement], images: list[dict], models: dict[str
     of the captures ``images`` (K dicts of camera -> image), the last one the reference.
     Raises RimPatternLost, RollTooShort, WheelSlipped or CarMovedSideways naming the wheel."""
     linear = [linear_images(im, config) for im in images]
-    ref = results[-1]
-    forward = np.asarray(ref.alignment_frame["R_station_align"])[:, 1]
+    forward = np.asarray(results[-1].alignment_frame["R_station_align"])[:, 1]
+    seen = {w: _follow(w, results, linear, models, config, forward) for w in WHEELS}
+    radius = _car_rolling_radius(seen)
     rolls = {}
-    for w in WHEELS:
-        cams = (config.pairs[w].precision, config.pairs[w].reference)
-        poses = [_pose(r, w) for r in results]
-        depth, _ = face_depth({c: linear[-1][c] for c in cams}, models, poses[-1])
-        profiles = [{c: angular_profile(im[c], models[c], pose, depth) for c in cams} for im, pose in zip(linear, poses)]
-        travel = np.array([(p.center_station - poses[-1].center_station) @ forward for p in poses])
-        prior = -SIDE[w] * travel / (poses[-1].radius_m + TYRE_BEYOND_LIP_M)
-        theta = np.array([_turn(w, cams, profiles[-1], prof, a) for prof, a in zip(profiles, prior)])
-        _check_travel(w, poses, forward)
+    for w, f in seen.items():
+        theta = _turns(w, f, radius)
+        _check_travel(w, f.poses, forward)
         if np.degrees(np.ptp(theta)) < MIN_ROLL_DEG:
             raise RollTooShort(f"{w}: the captures turned the wheel through only {np.degrees(np.ptp(theta)):.1f} deg "
                                f"(at least {MIN_ROLL_DEG:.0f} needed to find its spin axis)",
                                hint=f"roll the car about {ROLL_DISTANCE_M * 100:.0f} cm each way when asked")
         cov = np.array([_normal_covariance(r, w, config) for r in results])
-        spin = fit_spin_axis(np.array([p.axis_station for p in poses]), theta, cov, poses[-1].radius_m)
+        spin = fit_spin_axis(np.array([p.axis_station for p in f.poses]), theta, cov, f.poses[-1].radius_m)
         turned = np.abs(theta) > np.radians(MIN_ROLL_DEG / 2)
-        radius = float(np.median(-SIDE[w] * travel[turned] / theta[turned])) if turned.any() else float("nan")
-        rolls[w] = WheelRoll(spin, np.degrees(theta), radius, depth)
+        own = float(np.median(-SIDE[w] * f.travel[turned] / theta[turned])) if turned.any() else float("nan")
+        rolls[w] = WheelRoll(spin, np.degrees(theta), own, f.depth)
     _check_slip(rolls)
     return rolls
+
+
+@dataclass(frozen=True)
+class _Followed:
+    """One wheel over the captures: its 3-D circles (K), its centre's travel along the car's
+    forward (K,) m, its face's depth, and each camera's turn from the face (K, 2) rad with its
+    correlation peak (K, 2)."""
+
+    poses: list[FacePose]
+    travel: np.ndarray
+    depth: float
+    turns: np.ndarray
+    peaks: np.ndarray
+
+
+def _follow(wheel: str, results: list[Measurement], linear: list[dict], models: dict[str, CameraModel],
+            config: StationConfig, forward: np.ndarray) -> _Followed:
+    cams = (config.pairs[wheel].precision, config.pairs[wheel].reference)
+    poses = [_pose(r, wheel) for r in results]
+    depth, _ = face_depth({c: linear[-1][c] for c in cams}, models, poses[-1])
+    reference = {c: angular_profile(linear[-1][c], models[c], poses[-1], depth) for c in cams}
+    travel = np.array([(p.center_station - poses[-1].center_station) @ forward for p in poses])
+    prior = -SIDE[wheel] * travel / (poses[-1].radius_m + TYRE_BEYOND_LIP_M)
+    found = np.array([[rotation_between(reference[c], angular_profile(im[c], models[c], pose, depth), a) for c in cams]
+                      for im, pose, a in zip(linear, poses, prior)])                     # (K, 2, 2)
+    lost = np.nonzero((found[:, :, 1] < MIN_PATTERN_PEAK).all(axis=1))[0]
+    if len(lost):
+        k = lost[0]
+        raise RimPatternLost(f"{wheel}: the rim's face does not match between captures in either camera (correlation "
+                             f"{found[k, 0, 1]:.2f} and {found[k, 1, 1]:.2f}, at least {MIN_PATTERN_PEAK} needed): "
+                             "a plain, dirty or covered face",
+                             hint="clean the rim's face and measure again, or measure without --compensate")
+    return _Followed(poses, travel, depth, found[:, :, 0], found[:, :, 1])
+
+
+def _agree(f: _Followed) -> np.ndarray:
+    """(K,) whether both cameras follow the face and agree on the wheel's turn at each capture."""
+    return ((np.abs(np.degrees(f.turns[:, 0] - f.turns[:, 1])) <= PATTERN_AGREEMENT_DEG)
+            & (f.peaks >= MIN_PATTERN_PEAK).all(axis=1))
+
+
+def _car_rolling_radius(followed: dict[str, _Followed]) -> float:
+    """The car's rolling radius (m): the median of every wheel's travel over its turn at the
+    captures where both its cameras agree and it turned; NaN when there is none."""
+    ratios = []
+    for w, f in followed.items():
+        theta = f.turns.mean(axis=1)
+        use = _agree(f) & (np.abs(theta) > np.radians(MIN_ROLL_DEG / 2))
+        ratios += list(-SIDE[w] * f.travel[use] / theta[use])
+    return float(np.median(ratios)) if ratios else float("nan")
+
+
+def _turns(wheel: str, f: _Followed, radius_m: float) -> np.ndarray:
+    """(K,) the wheel's turn at each capture (rad): both cameras' mean where they agree; where
+    they do not (one camera lost the face or sees it changed, a caliper through the spokes), the
+    camera that follows the face and is nearer the turn the car's travel predicts over its
+    rolling radius, if near enough."""
+    theta = f.turns.mean(axis=1)
+    for k in np.nonzero(~_agree(f))[0]:
+        a, b = np.degrees(f.turns[k])
+        predicted = np.degrees(-SIDE[wheel] * f.travel[k] / radius_m) if np.isfinite(radius_m) else np.nan
+        followed = [t for t, peak in zip((a, b), f.peaks[k]) if peak >= MIN_PATTERN_PEAK]
+        pick = min(followed, key=lambda t: abs(t - predicted)) if np.isfinite(predicted) else np.nan
+        if not abs(pick - predicted) <= FALLBACK_DEG:
+            raise RimPatternLost(f"{wheel}: its two cameras disagree on how far the wheel turned ({a:.2f} and {b:.2f} "
+                                 f"deg), and the car's travel cannot tell which is right",
+                                 hint="check both cameras' view of the rim's face and measure again")
+        theta[k] = np.radians(pick)
+    return theta
 
 
 def compensated(reference: Measurement, rolls: dict[str, WheelRoll], config: StationConfig) -> Measurement:
@@ -123,25 +188,6 @@ def _normal_covariance(result: Measurement, wheel: str, config: StationConfig) -
     cov = np.asarray(o.circle.cov_axis, float)
     cov = cov if np.all(np.isfinite(cov)) else np.eye(3) * 1e-8
     return cov + unseen_axis_covariance(o, o.circle.axis_station, config)
-
-
-def _turn(wheel: str, cams: tuple[str, str], reference: dict, profiles: dict, prior_rad: float) -> float:
-    """The wheel's turn (rad, about its outward axis) from the reference capture to this one:
-    both cameras' profiles, averaged; RimPatternLost when either cannot follow the face or the
-    two disagree."""
-    turns = []
-    for c in cams:
-        angle, peak = rotation_between(reference[c], profiles[c], prior_rad)
-        if peak < MIN_PATTERN_PEAK:
-            raise RimPatternLost(f"{wheel} {c}: the rim's face does not match between captures (correlation "
-                                 f"{peak:.2f}, at least {MIN_PATTERN_PEAK} needed): a plain, dirty or covered face",
-                                 hint="clean the rim's face and measure again, or measure without --compensate")
-        turns.append(angle)
-    if abs(np.degrees(turns[0] - turns[1])) > PATTERN_AGREEMENT_DEG:
-        raise RimPatternLost(f"{wheel}: its two cameras disagree on how far the wheel turned ({np.degrees(turns[0]):.2f} "
-                             f"and {np.degrees(turns[1]):.2f} deg)",
-                             hint="check both cameras' view of the rim's face and measure again")
-    return float(np.mean(turns))
 
 
 def _check_travel(wheel: str, poses: list[FacePose], forward: np.ndarray) -> None:

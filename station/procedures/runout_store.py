@@ -177,6 +177,18 @@ def spin_from_runout(normal_station: np.ndarray, kept: KeptWheel, turn_rad: floa
     return SpinAxis(axis, cov, n, kept.runout_deg, float(np.degrees(phase)) % 360.0, kept.runout_mm, 0.0)
 
 
+def rotation_onto(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(3,3) the smallest rotation that turns the unit vector ``a`` (3,) onto ``b`` (3,)."""
+    a = np.asarray(a, float) / np.linalg.norm(a)
+    b = np.asarray(b, float) / np.linalg.norm(b)
+    k = np.cross(a, b)
+    s, c = np.linalg.norm(k), float(a @ b)
+    if s < 1e-15:
+        return np.eye(3)
+    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]]) / s
+    return np.eye(3) + s * K + (1 - c) * (K @ K)
+
+
 def _not_applied(result: Measurement, why: str) -> Measurement:
     result.warn(f"the runout kept for job {result.job_id!r} is not applied: {why}; toe and camber are of the rim "
                 "planes (measure with --compensate to find the runout again)", WarningFlag("runout_not_applied"))

@@ -46,6 +46,24 @@ th { background: #f0f0f0; text-align: left; } td.num { text-align: right; font-v
 """
 
 
+def _runout_section(before: Measurement, after: Measurement, same: bool) -> str:
+    """Whether toe and camber are of the spin axes or the rim planes, and each rim's runout
+    (of the latest compensated cycle shown)."""
+    shown = (("", after),) if same else (("before", before), ("after", after))
+    said = "; ".join(f"{which + ': ' if which else ''}"
+                     + ("spin axes (runout compensated)" if r.runout_compensated else "rim planes (runout not compensated)")
+                     for which, r in shown)
+    source = next((r for _, r in reversed(shown) if r.runout_compensated and r.valid), None)
+    if source is None:
+        return f"<p>Toe and camber are of the {said}.</p>"
+    rows = "".join(f"<tr><td>{w}</td>" + "".join(f'<td class="num">{v}</td>' for v in (
+        f"{r.runout_deg:.3f}", f"{r.runout_phase_deg:.0f}", f"{r.runout_mm:.2f}")) + "</tr>"
+        for w, r in source.wheels.items() if r.runout_deg is not None)
+    return (f"<p>Toe and camber are of the {said}.</p><h2>Rim runout</h2><table><tr><th>wheel</th>"
+            "<th>runout (deg)</th><th>direction on the rim (deg)</th><th>lip wobble (mm)</th></tr>"
+            f"{rows}</table>")
+
+
 def safe_filename(job_id: str) -> str:
     """A file name for a job id with any characters: readable part + a short hash (no collisions)."""
     readable = re.sub(r"[^A-Za-z0-9-]+", "_", job_id).strip("_-")[:60] or "job"
@@ -143,6 +161,7 @@ def build_report(job_id: str, results: list[Measurement], spec: VehicleSpec | No
 line to the right. Front toe is measured against the geometric centreline. Colours:
 <span class="pass">&nbsp;in tolerance&nbsp;</span> <span class="fail">&nbsp;out of tolerance&nbsp;</span>
 <span class="none">&nbsp;no figure in the spec&nbsp;</span>.</p>
+{_runout_section(before, after, same)}
 <h2>Top view</h2>
 <div class="drawings">{drawings}</div>
 {'<h2>Warnings</h2><ul>' + ''.join(f'<li class="warn">{e(which + ": ") if which else ""}{e(w)}</li>' for which, w in warnings) + '</ul>' if warnings else ''}
