@@ -102,6 +102,7 @@ def main() -> int:
         cams, cov = {c: calib.model(c) for c in config.cameras}, calib.pair_covariance
     frames = config.capture.frames_averaged if args.frames is None else args.frames
     comp_err, comp_std, rim_err, runout_err, failed, seconds = [], [], [], [], [], []
+    turn_err, frame_tilt = [], []
     for i in range(args.n):
         seed = args.seed + i
         base = world.vehicle_scene(seed)
@@ -133,6 +134,11 @@ def main() -> int:
         comp_std.append(stated(result))
         rim_err.append(errors(results[-1], truth))
         runout_err += [rolls[w].spin.runout_deg - truth["wheels"][w]["runout_deg"] for w in WHEELS]
+        truths = [world.truth(replace(base, vehicle=replace(vehicle, roll_m=p * args.distance))) for p in ROLL_PLAN]
+        turn_err += [rolls[w].roll_deg[k] - (truths[k]["wheels"][w]["roll_deg"] - truth["wheels"][w]["roll_deg"])
+                     for w in WHEELS for k in range(len(ROLL_PLAN) - 1)]
+        up = np.asarray(result.alignment_frame["R_station_align"])[:, 2]
+        frame_tilt.append(np.degrees(np.arcsin(np.hypot(up[0], up[1]))))
         print(f"  vehicle {i + 1}/{args.n} done", file=sys.stderr, flush=True)
     print(f"# Runout compensation: {args.n} vehicles from seed {args.seed}, runout U(0, {args.runout}) deg, "
           f"rolled {args.distance * 100:.0f} cm each way ({len(ROLL_PLAN)} captures, {frames} frame(s) each), "
@@ -152,6 +158,12 @@ def main() -> int:
         ro = np.array(runout_err)
         print(f"\nrunout amount error: RMS {np.sqrt(np.mean(ro ** 2)):.4f} deg, max {np.max(np.abs(ro)):.4f} deg "
               f"({len(ro)} wheels)")
+    if turn_err:
+        te = np.abs(turn_err)
+        print(f"wheel turns from the face: error median {np.median(te):.4f} deg, RMS {np.sqrt(np.mean(te ** 2)):.4f}, "
+              f"max {te.max():.3f} ({len(te)} turns)")
+        print(f"the car frame's up (through the four lip centres) against the true up: {np.sqrt(np.mean(np.square(frame_tilt))):.4f} "
+              "deg RMS")
     print(f"refused or failed procedures: {len(failed)} of {args.n}" + "".join(f"\n  - {f}" for f in failed))
     per_vehicle = np.sum(np.array(seconds).reshape(-1, len(ROLL_PLAN)), axis=1) if len(seconds) % len(ROLL_PLAN) == 0 else []
     if len(per_vehicle):

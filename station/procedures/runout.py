@@ -24,10 +24,10 @@ from calibration.camera_model import CameraModel
 from calibration.station_frame import SIDE, WHEELS
 from station.config import StationConfig
 from station.errors import CarMovedSideways, RimPatternLost, RollTooShort, WheelSlipped
-from station.measure import fill_angles, unseen_axis_covariance
+from station.measure import fill_angles
+from station.procedures.poses import face_pose, normal_covariance
 from station.result import Measurement, WarningFlag
 from station.rim.camera_response import linear_images
-from station.wheel.fit import WheelFit
 from station.wheel.rim_pattern import FacePose, angular_profile, face_depth, rotation_between
 from station.wheel.runout import SpinAxis, fit_spin_axis
 
@@ -70,7 +70,7 @@ def wheel_rolls(results: list[Measurement], images: list[dict], models: dict[str
             raise RollTooShort(f"{w}: the captures turned the wheel through only {np.degrees(np.ptp(theta)):.1f} deg "
                                f"(at least {MIN_ROLL_DEG:.0f} needed to find its spin axis)",
                                hint=f"roll the car about {ROLL_DISTANCE_M * 100:.0f} cm each way when asked")
-        cov = np.array([_normal_covariance(r, w, config) for r in results])
+        cov = np.array([normal_covariance(r, w, config) for r in results])
         spin = fit_spin_axis(np.array([p.axis_station for p in f.poses]), theta, cov, f.poses[-1].radius_m)
         turned = np.abs(theta) > np.radians(MIN_ROLL_DEG / 2)
         own = float(np.median(-SIDE[w] * f.travel[turned] / theta[turned])) if turned.any() else float("nan")
@@ -95,7 +95,7 @@ class _Followed:
 def _follow(wheel: str, results: list[Measurement], linear: list[dict], models: dict[str, CameraModel],
             config: StationConfig, forward: np.ndarray) -> _Followed:
     cams = (config.pairs[wheel].precision, config.pairs[wheel].reference)
-    poses = [_pose(r, wheel) for r in results]
+    poses = [face_pose(r, wheel) for r in results]
     depth, _ = face_depth({c: linear[-1][c] for c in cams}, models, poses[-1])
     reference = {c: angular_profile(linear[-1][c], models[c], poses[-1], depth) for c in cams}
     travel = np.array([(p.center_station - poses[-1].center_station) @ forward for p in poses])
@@ -175,19 +175,6 @@ def with_spin_axes(reference: Measurement, spins: dict[str, SpinAxis], config: S
                         WarningFlag("runout", w))
     result.runout_compensated = True
     return result
-
-
-def _pose(result: Measurement, wheel: str) -> FacePose:
-    c = result.observations[wheel].circle
-    return FacePose(np.asarray(c.center_station, float), np.asarray(c.axis_station, float), float(c.radius_m))
-
-
-def _normal_covariance(result: Measurement, wheel: str, config: StationConfig) -> np.ndarray:
-    """(3,3) the rim normal's covariance at one capture: the circle fit's and the unseen share."""
-    o = result.observations[wheel]
-    cov = np.asarray(o.circle.cov_axis, float)
-    cov = cov if np.all(np.isfinite(cov)) else np.eye(3) * 1e-8
-    return cov + unseen_axis_covariance(o, o.circle.axis_station, config)
 
 
 def _check_travel(wheel: str, poses: list[FacePose], forward: np.ndarray) -> None:
