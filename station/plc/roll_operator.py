@@ -38,7 +38,8 @@ class RollPrompt:
 
     def describe(self) -> str:
         way = "forward" if self.distance_m > 0 else "back"
-        return f"roll {self.step}/{self.steps}: {way} {abs(self.distance_mm)} mm (to {self.position_mm:+d} mm)"
+        to = f"{self.position_mm:+d} mm" if self.position_mm else "the start"
+        return f"roll {self.step}/{self.steps}: {way} {abs(self.distance_mm)} mm (to {to})"
 
 
 class RollGate(Protocol):
