@@ -46,13 +46,14 @@ class CycleRequest:
     cycle: int  # the station's running cycle number (1, 2, ...), also the simulation seed
     roll: RollGate | None = None  # measure_compensated: who rolls the car (the PLC device)
 
-    def roll_operator(self, simulation=None) -> PlcRollOperator:
-        """The operator that rolls the car for this compensated cycle; PlcError without a gate
-        (a compensated cycle started by something that cannot roll the car)."""
+    def roll_operator(self, simulation=None, steps: int | None = None) -> PlcRollOperator:
+        """The operator that rolls the car ``steps`` times (default: the procedure's rolls) for
+        this compensated cycle; PlcError without a gate (a compensated cycle started by something
+        that cannot roll the car)."""
         if self.roll is None:
             raise PlcError(f"cycle {self.cycle}: runout compensation needs the PLC to roll the car, and "
                            "this request has no roll gate")
-        return PlcRollOperator(self.roll, len(roll_plan()), simulation)
+        return PlcRollOperator(self.roll, len(roll_plan()) if steps is None else steps, simulation)
 
 
 CycleRunner = Callable[[CycleRequest], Measurement]
@@ -148,10 +149,12 @@ def dry_run_runner(fail_every: int = 10, delay_s: float = 0.0) -> CycleRunner:
     its captures, so a PLC programmer can commission the roll steps without cameras."""
     import time
 
+    plan = roll_plan()  # imported now, not in the first compensated cycle's time
+
     def run(request: CycleRequest) -> Measurement:
         if request.command == "measure_compensated":
-            operator = request.roll_operator()
-            for distance_m in roll_plan():
+            operator = request.roll_operator(steps=len(plan))
+            for distance_m in plan:
                 if delay_s:
                     time.sleep(delay_s)  # a capture
                 operator.roll_car(distance_m)
