@@ -131,7 +131,7 @@ STATION_FIELDS = [
     Field("result_valid", 104, "u16", 1, "1: the angles below belong to the last finished cycle "
           "and may be used; 0 while busy and after a failed cycle"),
     Field("active_command", 105, "u16", 1, "command of the running or last cycle"),
-    Field("reject_code", 106, "u16", 1, "error code of the last refused command (501..507)"),
+    Field("reject_code", 106, "u16", 1, "error code of the last refused command (501..508)"),
     Field("reject_count", 107, "u16", 1, "refused commands so far, wraps at 65535"),
     Field("pass_bits", 108, "bits", 1, "bit i: angle i within the spec; bit 15: overall pass"),
     Field("judged_bits", 109, "bits", 1, "bit i: angle i was judged against a spec; bit 15: overall"),
