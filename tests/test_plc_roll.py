@@ -490,6 +490,7 @@ def test_station_serve_dry_run_rolls_with_the_plc_simulator_and_times_out_a_roll
     assert rc == 0
     assert serve.returncode == 0, err
     assert "served 3 cycles (2 done, 1 fault)" in out and "Traceback" not in err
+    assert "7 rolls of the car asked of the PLC, 1 not confirmed in time" in out
 
 
 def test_station_serve_refuses_a_bad_roll_timeout(capsys):

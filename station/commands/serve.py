@@ -92,6 +92,8 @@ async def _serve(args, runner, transport, where, device_id, plc) -> int:
               ("writes from read-only clients refused", c.read_only_writes),
               ("accept() failures for lack of file descriptors", c.accept_failures))
     notes = [f"{n} {what}" for what, n in closed if n]
+    if s["rolls"]:
+        notes.insert(0, f"{s['rolls']} rolls of the car asked of the PLC, {s['roll_timeouts']} not confirmed in time")
     if notes:
         print("; ".join(notes), flush=True)
     return 0
