@@ -261,6 +261,7 @@ SCHEMA = {
         "allowed_clients": Field(_string_list, default=[]),  # "ADDRESS[/PREFIX] [read|write]" (station/plc/clients.py)
         "max_connections": Field(_number(1, 1000, integer=True), default=8),
         "idle_timeout_s": Field(_number(0, 86400), default=60.0),  # 0: never close an idle connection
+        "roll_timeout_s": Field(_number(1, 3600), default=120.0),  # a roll the PLC does not confirm: fault 415
     }), default={}),
     "recording": Field(_section({
         "enabled": Field(_bool, default=True),

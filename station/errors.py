@@ -102,6 +102,12 @@ class RimPatternLost(ProcedureError):
     code = 414
 
 
+class RollNotConfirmed(ProcedureError):
+    """The PLC did not confirm the car rolled into position within plc.roll_timeout_s (or the station stopped)."""
+
+    code = 415
+
+
 class PlcError(StationError):
     code = 500
     area = "plc"
@@ -140,6 +146,11 @@ class PlcBadJobId(PlcError):
 class PlcInternal(PlcError):
     """The station's own cycle reported an event the table does not allow (a late cycle)."""
     code = 507
+
+
+class PlcNoRollPending(PlcError):
+    """In position (command 6) arrived while the station was not waiting for the car to be rolled."""
+    code = 508
 
 
 class StorageError(StationError):

@@ -27,6 +27,12 @@ LEGAL = {
     (State.DONE, Event.ACKNOWLEDGE): State.IDLE,
     (State.FAULT, Event.ACKNOWLEDGE): State.IDLE,
     (State.FAULT, Event.RESET_FAULT): State.IDLE,
+    # runout compensation (map version 5): the station asks for rolls, the PLC confirms each
+    (State.IDLE, Event.MEASURE_COMPENSATED): State.BUSY,
+    (State.BUSY, Event.ROLL_REQUEST): State.ROLL,
+    (State.ROLL, Event.IN_POSITION): State.BUSY,
+    (State.ROLL, Event.ROLL_TIMEOUT): State.BUSY,
+    (State.ROLL, Event.CYCLE_FAILED): State.FAULT,
 }
 # the refusal code each illegal PLC move must carry
 ILLEGAL_PLC = {
@@ -36,6 +42,11 @@ ILLEGAL_PLC = {
     (State.DONE, Event.MEASURE): 502, (State.DONE, Event.CALIBRATION_CHECK): 502,
     (State.DONE, Event.RESET_FAULT): 503,
     (State.FAULT, Event.MEASURE): 502, (State.FAULT, Event.CALIBRATION_CHECK): 502,
+    (State.BUSY, Event.MEASURE_COMPENSATED): 501, (State.DONE, Event.MEASURE_COMPENSATED): 502,
+    (State.FAULT, Event.MEASURE_COMPENSATED): 502,
+    **{(s, Event.IN_POSITION): 508 for s in (State.IDLE, State.BUSY, State.DONE, State.FAULT)},
+    **{(State.ROLL, e): 501 for e in (Event.MEASURE, Event.CALIBRATION_CHECK, Event.MEASURE_COMPENSATED,
+                                      Event.RESET_FAULT, Event.ACKNOWLEDGE)},
 }
 
 
@@ -65,7 +76,7 @@ def test_trigger_while_busy_is_refused_not_queued():
         next_state(State.IDLE, Event.ACKNOWLEDGE)
 
 
-@pytest.mark.parametrize("value", [0, 5, 101, 102, 999, 65535])
+@pytest.mark.parametrize("value", [0, 7, 101, 102, 103, 104, 999, 65535])
 def test_unknown_command_values(value):
     with pytest.raises(PlcUnknownCommand) as info:
         event_for_command(value)
@@ -73,9 +84,11 @@ def test_unknown_command_values(value):
 
 
 def test_command_values_map_to_plc_events():
-    assert [event_for_command(v) for v in (1, 2, 3, 4)] == list(PLC_EVENTS)
-    assert {v: rm.COMMANDS[v] for v in (1, 2, 3, 4)} == {1: "measure", 2: "calibration_check",
-                                                         3: "reset_fault", 4: "acknowledge"}
+    assert [event_for_command(v) for v in (1, 2, 3, 4, 5, 6)] == list(PLC_EVENTS)
+    assert {v: rm.COMMANDS[v] for v in (1, 2, 3, 4, 5, 6)} == {
+        1: "measure", 2: "calibration_check", 3: "reset_fault", 4: "acknowledge",  # unchanged since version 1
+        5: "measure_compensated", 6: "in_position"}
+    assert {v: rm.STATES[v] for v in range(5)} == {0: "idle", 1: "busy", 2: "done", 3: "fault", 4: "roll"}
 
 
 def test_refusal_codes_are_plc_area_and_distinct_from_other_areas():
@@ -122,7 +135,8 @@ def test_map_areas_and_block_read():
     for needed in ("state", "fault_code", "heartbeat", "cycle_counter", "result_valid", "pass_bits",
                    "fault_reason", "thrust_f32", "thrust_i16", "front_total_toe_f32", "RR_camber_i16"):
         assert needed in names
-    assert len([n for n in names if n.endswith("_f32")]) == len(rm.ANGLES) == 11
+    assert len([n for n in names if n.endswith("_f32") and "runout" not in n]) == len(rm.ANGLES) == 11
+    assert len([n for n in names if n.endswith("_runout_f32")]) == 4  # map version 5: one per wheel
 
 
 def test_docs_tables_are_generated_from_the_map():

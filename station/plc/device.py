@@ -5,44 +5,98 @@ touches the registers runs on the asyncio event loop, in one synchronous step pe
 Modbus request (also handled on the loop) sees a result either wholly before or wholly after
 it is written. The cycle itself (the injected :data:`runner.CycleRunner`) runs in a worker
 thread.
+
+A cycle with runout compensation (command 5) asks for the car to be rolled from its worker
+thread (:class:`_RollGate`, station/plc/roll_operator.py): the prompt is published and state roll
+entered on the loop, and the thread waits until the PLC's in position (command 6), the roll
+timeout (``roll_timeout_s``: back to busy, the cycle ends in fault 415) or the server stopping.
+Time spent in roll is the PLC's, not the station's: it counts neither against the cycle timeout
+nor in ``cycle_time_us``.
 """
 
 from __future__ import annotations
 
 import asyncio
+import concurrent.futures
 import logging
 import time
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 
 from pymodbus.constants import ExcCodes
 from pymodbus.simulator import DataType, SimData, SimDevice
 
-from station.errors import CODED_ERRORS, MeasurementError, PlcError, StationError
+from station.errors import CODED_ERRORS, MeasurementError, PlcError, RollNotConfirmed, StationError
 from station.plc import register_map as rm
-from station.plc.handshake import (Event, PlcBadJobId, PlcCycleTimeout, State, event_for_command,
-                                   modbus_exception, next_state)
-from station.plc.results import cleared_registers, result_registers
+from station.plc.handshake import (TRIGGERS, Event, PlcBadJobId, PlcCycleTimeout, State, event_for_command,
+                                   modbus_exception, next_state, roll_timeout_error)
+from station.plc.results import cleared_registers, result_registers, roll_prompt_registers
+from station.plc.roll_operator import RollPrompt
 from station.plc.runner import CycleRequest, CycleRunner
 from station.result import Measurement
 
 log = logging.getLogger("station.plc")
 
 BIT_FUNCTIONS = (1, 2, 5, 15)  # coils / discrete inputs: the map has none
+REQUEST_COMMANDS = {Event.MEASURE: "measure", Event.CALIBRATION_CHECK: "calibration_check",
+                    Event.MEASURE_COMPENSATED: "measure_compensated"}
+ROLL_POLL_S = 0.2  # how often a cycle waiting for a roll looks whether the server stopped
+
+
+@dataclass
+class _PendingRoll:
+    """The roll the station waits for: its cycle, prompt, the waiting thread's future, the timer."""
+
+    cycle: int
+    prompt: RollPrompt
+    done: concurrent.futures.Future
+    timer: asyncio.TimerHandle | None
+    t0: float
+
+
+class _RollGate:
+    """A compensated cycle's :class:`~station.plc.roll_operator.RollGate`: called in the cycle's
+    worker thread, it asks the device on its event loop and waits for the answer."""
+
+    def __init__(self, device: "PlcDevice", loop: asyncio.AbstractEventLoop, cycle: int):
+        self.device, self.loop, self.cycle = device, loop, cycle
+
+    def roll(self, prompt: RollPrompt) -> None:
+        done: concurrent.futures.Future = concurrent.futures.Future()
+        stopped = RollNotConfirmed(f"roll {prompt.step}/{prompt.steps}: the station stopped waiting for the PLC")
+        try:
+            self.loop.call_soon_threadsafe(self.device._ask_roll, self.cycle, prompt, done)
+        except RuntimeError:  # the loop is closed: the server stopped
+            raise stopped from None
+        # The loop answers (in position, the roll timeout); a stopped server may never run the
+        # request, so the thread also looks at the device now and then.
+        deadline = time.monotonic() + self.device.roll_timeout_s + 30.0
+        while True:
+            try:
+                return done.result(timeout=ROLL_POLL_S)
+            except concurrent.futures.TimeoutError:
+                if self.device.stopped or time.monotonic() > deadline:
+                    raise stopped from None
 
 
 class PlcDevice:
     """Register memory + handshake. ``stats`` counts cycles and refusals."""
 
     def __init__(self, runner: CycleRunner, *, device_id: int = 1, heartbeat_s: float = 0.1,
-                 cycle_timeout_s: float = 300.0):
+                 cycle_timeout_s: float = 300.0, roll_timeout_s: float = 120.0):
         self.runner = runner
         self.device_id = device_id
         self.heartbeat_s = heartbeat_s
         self.cycle_timeout_s = cycle_timeout_s
+        self.roll_timeout_s = roll_timeout_s
         self.state = State.IDLE
         self.cycle_number = 0  # cycles started
-        self.stats = {"started": 0, "done": 0, "fault": 0, "acknowledged": 0, "refused": 0}
+        self.stats = {"started": 0, "done": 0, "fault": 0, "acknowledged": 0, "refused": 0, "rolls": 0,
+                      "roll_timeouts": 0}
         self.last_result: Measurement | None = None
+        self.stopped = False
+        self._roll: _PendingRoll | None = None  # the roll the running cycle waits for
+        self._roll_wait_s = 0.0  # time the running cycle has spent in roll
         self._regs: list[int] | None = None
         self._start = 0
         self._task: asyncio.Task | None = None
@@ -115,9 +169,12 @@ class PlcDevice:
         """Apply a PLC command; ``plc`` is the PLC area's registers. Raises PlcError to refuse."""
         event = event_for_command(value)
         new = next_state(self.state, event)
-        if event in (Event.MEASURE, Event.CALIBRATION_CHECK):
+        if event in TRIGGERS:
             job, spec = (self._text(plc, name) for name in ("job_id", "vehicle_spec"))
             self._start_cycle(event, job, spec)
+        elif event is Event.IN_POSITION:
+            self._end_roll().done.set_result(None)
+            log.info("cycle %d: the PLC confirmed the car in position", self.cycle_number)
         else:
             if self.state in (State.DONE, State.FAULT):
                 self.stats["acknowledged"] += 1
@@ -142,33 +199,52 @@ class PlcDevice:
     def _start_cycle(self, event: Event, job: str | None, spec: str | None) -> None:
         self.cycle_number += 1
         self.stats["started"] += 1
-        request = CycleRequest("measure" if event is Event.MEASURE else "calibration_check",
-                               job, spec, self.cycle_number)
+        loop = asyncio.get_running_loop()
+        gate = _RollGate(self, loop, self.cycle_number) if event is Event.MEASURE_COMPENSATED else None
+        request = CycleRequest(REQUEST_COMMANDS[event], job, spec, self.cycle_number, roll=gate)
+        self._roll_wait_s = 0.0
         self._put(cleared_registers())
         for name in ("result_valid", "fault_code"):
             self._set(name, 0)
         self._put({rm.FIELDS["cycle_time_us"].address: rm.u32_to_regs(0)})
         self._set("active_command", event.value)
         log.info("cycle %d: %s, job %s, spec %s", request.cycle, request.command, job, spec)
-        self._task = asyncio.get_running_loop().create_task(self._run(request))
+        self._task = loop.create_task(self._run(request))
+
+    def _station_time(self, t0: float) -> float:
+        """Seconds since ``t0`` that the station spent on the cycle: the time in roll, the PLC's,
+        left out."""
+        rolling = time.perf_counter() - self._roll.t0 if self._roll is not None else 0.0
+        return time.perf_counter() - t0 - self._roll_wait_s - rolling
+
+    async def _wait(self, work: asyncio.Future, t0: float):
+        """``work``'s result; asyncio.TimeoutError once the station's own time (not the time in
+        roll) exceeds the cycle timeout."""
+        while True:
+            budget = self.cycle_timeout_s - self._station_time(t0)
+            if budget <= 0 and self._roll is None:
+                raise asyncio.TimeoutError
+            done, _ = await asyncio.wait({work}, timeout=max(budget, 0.05))
+            if done:
+                return work.result()
 
     async def _run(self, request: CycleRequest) -> None:
         t0 = time.perf_counter()
         try:
             work = asyncio.get_running_loop().run_in_executor(self._executor, self.runner, request)
-            result = await asyncio.wait_for(work, self.cycle_timeout_s)
+            result = await self._wait(work, t0)
         except CODED_ERRORS as e:  # a camera or calibration fault too: its code is the fault code
-            return self._fault(request, e.code, str(e), time.perf_counter() - t0)
+            return self._fault(request, e.code, str(e), self._station_time(t0))
         except asyncio.TimeoutError:
             self._executor.shutdown(wait=False)
             self._executor = ThreadPoolExecutor(1, thread_name_prefix="plc-cycle")
             return self._fault(request, PlcCycleTimeout.code,
-                               f"cycle timed out after {self.cycle_timeout_s:g} s", time.perf_counter() - t0)
+                               f"cycle timed out after {self.cycle_timeout_s:g} s", self._station_time(t0))
         except Exception as e:  # noqa: BLE001 - a bug in the pipeline must not stop the server
             log.exception("cycle %d: the runner crashed", request.cycle)
             return self._fault(request, StationError.code, f"internal error: {type(e).__name__}: {e}",
-                               time.perf_counter() - t0)
-        elapsed = time.perf_counter() - t0
+                               self._station_time(t0))
+        elapsed = self._station_time(t0)
         self.last_result = result
         try:
             if not isinstance(result, Measurement):
@@ -196,12 +272,66 @@ class PlcDevice:
         except PlcError as e:  # a cycle that ended after its timeout: nothing to publish
             log.warning("cycle %d: %s", request.cycle, e)
             return
+        if self._roll is not None:  # never left waiting in roll (a crash, the cycle timeout)
+            self._end_roll().done.set_exception(RollNotConfirmed(f"cycle {request.cycle} ended"))
         self._put(values)
         self._put({rm.FIELDS["cycle_time_us"].address: rm.u32_to_regs(round(elapsed * 1e6))})
         self._set("result_valid", int(event is Event.CYCLE_OK))
         self._set("cycle_counter", self._get("cycle_counter") + 1)
         self.stats["done" if event is Event.CYCLE_OK else "fault"] += 1
         self._enter(new)
+
+    # --- rolls (runout compensation) -------------------------------------------------------------
+    def _ask_roll(self, cycle: int, prompt: RollPrompt, done: concurrent.futures.Future) -> None:
+        """On the loop: cycle ``cycle`` asks for ``prompt``. Publishes the prompt and enters roll,
+        or answers ``done`` with the refusal (a cycle abandoned after its timeout, a stopped
+        server: it must not wait)."""
+        why = None
+        if self.stopped:
+            why = "the station stopped"
+        elif cycle != self.cycle_number or self._roll is not None:
+            why = f"cycle {cycle} is not the running cycle, or it waits for a roll already"
+        else:
+            try:
+                new = next_state(self.state, Event.ROLL_REQUEST)
+            except PlcError as e:  # a cycle abandoned after its timeout: the station is not busy
+                why = str(e)
+        if why is not None:
+            log.warning("cycle %d: %s not asked of the PLC: %s", cycle, prompt.describe(), why)
+            done.set_exception(RollNotConfirmed(f"roll {prompt.step}/{prompt.steps} not asked of the PLC: {why}"))
+            return
+        pending = _PendingRoll(cycle, prompt, done, None, time.perf_counter())
+        pending.timer = asyncio.get_running_loop().call_later(self.roll_timeout_s, self._roll_timed_out, pending)
+        self._roll = pending
+        self.stats["rolls"] += 1
+        self._put(roll_prompt_registers(prompt.step, prompt.steps, prompt.distance_mm, prompt.position_mm))
+        self._enter(new)
+        log.info("cycle %d: %s asked of the PLC", cycle, prompt.describe())
+
+    def _end_roll(self) -> _PendingRoll:
+        """The pending roll, no longer pending: its timer stopped, its time counted, the prompt
+        cleared (the caller answers its thread and moves the state)."""
+        pending, self._roll = self._roll, None
+        if pending.timer is not None:
+            pending.timer.cancel()
+        self._roll_wait_s += time.perf_counter() - pending.t0
+        self._put(roll_prompt_registers())
+        return pending
+
+    def _roll_timed_out(self, pending: _PendingRoll) -> None:
+        if self._roll is not pending:
+            return
+        try:
+            new = next_state(self.state, Event.ROLL_TIMEOUT)
+        except PlcError as e:
+            log.warning("cycle %d: %s", pending.cycle, e)
+            return
+        self._end_roll()
+        self.stats["roll_timeouts"] += 1
+        p = pending.prompt
+        pending.done.set_exception(roll_timeout_error(p.step, p.steps, self.roll_timeout_s))
+        self._enter(new)  # busy: the cycle ends in fault 415 as its worker thread unwinds
+        log.warning("cycle %d: %s not confirmed within %g s", pending.cycle, p.describe(), self.roll_timeout_s)
 
     # --- heartbeat ------------------------------------------------------------------------------
     def start_heartbeat(self) -> None:
@@ -212,6 +342,9 @@ class PlcDevice:
         self._heartbeat = asyncio.get_running_loop().create_task(beat())
 
     async def stop(self) -> None:
+        self.stopped = True
+        if self._roll is not None:  # let the cycle's thread go: nobody will confirm the roll now
+            self._end_roll().done.set_exception(RollNotConfirmed("the station stopped waiting for the PLC's roll"))
         for task in (self._heartbeat, self._task):
             if task and not task.done():
                 task.cancel()

@@ -8,6 +8,12 @@ Like the trigger/busy/done/acknowledge handshake of common vision sensors:
 3. the PLC reads the results and writes acknowledge: ``done -> idle`` (``fault -> idle``, or
    reset fault).
 
+A cycle with runout compensation (command 5, issue 32) also needs the car rolled between its
+captures: the station asks for each roll, ``busy -> roll`` (the roll prompt registers say how
+far), the PLC moves its conveyor and writes in position, ``roll -> busy``, and the station
+captures. A roll not confirmed within ``plc.roll_timeout_s`` goes ``roll -> busy`` on its own,
+and the cycle ends in fault (415). Every other command is refused in roll, as in busy (501).
+
 Every pair that is not in :data:`TRANSITIONS` is refused with the error in :data:`REFUSALS`:
 the command is not queued, the state does not change, the PLC gets a Modbus exception and the
 error's code in ``reject_code``. A trigger while busy is refused (501); a trigger before the
@@ -26,6 +32,7 @@ class State(Enum):
     BUSY = 1
     DONE = 2
     FAULT = 3
+    ROLL = 4  # a compensated cycle waits for the PLC to roll the car (map version 5)
 
 
 class Event(Enum):
@@ -34,17 +41,25 @@ class Event(Enum):
     CALIBRATION_CHECK = 2
     RESET_FAULT = 3
     ACKNOWLEDGE = 4
+    MEASURE_COMPENSATED = 5  # measure with runout compensation: the station asks for rolls
+    IN_POSITION = 6  # the car stands where the roll prompt asked
     # from the station's own cycle
     CYCLE_OK = 101
     CYCLE_FAILED = 102
+    ROLL_REQUEST = 103  # the compensated cycle needs the car rolled (the prompt is published)
+    ROLL_TIMEOUT = 104  # the PLC did not confirm the roll within plc.roll_timeout_s
 
 
-PLC_EVENTS = (Event.MEASURE, Event.CALIBRATION_CHECK, Event.RESET_FAULT, Event.ACKNOWLEDGE)
+PLC_EVENTS = (Event.MEASURE, Event.CALIBRATION_CHECK, Event.RESET_FAULT, Event.ACKNOWLEDGE,
+              Event.MEASURE_COMPENSATED, Event.IN_POSITION)
+TRIGGERS = (Event.MEASURE, Event.CALIBRATION_CHECK, Event.MEASURE_COMPENSATED)  # start a cycle
+STATION_EVENTS = tuple(e for e in Event if e not in PLC_EVENTS)
 
 
 # --- refusals: stable codes in the PLC area (5xx), defined in station/errors.py ---------------
 from station.errors import (PlcBadJobId, PlcBusy, PlcCycleTimeout, PlcInternal,  # noqa: E402
-                            PlcNothingToAcknowledge, PlcNotAcknowledged, PlcUnknownCommand)
+                            PlcNoRollPending, PlcNothingToAcknowledge, PlcNotAcknowledged,
+                            PlcUnknownCommand, RollNotConfirmed)
 
 
 _B = State.BUSY
@@ -52,13 +67,19 @@ TRANSITIONS: dict[tuple[State, Event], State] = {
     (State.IDLE, Event.MEASURE): _B,
     (State.IDLE, Event.CALIBRATION_CHECK): _B,
     (State.IDLE, Event.RESET_FAULT): State.IDLE,  # harmless: PLCs often pulse reset at start-up
+    (State.IDLE, Event.MEASURE_COMPENSATED): _B,
     (State.BUSY, Event.CYCLE_OK): State.DONE,
     (State.BUSY, Event.CYCLE_FAILED): State.FAULT,
+    (State.BUSY, Event.ROLL_REQUEST): State.ROLL,
+    (State.ROLL, Event.IN_POSITION): _B,
+    (State.ROLL, Event.ROLL_TIMEOUT): _B,  # the cycle then ends in fault 415 (RollNotConfirmed)
+    (State.ROLL, Event.CYCLE_FAILED): State.FAULT,  # the station stopping, a crash: never left in roll
     (State.DONE, Event.ACKNOWLEDGE): State.IDLE,
     (State.FAULT, Event.ACKNOWLEDGE): State.IDLE,
     (State.FAULT, Event.RESET_FAULT): State.IDLE,
 }
 
+_ROLLING = "a cycle is running and waits for the car to be rolled; roll it as registers 115..118 say, then write 6"
 REFUSALS: dict[tuple[State, Event], tuple[type[PlcError], str]] = {
     (State.IDLE, Event.ACKNOWLEDGE): (PlcNothingToAcknowledge, "acknowledge refused: no finished cycle to acknowledge"),
     (State.BUSY, Event.MEASURE): (PlcBusy, "trigger refused: a cycle is running (not queued); wait for done or fault"),
@@ -70,11 +91,28 @@ REFUSALS: dict[tuple[State, Event], tuple[type[PlcError], str]] = {
     (State.DONE, Event.RESET_FAULT): (PlcNothingToAcknowledge, "reset refused: no fault; acknowledge the result instead"),
     (State.FAULT, Event.MEASURE): (PlcNotAcknowledged, "trigger refused: acknowledge or reset the fault first"),
     (State.FAULT, Event.CALIBRATION_CHECK): (PlcNotAcknowledged, "trigger refused: acknowledge or reset the fault first"),
+    (State.BUSY, Event.MEASURE_COMPENSATED): (PlcBusy, "trigger refused: a cycle is running (not queued); wait for done or fault"),
+    (State.DONE, Event.MEASURE_COMPENSATED): (PlcNotAcknowledged, "trigger refused: acknowledge the previous result first"),
+    (State.FAULT, Event.MEASURE_COMPENSATED): (PlcNotAcknowledged, "trigger refused: acknowledge or reset the fault first"),
+    (State.ROLL, Event.MEASURE): (PlcBusy, f"trigger refused: {_ROLLING}"),
+    (State.ROLL, Event.CALIBRATION_CHECK): (PlcBusy, f"trigger refused: {_ROLLING}"),
+    (State.ROLL, Event.MEASURE_COMPENSATED): (PlcBusy, f"trigger refused: {_ROLLING}"),
+    (State.ROLL, Event.RESET_FAULT): (PlcBusy, f"reset refused: {_ROLLING}"),
+    (State.ROLL, Event.ACKNOWLEDGE): (PlcBusy, f"acknowledge refused: {_ROLLING}"),
 }
+for _s in (State.IDLE, State.BUSY, State.DONE, State.FAULT):  # in position with no roll asked for
+    REFUSALS[(_s, Event.IN_POSITION)] = (PlcNoRollPending, f"in position refused: no roll was asked for (state "
+                                         f"{_s.name.lower()}); write 6 only while state is 4 (roll)")
 for _s in State:  # the cycle's own events outside busy: a late cycle after a timeout
     for _e in (Event.CYCLE_OK, Event.CYCLE_FAILED):
-        if _s is not State.BUSY:
+        if (_s, _e) not in TRANSITIONS:
             REFUSALS[(_s, _e)] = (PlcInternal, f"cycle end ignored: the station is {_s.name.lower()}, not busy")
+    if (_s, Event.ROLL_REQUEST) not in TRANSITIONS:  # a cycle abandoned after its timeout asking for a roll
+        REFUSALS[(_s, Event.ROLL_REQUEST)] = (PlcInternal, f"roll prompt ignored: the station is {_s.name.lower()}, "
+                                              "not busy")
+    if (_s, Event.ROLL_TIMEOUT) not in TRANSITIONS:  # a timer that fired after the PLC's answer
+        REFUSALS[(_s, Event.ROLL_TIMEOUT)] = (PlcInternal, f"roll timeout ignored: the station is {_s.name.lower()}, "
+                                              "not waiting for a roll")
 
 
 def modbus_exception(error: PlcError) -> int:
@@ -101,8 +139,15 @@ def event_for_command(value: int) -> Event:
         event = None
     if event not in PLC_EVENTS:
         raise PlcUnknownCommand(f"command {value} is not a command (1 measure, 2 calibration check, "
-                                "3 reset fault, 4 acknowledge)")
+                                "3 reset fault, 4 acknowledge, 5 measure with runout compensation, 6 in position)")
     return event
+
+
+def roll_timeout_error(step: int, steps: int, timeout_s: float) -> RollNotConfirmed:
+    """The fault of a roll the PLC did not confirm (its sentence fits ``fault_reason``, 64 characters)."""
+    return RollNotConfirmed(f"roll {step}/{steps} not confirmed by the PLC within {timeout_s:g} s",
+                            hint="the PLC moves the car as registers 115..118 say, then writes 6 (in position) "
+                                 "into register 0; check its program and the conveyor")
 
 
 def markdown_table() -> str:

@@ -3,6 +3,7 @@ checks every step and prints the results.
 
     station serve --dry-run &                      # or the real station: station serve
     python -m station.plc.master --cycles 3 --dry-run-check
+    python -m station.plc.master --cycles 3 --compensate --dry-run-check   # runout compensation
     python -m station.plc.master --rtu /dev/ttyUSB0 --cycles 3
 
 Per cycle it writes job id, vehicle spec and the trigger in one request, polls the state, reads
@@ -11,6 +12,12 @@ once; no result is visible while busy; the cycle counter moves by exactly one; a
 is valid, belongs to this job and its float32 and int16 copies agree; a fault carries a code and
 a reason; acknowledge returns to idle with no fault. With ``--dry-run-check`` the angles are
 also compared with the dry-run runner's expected values, so a result of another job is caught.
+
+With ``--compensate`` every trigger is command 5 (measure with runout compensation), and the
+simulator is the line's conveyor too: whenever the station is in state roll it reads the roll
+prompt (115..118), checks it (the next step, its distance adding up to its position), "moves the
+car" (``--conveyor-s``) and writes 6 (in position); it prints each roll and each wheel's runout,
+and checks that the result says it is compensated.
 """
 
 from __future__ import annotations
@@ -24,8 +31,10 @@ from dataclasses import dataclass, field
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.exceptions import ModbusException
 
+from calibration.station_frame import WHEELS
 from station.errors import StationError
 from station.plc import register_map as rm
+from station.plc.roll_operator import roll_plan
 from station.plc.runner import CycleRequest, synthetic_result
 
 
@@ -43,11 +52,31 @@ class CycleReport:
     measure_s: float = 0.0  # the station's own measurement time
     total_s: float = 0.0  # trigger sent -> idle after acknowledge, at the PLC
     problems: list = field(default_factory=list)
+    rolls: list = field(default_factory=list)  # runout compensation: the RollStep of each roll made
+    compensated: int = 0  # runout_compensated of the result
+    runout: dict = field(default_factory=dict)  # wheel -> (deg (float32 copy), mm) or None
 
     @property
     def handshake_s(self) -> float:
-        """PLC-side cycle time minus the measurement: the cost of the handshake itself."""
-        return self.total_s - self.measure_s
+        """PLC-side cycle time minus the measurement and the conveyor's rolls: the cost of the
+        handshake itself."""
+        return self.total_s - self.measure_s - sum(r.seconds for r in self.rolls)
+
+
+@dataclass(frozen=True)
+class RollStep:
+    """One roll the station asked for (registers 115..118) and how long the conveyor took."""
+
+    step: int
+    steps: int
+    distance_mm: int
+    position_mm: int
+    seconds: float
+
+    def describe(self) -> str:
+        way = "forward" if self.distance_mm > 0 else "back"
+        return (f"roll {self.step}/{self.steps}: {way} {abs(self.distance_mm)} mm (to {self.position_mm:+d} mm), "
+                f"in position after {self.seconds:.2f} s").replace("(to +0 mm)", "(to the start)")
 
 
 class ModbusFailure(Exception):
@@ -57,11 +86,16 @@ class ModbusFailure(Exception):
 class PlcSimulator:
     """Drives the handshake over a connected pymodbus sync client."""
 
-    def __init__(self, client, *, device_id: int = 1, timeout_s: float = 60.0, poll_s: float = 0.0):
+    def __init__(self, client, *, device_id: int = 1, timeout_s: float = 60.0, poll_s: float = 0.0,
+                 conveyor_s: float = 0.0, on_roll=None):
+        """``conveyor_s``: how long moving the car takes at each roll prompt; ``on_roll(step)``:
+        called with each RollStep once confirmed (a PLC program's log, the CLI's output)."""
         self.client = client
         self.device_id = device_id
         self.timeout_s = timeout_s
         self.poll_s = poll_s
+        self.conveyor_s = conveyor_s
+        self.on_roll = on_roll
 
     # --- Modbus primitives ----------------------------------------------------------------------
     def read_block(self, status_only: bool = False) -> dict:
@@ -107,10 +141,15 @@ class PlcSimulator:
                 rep.problems.append("station idle after the trigger")
             elif b["active_command"] != command:
                 rep.problems.append(f"active_command {b['active_command']} != {command}")
-            if state == "busy":
+            if state in ("busy", "roll"):
                 if b["result_valid"] or b["cycle_counter"] != counter0:
-                    rep.problems.append("a result is visible while busy")
-            if state in ("done", "fault", "idle") or time.perf_counter() > deadline:
+                    rep.problems.append(f"a result is visible while {state}")
+            if state == "roll":
+                self.roll(rep, b)
+                deadline += self.conveyor_s  # the conveyor's time is the PLC's
+            elif state in ("done", "fault", "idle"):
+                break
+            if time.perf_counter() > deadline:
                 break
             if self.poll_s:
                 time.sleep(self.poll_s)
@@ -132,9 +171,49 @@ class PlcSimulator:
         rep.total_s = time.perf_counter() - t0
         return rep
 
+    def roll(self, rep: CycleReport, b: dict) -> None:
+        """The station asks for a roll (state roll): check the prompt, move the car, confirm."""
+        t0 = time.perf_counter()
+        step, steps, distance, position = (b[k] for k in ("roll_step", "roll_steps", "roll_distance_mm",
+                                                           "roll_position_mm"))
+        p = rep.problems
+        if rep.command != rm.COMMAND_CODES["measure_compensated"]:
+            p.append(f"roll {step} asked for in a cycle without runout compensation (command {rep.command})")
+        before = rep.rolls[-1].position_mm if rep.rolls else 0
+        if step != len(rep.rolls) + 1 or not 1 <= step <= steps:
+            p.append(f"roll prompt step {step} of {steps} after {len(rep.rolls)} rolls")
+        if rep.rolls and steps != rep.rolls[-1].steps:
+            p.append(f"roll prompt: {steps} steps, earlier {rep.rolls[-1].steps}")
+        if distance == 0 or position != before + distance:
+            p.append(f"roll prompt: {distance:+d} mm from {before:+d} mm does not end at {position:+d} mm")
+        if self.conveyor_s:
+            time.sleep(self.conveyor_s)  # the conveyor moves the car
+        r = self.write(rm.COMMAND, [rm.COMMAND_CODES["in_position"]])
+        if r.isError():
+            p.append(f"in position refused: {r}")
+        done = RollStep(step, steps, distance, position, time.perf_counter() - t0)
+        rep.rolls.append(done)
+        if self.on_roll is not None:
+            self.on_roll(done)
+
     def _check(self, rep: CycleReport, b: dict, expect) -> None:
         p = rep.problems
+        compensate = rep.command == rm.COMMAND_CODES["measure_compensated"]
+        rep.compensated = b["runout_compensated"]
+        rep.runout = {w: (None if math.isnan(b[f"{w}_runout_f32"]) else b[f"{w}_runout_f32"], b[f"{w}_runout_mm_i16"])
+                      for w in WHEELS}
         if rep.state == "done":
+            if rep.compensated != int(compensate):
+                p.append(f"runout_compensated {rep.compensated} after command {rep.command}")
+            if compensate and rep.rolls and rep.rolls[-1].step != rep.rolls[-1].steps:
+                p.append(f"done after {len(rep.rolls)} of {rep.rolls[-1].steps} rolls")
+            for w in WHEELS:
+                deg, mm, i16 = rep.runout[w][0], rep.runout[w][1], b[f"{w}_runout_i16"]
+                if (deg is None) != (i16 is None) or (deg is None) != (mm is None) or (deg is None) == compensate:
+                    p.append(f"{w}: runout {deg} deg (int16 {i16}, {mm} mm) in a cycle "
+                             f"{'with' if compensate else 'without'} runout compensation")
+                elif deg is not None and abs(deg - i16) > 0.0051:
+                    p.append(f"{w}: runout float32 {deg:.4f} and int16 {i16:.2f} disagree")
             if b["result_valid"] != 1 or b["fault_code"]:
                 p.append(f"done with result_valid {b['result_valid']}, fault_code {b['fault_code']}")
             if b["result_job_id"] != rep.job_id:
@@ -162,6 +241,16 @@ class PlcSimulator:
                 w = want.angle(name)
                 if v is None or not math.isclose(v, w, rel_tol=1e-6, abs_tol=1e-6):
                     p.append(f"{name}: got {v}, expected {w:.6f}")
+            for w in WHEELS if want.runout_compensated else ():
+                deg, mm = rep.runout[w]
+                if deg is None or not math.isclose(deg, want.wheels[w].runout_deg, abs_tol=1e-6) \
+                        or mm is None or abs(mm - want.wheels[w].runout_mm) > 0.0051:
+                    p.append(f"{w}: runout {deg} deg, {mm} mm, expected {want.wheels[w].runout_deg:.4f} deg, "
+                             f"{want.wheels[w].runout_mm:.2f} mm")
+        if kind in ("done", "fault") and rep.command == rm.COMMAND_CODES["measure_compensated"]:
+            plan = [round(d * 1000) for d in roll_plan()]  # the dry run asks for every roll, then fails or not
+            if [r.distance_mm for r in rep.rolls] != plan:
+                p.append(f"rolls {[r.distance_mm for r in rep.rolls]} mm, expected {plan} mm")
 
     def acknowledge(self, rep: CycleReport | None = None) -> None:
         r = self.write(rm.COMMAND, [rm.COMMAND_CODES["acknowledge"]])
@@ -176,7 +265,7 @@ class PlcSimulator:
 def dry_run_expectation(fail_every: int = 10):
     """``expect`` callable matching ``station serve --dry-run``."""
     def expect(job_id, spec, command):
-        name = "measure" if command == 1 else "calibration_check"
+        name = rm.COMMANDS[command]
         try:
             return "done", synthetic_result(CycleRequest(name, job_id, spec, 0), fail_every)
         except StationError as e:
@@ -207,6 +296,10 @@ def format_row(i: int, rep: CycleReport) -> str:
     line = f"{i:>4} {rep.job_id:<12} {status:<9} {vals} {verdict:>4} {rep.handshake_s * 1e3:6.1f}"
     if rep.state == "fault":
         line += f"  {rep.reason}"
+    if rep.compensated:
+        line += "\n       runout compensated: " + ", ".join(
+            f"{w} {deg:.3f} deg {mm:.2f} mm" if deg is not None and mm is not None else f"{w} -"
+            for w, (deg, mm) in rep.runout.items())
     return line
 
 
@@ -246,25 +339,37 @@ def main(argv=None) -> int:
     ap.add_argument("--fail-every", type=int, default=10, help="the dry run's --fail-every")
     ap.add_argument("--poll-s", type=float, default=0.005,
                     help="pause between state polls while the station is busy (s; 0: none)")
+    ap.add_argument("--compensate", action="store_true",
+                    help="every trigger measures with runout compensation (command 5): the simulator rolls "
+                         "the car whenever the station asks (state 4) and confirms each roll (command 6)")
+    ap.add_argument("--conveyor-s", type=float, default=0.2,
+                    help="with --compensate: seconds the simulated conveyor takes to move the car (default 0.2)")
     ap.add_argument("--quiet", action="store_true", help="print only the summary")
     args = ap.parse_args(argv)
+    if args.conveyor_s < 0:
+        ap.error(f"--conveyor-s {args.conveyor_s:g}: expected 0 or more seconds")
     try:
         client, where = connect(args)
     except ModbusFailure as e:
         print(f"plc_sim: {e}", file=sys.stderr)
         return 2
-    sim = PlcSimulator(client, device_id=args.device_id, poll_s=args.poll_s)
+    show_roll = None if args.quiet else (lambda r: print(f"       {r.describe()}", flush=True))
+    sim = PlcSimulator(client, device_id=args.device_id, poll_s=args.poll_s, conveyor_s=args.conveyor_s,
+                       on_roll=show_roll)
     expect = dry_run_expectation(args.fail_every) if args.dry_run_check else None
-    print(f"PLC simulator: {args.cycles} cycles on {where}, device id {args.device_id}")
+    command = rm.COMMAND_CODES["measure_compensated" if args.compensate else "measure"]
+    kind = ", runout compensation (command 5)" if args.compensate else ""
+    print(f"PLC simulator: {args.cycles} cycles on {where}, device id {args.device_id}{kind}")
     if not args.quiet:
         print(header())
-    bad = 0
+    bad = rolls = 0
     try:
         hb0 = sim.read_block()["heartbeat"]
         t_start = time.perf_counter()
         for i in range(args.cycles):
-            rep = sim.run_cycle(f"{args.job_prefix}{args.first_job + i:06d}", args.spec, expect=expect)
+            rep = sim.run_cycle(f"{args.job_prefix}{args.first_job + i:06d}", args.spec, command, expect=expect)
             bad += bool(rep.problems)
+            rolls += len(rep.rolls)
             if not args.quiet:
                 print(format_row(i + 1, rep))
                 for p in rep.problems:
@@ -277,7 +382,8 @@ def main(argv=None) -> int:
         client.close()
     beat = (f"advancing ({hb0} -> {hb1})" if hb1 != hb0
             else f"STOPPED (still {hb0} after {time.perf_counter() - t_start:.1f} s)")
-    print(f"{args.cycles} cycles, {bad} with problems; heartbeat {beat}")
+    made = f", {rolls} rolls of the car" if args.compensate else ""
+    print(f"{args.cycles} cycles, {bad} with problems{made}; heartbeat {beat}")
     return 1 if bad or hb1 == hb0 else 0
 
 

@@ -11,14 +11,16 @@ Two areas:
   vehicle spec id (ASCII). Only :data:`PLC_FIELDS` are writable; a write anywhere else gets
   Modbus exception 2 (illegal data address).
 * **Station -> PLC** (``100 .. 299``, read-only): state, fault code, heartbeat, counters, the
-  result-valid flag, every angle as float32 and as scaled int16, pass/fail bits.
+  result-valid flag, the roll prompt of a compensated cycle, every angle as float32 and as scaled
+  int16, pass/fail bits, each wheel's runout.
 
 Encoding (docs/conventions.md, "Modbus"):
 
 * ``f32``: IEEE 754 single in two registers, **big-endian word order** (high word first),
   big-endian bytes in a word (ABCD). A missing angle is NaN.
-* ``i16``: two's complement, **0.01 degree** per count, saturated to +-327.66 degree;
-  ``-32768`` (0x8000) means "no value".
+* ``i16``: two's complement, **0.01 degree** per count (0.01 mm for a runout in mm, 1 mm for
+  the roll prompt: a field's ``scale``), saturated to +-32766 counts; ``-32768`` (0x8000) means
+  "no value".
 * ``ascii``: two characters per register, the first in the high byte, padded with NUL (0).
 * ``u32``: two registers, high word first.
 """
@@ -38,15 +40,20 @@ OVERALL_BIT = 15  # bit of pass_bits / judged_bits that holds the overall verdic
 INT16_SCALE = 100  # counts per degree
 INT16_MISSING = -32768
 INT16_LIMIT = 32766
+MM_PER_M = 1000  # roll distances are whole millimetres (int16) on the wire
 
 # --- values of the command, state and active-command registers ----------------------------------
-COMMANDS = {0: "none", 1: "measure", 2: "calibration_check", 3: "reset_fault", 4: "acknowledge"}
+COMMANDS = {0: "none", 1: "measure", 2: "calibration_check", 3: "reset_fault", 4: "acknowledge",
+            5: "measure_compensated", 6: "in_position"}
 COMMAND_CODES = {name: code for code, name in COMMANDS.items()}
-STATES = {0: "idle", 1: "busy", 2: "done", 3: "fault"}
+STATES = {0: "idle", 1: "busy", 2: "done", 3: "fault", 4: "roll"}
 STATE_CODES = {name: code for code, name in STATES.items()}
-MAP_VERSION = 4  # 2: warning_bits (113) added; 3: station_warning_bits (114), and bit 15 of
+MAP_VERSION = 5  # 2: warning_bits (113) added; 3: station_warning_bits (114), and bit 15 of
                  # warning_bits is RR's runner-up alone (it also meant "any warning" in 2);
-                 # 4: bit 4 of station_warning_bits (a rim another size than its axle partner's)
+                 # 4: bit 4 of station_warning_bits (a rim another size than its axle partner's);
+                 # 5: runout compensation (issue 32): command 5 measure compensated, command 6 in
+                 # position, state 4 roll, the roll prompt 115..118, runout_compensated and each
+                 # wheel's runout 208..224 (the whole output is 100..224 now); nothing moved
 # bits of warning_bits: (first bit, kind of the result's warning_flags); bit first + i for wheel i
 # of WHEELS (FL, FR, RL, RR)
 WARNING_KINDS = ((0, "uncertain"), (4, "drift"), (8, "unchecked"), (12, "runner_up"))
@@ -67,6 +74,7 @@ class Field:
     doc: str
     writable: bool = False
     unit: str = ""
+    scale: int = INT16_SCALE  # i16 only: counts per unit (0.01 deg, 0.01 mm; 1 for whole millimetres)
 
     @property
     def end(self) -> int:
@@ -86,16 +94,36 @@ def _angle_fields() -> list[Field]:
     return out
 
 
+def _runout_fields() -> list[Field]:
+    """Each wheel's runout (issue 32) after the fault reason: degrees as float32 and as int16
+    (0.01 deg, like the angles), and the lip's wobble in 0.01 mm."""
+    out = [Field("runout_compensated", 208, "u16", 1, "1: toe, camber, the totals and thrust of the last "
+                 "valid result are of the wheels' spin axes (measured with runout compensation, command 5); "
+                 "0: of the rim planes")]
+    for i, w in enumerate(WHEELS):
+        out.append(Field(f"{w}_runout_f32", 209 + 2 * i, "f32", 2, f"{w}: its rim's tilt against its spin axis "
+                         "(NaN: not measured: no runout compensation)", unit="deg"))
+    for i, w in enumerate(WHEELS):
+        out.append(Field(f"{w}_runout_i16", 217 + i, "i16", 1, f"{w}: runout x 100 (-32768: not measured)",
+                         unit="0.01 deg"))
+    for i, w in enumerate(WHEELS):
+        out.append(Field(f"{w}_runout_mm_i16", 221 + i, "i16", 1, f"{w}: the lip's wobble across its diameter "
+                         "x 100 (-32768: not measured)", unit="0.01 mm"))
+    return out
+
+
 PLC_FIELDS = [
     Field("command", 0, "u16", 1, "command mailbox: 1 measure, 2 calibration check, 3 reset fault, "
-          "4 acknowledge; consumed on receipt (reads back 0)", writable=True),
+          "4 acknowledge, 5 measure with runout compensation, 6 in position (the car rolled as state 4 "
+          "asked); consumed on receipt (reads back 0)", writable=True),
     Field("job_id", 1, "ascii", 16, "job id / VIN for the next cycle, up to 32 ASCII characters",
           writable=True),
     Field("vehicle_spec", 17, "ascii", 16, "vehicle spec id for the next cycle (e.g. "
           "dodge-caravan-2007), up to 32 ASCII characters; empty: no pass/fail", writable=True),
 ]
 STATION_FIELDS = [
-    Field("state", 100, "u16", 1, "0 idle, 1 busy, 2 done, 3 fault"),
+    Field("state", 100, "u16", 1, "0 idle, 1 busy, 2 done, 3 fault, 4 roll (roll the car as 115..118 say, "
+          "then write command 6)"),
     Field("fault_code", 101, "u16", 1, "station error code of the failed cycle (`station errors`); "
           "0 unless state is fault"),
     Field("heartbeat", 102, "u16", 1, "increments every heartbeat period, wraps at 65535"),
@@ -103,7 +131,7 @@ STATION_FIELDS = [
     Field("result_valid", 104, "u16", 1, "1: the angles below belong to the last finished cycle "
           "and may be used; 0 while busy and after a failed cycle"),
     Field("active_command", 105, "u16", 1, "command of the running or last cycle"),
-    Field("reject_code", 106, "u16", 1, "error code of the last refused command (501..507)"),
+    Field("reject_code", 106, "u16", 1, "error code of the last refused command (501..508)"),
     Field("reject_count", 107, "u16", 1, "refused commands so far, wraps at 65535"),
     Field("pass_bits", 108, "bits", 1, "bit i: angle i within the spec; bit 15: overall pass"),
     Field("judged_bits", 109, "bits", 1, "bit i: angle i was judged against a spec; bit 15: overall"),
@@ -118,15 +146,25 @@ STATION_FIELDS = [
           "exposure), 2 its rim edge is blurred (refocus), 3 its rim is too small in the image (the "
           "texts name the camera); 4 a wheel's rim came out another size than its axle partner's (its "
           "angles may be off: the texts name the wheel)"),
+    Field("roll_step", 115, "u16", 1, "in state roll: the roll the station waits for, 1..roll_steps; 0 in "
+          "any other state"),
+    Field("roll_steps", 116, "u16", 1, "in state roll: the rolls of the whole procedure (3); 0 in any other "
+          "state"),
+    Field("roll_distance_mm", 117, "i16", 1, "in state roll: how far to roll the car now, + forward, - back; "
+          "0 in any other state", unit="mm", scale=1),
+    Field("roll_position_mm", 118, "i16", 1, "in state roll: where the car must stand after this roll, from "
+          "where it stood at the trigger, + forward; 0 in any other state", unit="mm", scale=1),
     *_angle_fields(),
     Field("result_job_id", 160, "ascii", 16, "job id of the cycle the result belongs to"),
     Field("fault_reason", 176, "ascii", 32, "readable reason of the fault, up to 64 characters"),
+    *_runout_fields(),
 ]
 FIELDS = {f.name: f for f in PLC_FIELDS + STATION_FIELDS}
 
 PLC_AREA = (0, 100)  # [start, end) of the PLC -> station area
 STATION_AREA = (100, 300)  # [start, end) of the station -> PLC area
-RESULT_BLOCK = (100, 208)  # one read (<= 125 registers) that returns the whole station output
+RESULT_BLOCK = (100, 225)  # one read (<= 125 registers) that returns the whole station output
+RESULT_BLOCK_V4 = (100, 208)  # the whole output up to map version 4: a PLC reading only it still works
 STATUS_END = 120  # registers 100..119: state, codes, counters, flags (what a PLC polls)
 COMMAND = FIELDS["command"].address
 
@@ -169,17 +207,29 @@ def regs_to_u32(regs) -> int:
     return (int(regs[0]) << 16) | int(regs[1])
 
 
-def deg_to_i16(x: float | None) -> int:
-    """Degrees -> 0.01 degree counts as an unsigned register value (two's complement)."""
+def to_i16(x: float | None, scale: int = INT16_SCALE) -> int:
+    """A value -> ``scale`` counts per unit as an unsigned register value (two's complement),
+    saturated to +-INT16_LIMIT counts; None or not finite -> INT16_MISSING."""
     if x is None or not math.isfinite(x):
         return INT16_MISSING & 0xFFFF
-    n = max(-INT16_LIMIT, min(INT16_LIMIT, round(float(x) * INT16_SCALE)))
+    n = max(-INT16_LIMIT, min(INT16_LIMIT, round(float(x) * scale)))
     return n & 0xFFFF
 
 
-def i16_to_deg(reg: int) -> float | None:
+def from_i16(reg: int, scale: int = INT16_SCALE) -> float | int | None:
     n = reg - 0x10000 if reg & 0x8000 else reg
-    return None if n == INT16_MISSING else n / INT16_SCALE
+    if n == INT16_MISSING:
+        return None
+    return n if scale == 1 else n / scale
+
+
+def deg_to_i16(x: float | None) -> int:
+    """Degrees -> 0.01 degree counts as an unsigned register value (two's complement)."""
+    return to_i16(x, INT16_SCALE)
+
+
+def i16_to_deg(reg: int) -> float | None:
+    return from_i16(reg, INT16_SCALE)
 
 
 def ascii_to_regs(text: str | None, count: int) -> list[int]:
@@ -209,7 +259,7 @@ def decode_block(regs, start: int = RESULT_BLOCK[0]) -> dict:
         if f.type in ("u16", "bits"):
             out[f.name] = int(r[0])
         elif f.type == "i16":
-            out[f.name] = i16_to_deg(int(r[0]))
+            out[f.name] = from_i16(int(r[0]), f.scale)
         elif f.type == "u32":
             out[f.name] = regs_to_u32(r)
         elif f.type == "f32":

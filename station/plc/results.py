@@ -80,6 +80,38 @@ def result_station_warning_bits(result: Measurement) -> int:
     return bits
 
 
+def result_runout(result: Measurement) -> dict[str, tuple[float | None, float | None]]:
+    """{wheel: (runout_deg, runout_mm)} of a compensated result, each None when not measured.
+    Raises MeasurementError naming the key when a compensated result lacks a wheel's runout or
+    holds a non-number (a result without compensation has none: all None)."""
+    out = {}
+    for w in WHEELS:
+        wheel = result.wheels.get(w)
+        values = []
+        for key in ("runout_deg", "runout_mm"):
+            value = getattr(wheel, key, None) if result.runout_compensated else None
+            if value is None:
+                if result.runout_compensated:
+                    raise MeasurementError(f"the compensated measurement result lacks wheels.{w}.{key}; "
+                                           "it does not follow docs/result-schema.md")
+            elif isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise MeasurementError(f"the measurement result has wheels.{w}.{key} = {value!r}, not a finite number")
+            values.append(None if value is None else float(value))
+        out[w] = (values[0], values[1])
+    return out
+
+
+def runout_registers(runout: dict[str, tuple[float | None, float | None]], compensated: bool) -> dict[int, list[int]]:
+    """{address: values} of ``runout_compensated`` and each wheel's runout (deg as f32 and i16, mm as i16)."""
+    out = {rm.FIELDS["runout_compensated"].address: [int(compensated)]}
+    for w in WHEELS:
+        deg, mm = runout.get(w, (None, None))
+        out[rm.FIELDS[f"{w}_runout_f32"].address] = rm.f32_to_regs(deg)
+        out[rm.FIELDS[f"{w}_runout_i16"].address] = [rm.to_i16(deg, rm.FIELDS[f"{w}_runout_i16"].scale)]
+        out[rm.FIELDS[f"{w}_runout_mm_i16"].address] = [rm.to_i16(mm, rm.FIELDS[f"{w}_runout_mm_i16"].scale)]
+    return out
+
+
 def result_registers(result: Measurement, job_id: str | None, angles_required: bool = True) -> dict[int, list[int]]:
     """{address: register values} for a finished, valid result."""
     angles = result_angles(result, angles_required)
@@ -93,6 +125,7 @@ def result_registers(result: Measurement, job_id: str | None, angles_required: b
     out[rm.FIELDS["judged_bits"].address] = [judged]
     out[rm.FIELDS["warning_bits"].address] = [result_warning_bits(result)]
     out[rm.FIELDS["station_warning_bits"].address] = [result_station_warning_bits(result)]
+    out.update(runout_registers(result_runout(result), bool(result.runout_compensated)))
     f = rm.FIELDS["result_job_id"]
     out[f.address] = rm.ascii_to_regs(job_id, f.count)
     return out
@@ -110,4 +143,12 @@ def cleared_registers() -> dict[int, list[int]]:
     out[rm.FIELDS["warning_bits"].address] = [0]
     out[rm.FIELDS["station_warning_bits"].address] = [0]
     out[rm.FIELDS["result_job_id"].address] = [0] * rm.FIELDS["result_job_id"].count
+    out.update(runout_registers({}, False))
     return out
+
+
+def roll_prompt_registers(step: int = 0, steps: int = 0, distance_mm: int = 0, position_mm: int = 0) -> dict[int, list[int]]:
+    """{address: values} of the roll prompt (115..118); all 0: no roll asked for."""
+    return {rm.FIELDS["roll_step"].address: [step & 0xFFFF], rm.FIELDS["roll_steps"].address: [steps & 0xFFFF],
+            rm.FIELDS["roll_distance_mm"].address: [rm.to_i16(distance_mm, 1)],
+            rm.FIELDS["roll_position_mm"].address: [rm.to_i16(position_mm, 1)]}

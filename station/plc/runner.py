@@ -11,12 +11,17 @@ Two runners:
   only when built, with a clear error when the pipeline is not installed;
 * :func:`dry_run_runner` - synthetic, deterministic results computed from the job id, for
   commissioning the PLC program without cameras (``station serve --dry-run``), for the tests
-  and the benchmark. Every ``fail_every``-th job fails on purpose (code 401) so the PLC's fault
-  branch gets exercised too.
+  and the benchmark. Every ``fail_every``-th job fails on purpose (code 401; 412 for a cycle with
+  runout compensation, after its rolls) so the PLC's fault branch gets exercised too.
+
+A cycle with runout compensation (``measure_compensated``, PLC command 5) carries the PLC's
+:class:`~station.plc.roll_operator.RollGate` in ``CycleRequest.roll``; both runners roll the car
+through it (station/plc/roll_operator.py), the dry run without cameras.
 """
 
 from __future__ import annotations
 
+import math
 import random
 import re
 import zlib
@@ -25,17 +30,30 @@ from typing import Callable
 
 from calibration.errors import CalibrationError
 from calibration.station_frame import AXLES, WHEELS
-from station.errors import PlcError, RimNotFound
+from station.errors import PlcError, RimNotFound, WheelSlipped
+from station.plc.roll_operator import PlcRollOperator, RollGate, roll_plan
 from station.result import ANGLE_NAMES, AxleResult, Measurement, WheelResult
 
+COMMANDS = ("measure", "calibration_check", "measure_compensated")
+LIP_DIAMETER_M = 0.432  # a 17-inch rim's lip: the dry run's runout in mm
 
 
 @dataclass(frozen=True)
 class CycleRequest:
-    command: str  # "measure" | "calibration_check"
+    command: str  # "measure" | "calibration_check" | "measure_compensated" (COMMANDS)
     job_id: str | None  # None when the PLC left the job id empty
     vehicle_spec: str | None
     cycle: int  # the station's running cycle number (1, 2, ...), also the simulation seed
+    roll: RollGate | None = None  # measure_compensated: who rolls the car (the PLC device)
+
+    def roll_operator(self, simulation=None, steps: int | None = None) -> PlcRollOperator:
+        """The operator that rolls the car ``steps`` times (default: the procedure's rolls) for
+        this compensated cycle; PlcError without a gate (a compensated cycle started by something
+        that cannot roll the car)."""
+        if self.roll is None:
+            raise PlcError(f"cycle {self.cycle}: runout compensation needs the PLC to roll the car, and "
+                           "this request has no roll gate")
+        return PlcRollOperator(self.roll, len(roll_plan()) if steps is None else steps, simulation)
 
 
 CycleRunner = Callable[[CycleRequest], Measurement]
@@ -67,6 +85,9 @@ def measurement_runner(config, seed: int | None = None) -> CycleRunner:
             assembled = station()
             if seed is None and assembled.context.simulation is not None:
                 assembled.context.simulation.place_vehicle(request.cycle)
+            if request.command == "measure_compensated":  # the PLC rolls the (simulated) car
+                return assembled.measure(job_id=request.job_id, vehicle_spec=request.vehicle_spec,
+                                         compensate=request.roll_operator(assembled.context.simulation))
             return assembled.measure(job_id=request.job_id, vehicle_spec=request.vehicle_spec)
         except CalibrationError:
             holder.pop("station", None)
@@ -84,11 +105,16 @@ def job_number(job_id: str | None) -> int:
 
 
 def synthetic_result(request: CycleRequest, fail_every: int = 10) -> Measurement:
-    """A deterministic result for ``request``: the angles depend only on the job id, so a PLC
-    simulator can check that it got the result of *its* job. Raises RimNotFound for every
-    ``fail_every``-th job number (the cycle number when there is no job id; 0: never)."""
+    """A deterministic result for ``request``: the angles depend only on the job id (and the
+    command), so a PLC simulator can check that it got the result of *its* job. Raises
+    RimNotFound for every ``fail_every``-th job number (the cycle number when there is no job id;
+    0: never); WheelSlipped instead for a cycle with runout compensation, whose result also holds
+    each wheel's runout."""
     n = job_number(request.job_id) if request.job_id else request.cycle
+    compensate = request.command == "measure_compensated"
     if fail_every and n % fail_every == 0:
+        if compensate:
+            raise WheelSlipped(f"RL: its turn does not match the car's travel (dry run, job {n})")
         raise RimNotFound(f"RR cam7: no closed rim contour (dry run, job {n})")
     rng = random.Random(zlib.crc32(f"{request.job_id}|{request.command}".encode()))
     toe = {w: round(rng.uniform(-0.3, 0.3), 4) for w in WHEELS}
@@ -102,6 +128,12 @@ def synthetic_result(request: CycleRequest, fail_every: int = 10) -> Measurement
                          warnings=["dry run: synthetic result, no cameras"], wheels=wheels,
                          axles={axle: AxleResult(toe[left] + toe[right]) for axle, (left, right) in AXLES.items()},
                          thrust_deg=thrust)
+    if compensate:
+        result.runout_compensated = True
+        for w in WHEELS:
+            runout = round(rng.uniform(0.0, 0.3), 4)
+            wheels[w].runout_deg, wheels[w].runout_phase_deg = runout, round(rng.uniform(0.0, 360.0), 2)
+            wheels[w].runout_mm = round(LIP_DIAMETER_M * 1000 * math.tan(math.radians(runout)), 3)
     if request.vehicle_spec:
         limits = {"toe": 0.3, "camber": 1.2, "total_toe": 0.5, "thrust": 0.25}
         verdict = {name: abs(result.angle(name)) <= limits[name.split(".")[-1]] for name in ANGLE_NAMES}
@@ -112,10 +144,20 @@ def synthetic_result(request: CycleRequest, fail_every: int = 10) -> Measurement
 
 def dry_run_runner(fail_every: int = 10, delay_s: float = 0.0) -> CycleRunner:
     """A runner returning :func:`synthetic_result`, after ``delay_s`` seconds (a stand-in for the
-    measurement time)."""
+    measurement time). A cycle with runout compensation first asks the PLC for every roll of the
+    real procedure (station/procedures/runout.py), ``delay_s`` apart, as the station would between
+    its captures, so a PLC programmer can commission the roll steps without cameras."""
     import time
 
+    plan = roll_plan()  # imported now, not in the first compensated cycle's time
+
     def run(request: CycleRequest) -> Measurement:
+        if request.command == "measure_compensated":
+            operator = request.roll_operator(steps=len(plan))
+            for distance_m in plan:
+                if delay_s:
+                    time.sleep(delay_s)  # a capture
+                operator.roll_car(distance_m)
         if delay_s:
             time.sleep(delay_s)
         return synthetic_result(request, fail_every)
