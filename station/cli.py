@@ -35,6 +35,7 @@ COMMANDS = {
     "capture": ("capture", "capture one synchronised set from all cameras and save it (lossless PNG + metadata)"),
     "serve": ("serve", "serve the station to the shop PLC over Modbus TCP or RTU (register map: docs/plc.md)"),
     "live": ("live", "live toe and camber of one axle while a wheel is adjusted (Ctrl-C to stop)"),
+    "caster": ("caster", "caster, SAI and included angle of the front wheels from a steering sweep"),
     "review": ("review", "open a cycle's recording in the Rerun viewer (default: the newest cycle)"),
     "history": ("history", "list the stored measurement cycles (filter by job, date, vehicle, pass/fail; export CSV)"),
     "report": ("report", "write the printable before/after report (HTML, optionally PDF) of a job"),

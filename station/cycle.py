@@ -27,11 +27,12 @@ from station.capture.saving import capture_and_keep, new_cycle_id, remove_unfini
 from station.capture.sync import capture_averaged
 from station.compute.workers import WorkerPool, default_workers
 from station.config import StationConfig
-from station.errors import CODED_ERRORS, ProcedureError, StationError, StorageError
+from station.errors import CODED_ERRORS, ProcedureError, StationError, StorageError, WheelLeftView
 from station.measure import measure_frames
 from station.operator import AlignmentOperator
 from station.procedures.runout import ROLL_DISTANCE_M, ROLL_PLAN, compensated, wheel_rolls
 from station.procedures.runout_store import apply_kept_runout_to, keep_runout
+from station.procedures.steering import DEFAULT_SWEEP_DEG, STEER_PLAN, steering_geometry, sweep_poses
 from station.records.atomic_file import write_text_atomic
 from station.result import Failure, Measurement, WarningFlag
 from station.sequencer import Sequencer
@@ -104,10 +105,23 @@ class Station:
         cycle = _Cycle(new_cycle_id(), job_id, vehicle_spec, record and self.config.recording.enabled, store,
                        time.perf_counter())
         if compensate is None:
-            capture, measure = (lambda: self._capture(cycle)), (lambda frames: self._measure(cycle, frames, method))
-        else:
-            capture = lambda: self._capture_rolled(cycle, compensate, roll_distance_m)  # noqa: E731
-            measure = lambda captures: self._measure_rolled(cycle, captures, method)  # noqa: E731
+            return self._run(cycle, lambda: self._capture(cycle), lambda frames: self._measure(cycle, frames, method))
+        return self._run(cycle, lambda: self._capture_positions(cycle, self._roll_moves(compensate, roll_distance_m)),
+                         lambda captures: self._measure_rolled(cycle, captures, method))
+
+    def caster(self, operator: AlignmentOperator, *, sweep_deg: float = DEFAULT_SWEEP_DEG, job_id: str | None = None,
+               vehicle_spec: str | None = None, method: str = "circle", record: bool = True,
+               store: bool = True) -> Measurement:
+        """A steering sweep (station/procedures/steering.py): the operator steers the front wheels
+        ``sweep_deg`` left, right and back to straight ahead; the result is the last capture's
+        measurement (a runout kept for ``job_id`` applied) with caster, SAI and included angle
+        (``steering``). A refused sweep is an invalid result with its code, kept."""
+        cycle = _Cycle(new_cycle_id(), job_id, vehicle_spec, record and self.config.recording.enabled, store,
+                       time.perf_counter())
+        return self._run(cycle, lambda: self._capture_positions(cycle, self._steer_moves(operator, sweep_deg)),
+                         lambda captures: self._measure_steered(cycle, captures, method, sweep_deg))
+
+    def _run(self, cycle: _Cycle, capture: Callable, measure: Callable) -> Measurement:
         try:
             result = self.sequencer.run_cycle(capture=capture, measure=measure,
                                               report=lambda measured: self._report(cycle, measured))
@@ -136,32 +150,52 @@ class Station:
             else:
                 frames, kept = capture_averaged(self.cameras, self.timeout_s, self.trigger_board, frames=n), None
         except CODED_ERRORS as e:
-            kept = getattr(e, "kept", None)
-            result = Measurement(station=cfg.name, failure=Failure(e.code, str(e), e.hint))
-            self._stamp(result, cycle)
-            result.captures_dir = str(kept.path) if kept and kept.path else None
-            if kept and kept.error:
-                _not_kept(result, kept.warning)
-            self._finish(result, record=False, store=cycle.store)
-            cycle.failed = result
+            self._keep_failure(cycle, e, getattr(e, "kept", None))
             raise
         if kept is not None:
             cycle.captures_dir = str(kept.path.parent if part and kept.path else kept.path) if kept.path else None
             cycle.not_kept = cycle.not_kept or kept.warning
         return frames
 
-    def _capture_rolled(self, cycle: _Cycle, operator: AlignmentOperator, distance_m: float) -> list[dict]:
-        """The frames at each position of the roll plan, the operator rolling the car between them."""
+    def _keep_failure(self, cycle: _Cycle, error, kept=None) -> None:
+        """A cycle that ends before it is measured (a capture, a roll not confirmed): its invalid
+        result is kept in the history (``cycle.failed``), with where its frames are."""
+        result = Measurement(station=self.config.name, failure=Failure(error.code, str(error), error.hint))
+        self._stamp(result, cycle)
+        result.captures_dir = str(kept.path) if kept and kept.path else cycle.captures_dir
+        if kept and kept.error:
+            _not_kept(result, kept.warning)
+        self._finish(result, record=False, store=cycle.store)
+        cycle.failed = result
+
+    def _capture_positions(self, cycle: _Cycle, moves: list[tuple[str, Callable[[], None]]]) -> list[dict]:
+        """The frames where the car stands, then after each of ``moves`` ((what the operator is
+        asked, the operator's action)): one set per position, each in its own folder."""
         captures = []
-        for k, at in enumerate(ROLL_PLAN):
+        for k in range(len(moves) + 1):
             if k:
-                step = (at - ROLL_PLAN[k - 1]) * distance_m
-                self.progress(f"cycle {cycle.cycle_id}: runout compensation, roll {k} of {len(ROLL_PLAN) - 1}: "
-                              f"{'forward' if step > 0 else 'back'} {abs(step) * 100:.0f} cm")
-                operator.roll_car(step)
+                text, move = moves[k - 1]
+                self.progress(f"cycle {cycle.cycle_id}: step {k} of {len(moves)}: {text}")
+                try:
+                    move()
+                except CODED_ERRORS as e:  # a move not confirmed (the PLC's timeout): kept like a failed capture
+                    self._keep_failure(cycle, e)
+                    raise
             captures.append(self._capture(cycle, f"position-{k + 1}"))
             cycle.truths.append(cycle.truth)
         return captures
+
+    def _roll_moves(self, operator: AlignmentOperator, distance_m: float) -> list[tuple[str, Callable[[], None]]]:
+        """The roll plan's moves (runout compensation)."""
+        steps = [(b - a) * distance_m for a, b in zip(ROLL_PLAN, ROLL_PLAN[1:])]
+        return [(f"roll the car {'forward' if d > 0 else 'back'} {abs(d) * 100:.0f} cm",
+                 lambda d=d: operator.roll_car(d)) for d in steps]
+
+    def _steer_moves(self, operator: AlignmentOperator, sweep_deg: float) -> list[tuple[str, Callable[[], None]]]:
+        """The steering plan's moves (station caster)."""
+        targets = [p * sweep_deg for p in STEER_PLAN[1:]]
+        return [(f"steer {'straight ahead' if t == 0 else f'{abs(t):g} deg ' + ('left' if t > 0 else 'right')}",
+                 lambda t=t: operator.steer(t)) for t in targets]
 
     def _measure_rolled(self, cycle: _Cycle, captures: list[dict], method: str) -> Measurement:
         """Each position measured, then the spin axes (station/procedures/runout.py): the last
@@ -171,7 +205,7 @@ class Station:
         for frames, truth in zip(captures, cycle.truths):
             cycle.truth = truth  # each position's result against the car as it stood then
             results.append(self._measure(cycle, frames, method, apply_kept_runout=False))
-        cycle.roll = results
+        cycle.positions = results
         result = results[-1]
         bad = next((k for k, r in enumerate(results) if not r.valid), None)
         if bad is not None:
@@ -183,11 +217,9 @@ class Station:
         try:
             rolls = wheel_rolls(results, images, self.models, self.config)
         except ProcedureError as e:
-            failed = Measurement(station=self.config.name, failure=Failure(e.code, str(e), e.hint),
-                                 warnings=["runout compensation refused; the rim-plane values of the last position "
-                                           "are not reported"])
-            self._stamp(failed, cycle)
-            failed.captures_dir = cycle.captures_dir
+            failed = self._failed_result(cycle, e)
+            failed.warnings.append("runout compensation refused; the rim-plane values of the last position are "
+                                   "not reported")
             return failed
         result = compensated(result, rolls, self.config)
         result.timing_s["runout"] = time.perf_counter() - t0
@@ -200,6 +232,44 @@ class Station:
         if cycle.truth is not None:
             result.add_truth(cycle.truth)
         return result
+
+    def _measure_steered(self, cycle: _Cycle, captures: list[dict], method: str, sweep_deg: float) -> Measurement:
+        """Each steer position measured, then the steering axes: the last (straight-ahead)
+        position's result, a runout kept for the job applied, with ``steering``. A position that
+        fails (a rim the cameras lost), or a sweep the checks refuse, gives an invalid result."""
+        results = []
+        for k, (frames, truth) in enumerate(zip(captures, cycle.truths)):
+            cycle.truth = truth
+            results.append(self._measure(cycle, frames, method, apply_kept_runout=k == len(captures) - 1))
+        cycle.positions = results
+        bad = next((k for k, r in enumerate(results) if not r.valid), None)
+        if bad is not None:
+            target = STEER_PLAN[bad] * sweep_deg
+            e = WheelLeftView(f"capture {bad + 1} of {len(results)} (steered {target:+g} deg) failed: "
+                              f"{results[bad].failure.message}",
+                              hint="steer less far (--sweep), or check that the cameras see both front rims, and "
+                                   "measure again")
+            return self._failed_result(cycle, e)
+        t0 = time.perf_counter()
+        images = [{cid: f.image for cid, f in frames.items()} for frames in captures]
+        try:
+            sweep = sweep_poses(results, images, self.models, self.config)
+        except ProcedureError as e:
+            return self._failed_result(cycle, e)
+        result = results[-1]
+        result.steering = steering_geometry(result, sweep, results, sweep_deg)
+        result.timing_s["steering"] = time.perf_counter() - t0
+        cycle.sweep = sweep
+        if cycle.truth is not None:
+            result.add_truth(cycle.truth)
+        return result
+
+    def _failed_result(self, cycle: _Cycle, error) -> Measurement:
+        """A procedure's invalid result: its code, sentence and hint."""
+        failed = Measurement(station=self.config.name, failure=Failure(error.code, str(error), error.hint))
+        self._stamp(failed, cycle)
+        failed.captures_dir = cycle.captures_dir
+        return failed
 
     def _measure(self, cycle: _Cycle, frames: dict, method: str, apply_kept_runout: bool = True) -> Measurement:
         t_capture = time.perf_counter() - cycle.t0
@@ -227,8 +297,7 @@ class Station:
             except StationError as e:
                 cycle.spec_error = e
                 result.warnings.append(f"vehicle spec {cycle.vehicle_spec!r}: {e}")
-        roll = (cycle.roll, cycle.rolls) if cycle.rolls else None
-        self._finish(result, record=cycle.record, store=cycle.store, images=cycle.images, roll=roll)
+        self._finish(result, record=cycle.record, store=cycle.store, images=cycle.images, cycle=cycle)
         result.timing_s["total"] = time.perf_counter() - cycle.t0
         self.cycle_count += 1
         return result
@@ -251,12 +320,12 @@ class Station:
         result.job_id, result.vehicle_spec = cycle.job_id, cycle.vehicle_spec
 
     def _finish(self, result: Measurement, *, record: bool, store: bool, images: dict | None = None,
-                roll: tuple | None = None) -> None:
+                cycle: _Cycle | None = None) -> None:
         t0 = time.perf_counter()
         if record:
             path = self.config.data_path("recordings", f"{result.cycle_id}.rrd")
             try:
-                _record(path, self, result, images or {}, roll=roll)
+                _record(path, self, result, images or {}, cycle)
                 result.recording = str(path)
             except StorageError as e:
                 _not_kept(result, str(e))
@@ -286,8 +355,9 @@ class _Cycle:
     captures_dir: str | None = None
     not_kept: str | None = None  # why the frames could not be kept (a full or read-only disk)
     images: dict | None = None
-    roll: list[Measurement] | None = None   # runout compensation: each position's result
+    positions: list[Measurement] | None = None  # a procedure: each position's result
     rolls: dict | None = None               # and each wheel's WheelRoll (station/procedures/runout.py)
+    sweep: dict | None = None               # a steering sweep: each front wheel's WheelSweep
     failed: Measurement | None = None
     spec_error: StationError | None = None
 
@@ -304,9 +374,9 @@ def _apply_spec(cfg: StationConfig, result: Measurement, key: str) -> None:
     apply_spec(result, get_spec(specs, key, cfg.vehicle_specs_path))
 
 
-def _record(path: Path, station: Station, result: Measurement, images: dict, roll: tuple | None = None) -> None:
-    """The cycle's Rerun recording; ``roll``: (each position's result, each wheel's WheelRoll)
-    of a runout compensation."""
+def _record(path: Path, station: Station, result: Measurement, images: dict, cycle: _Cycle | None = None) -> None:
+    """The cycle's Rerun recording; of a procedure (``cycle``'s positions), each wheel's poses
+    and the fitted runout cone or steering axis too."""
     from station.records.recording import CycleRecorder, recording_id_for
 
     rec = CycleRecorder(path, jpeg_quality=station.config.recording.jpeg_quality,
@@ -320,12 +390,14 @@ def _record(path: Path, station: Station, result: Measurement, images: dict, rol
                 rec.log_detection(cam_id, det.ellipse.points(180), det.points_px)
             rec.log_wheel(wheel, o.paper.points_station, o.circle.center_station, o.circle.axis_station,
                           o.circle.radius_m)
-        if roll is not None:
-            positions, rolls = roll
-            for wheel, r in rolls.items():
-                circles = [p.observations[wheel].circle for p in positions]
-                rec.log_roll(wheel, [c.center_station for c in circles], [c.axis_station for c in circles],
-                             r.spin.axis_station, float(circles[-1].radius_m))
+        for wheel, r in ((cycle and cycle.rolls) or {}).items():
+            circles = [p.observations[wheel].circle for p in cycle.positions]
+            rec.log_roll(wheel, [c.center_station for c in circles], [c.axis_station for c in circles],
+                         r.spin.axis_station, float(circles[-1].radius_m))
+        for wheel, sw in ((cycle and cycle.sweep) or {}).items():
+            circles = [p.observations[wheel].circle for p in cycle.positions]
+            rec.log_steering(wheel, [c.center_station for c in circles], [c.axis_station for c in circles],
+                             sw.axis.direction_station, sw.axis.point_station, float(circles[-1].radius_m))
         if result.alignment_frame:
             rec.log_car_frame(result.alignment_frame["origin_station_m"], result.alignment_frame["R_station_align"])
         rec.log_result(result)

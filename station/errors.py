@@ -108,6 +108,36 @@ class RollNotConfirmed(ProcedureError):
     code = 415
 
 
+class SweepTooSmall(ProcedureError):
+    """The front wheels were steered too little either way to find their steering axes."""
+
+    code = 420
+
+
+class SweepUneven(ProcedureError):
+    """The front wheels were steered much farther one way than the other."""
+
+    code = 421
+
+
+class WheelRolledWhileSteered(ProcedureError):
+    """A front wheel rolled (or slipped) while it was steered: its poses are no turn about one axis."""
+
+    code = 422
+
+
+class WheelLeftView(ProcedureError):
+    """A wheel steered so far that a camera lost its rim."""
+
+    code = 423
+
+
+class SteerNotReached(ProcedureError):
+    """The front wheels did not stand at a steer target in time."""
+
+    code = 424
+
+
 class PlcError(StationError):
     code = 500
     area = "plc"

@@ -138,6 +138,52 @@ class CameraDetection:
 
 
 @dataclass
+class SteeringWheel:
+    """A front wheel's steering geometry from a steering sweep (station/procedures/steering.py):
+    angles in degrees with their standard uncertainty, lengths in metres."""
+
+    caster_deg: float
+    caster_std_deg: float
+    sai_deg: float
+    sai_std_deg: float
+    included_angle_deg: float                # SAI + camber
+    included_angle_std_deg: float
+    kingpin_offset_m: float                  # scrub radius: the axis meets the runway inboard (+) of the wheel
+    caster_trail_m: float                    # ... and ahead (+) of the point under its centre
+    caster_classic_deg: float                # the shops' rule (camber change over the sweep), to compare
+    caster_from_normals_deg: float           # the axis from the rim normals alone, to compare
+    sai_from_normals_deg: float
+    steer_left_deg: float                    # how far the wheel was steered each way (heading, left +)
+    steer_right_deg: float
+    misfit_deg: float                        # the poses' RMS distance from one turn about the axis
+
+    @classmethod
+    def from_json(cls, d: dict) -> SteeringWheel:
+        return cls(**{k: d.get(k) for k in cls.__dataclass_fields__})
+
+
+@dataclass
+class Steering:
+    """The steering sweep's result: the sweep asked for (deg each way), each front wheel's
+    geometry, and toe-out on turns at each end ({"left"|"right": {"inner_wheel", "inner_deg",
+    "outer_deg"}})."""
+
+    sweep_deg: float
+    wheels: dict[str, SteeringWheel]
+    toe_out_on_turns: dict
+
+    def to_json(self) -> dict:
+        return {"sweep_deg": self.sweep_deg, "wheels": {w: vars(r).copy() for w, r in self.wheels.items()},
+                "toe_out_on_turns": self.toe_out_on_turns}
+
+    @classmethod
+    def from_json(cls, d: dict) -> Steering:
+        return cls(float(d.get("sweep_deg") or 0.0),
+                   {w: SteeringWheel.from_json(r) for w, r in (d.get("wheels") or {}).items() if isinstance(r, dict)},
+                   dict(d.get("toe_out_on_turns") or {}))
+
+
+@dataclass
 class Measurement:
     """A cycle's result. ``valid`` False: no angle may be used, ``failure`` says why.
 
@@ -165,6 +211,7 @@ class Measurement:
     timing_s: dict[str, float] = field(default_factory=dict)
     method: str | None = None
     runout_compensated: bool = False  # toe and camber of the wheels' spin axes (True) or of the rim planes
+    steering: Steering | None = None  # a steering sweep's caster, SAI, included angle (station caster)
     detections: dict[str, CameraDetection] | None = None
     cycle_id: str | None = None
     time_utc: str | None = None
@@ -207,6 +254,11 @@ class Measurement:
         for axle, (left, right) in AXLES.items():
             errors[f"{axle}.total_toe"] = self.axles[axle].total_toe_deg - true[left]["toe_deg"] - true[right]["toe_deg"]
         errors["thrust"] = self.thrust_deg - (true["RL"]["toe_deg"] - true["RR"]["toe_deg"]) / 2
+        if self.steering is not None:
+            for w, r in self.steering.wheels.items():
+                t = truth["wheels"][w]
+                errors[w].update({f"{k}_error_deg": getattr(r, f"{k}_deg") - t[f"{k}_deg"]
+                                  for k in ("caster", "sai", "included_angle") if f"{k}_deg" in t})
         self.errors = errors
 
     def angle(self, name: str) -> float | None:
@@ -236,6 +288,8 @@ class Measurement:
         if self.method is not None:
             out["method"] = self.method
             out["runout_compensated"] = self.runout_compensated
+        if self.steering is not None:
+            out["steering"] = self.steering.to_json()
         if self.detections is not None:
             out["detections"] = {c: d.to_json() for c, d in self.detections.items()}
         if self.cycle_id is not None:
@@ -283,7 +337,8 @@ class Measurement:
                    wheels=wheels, axles=axles, timing_s=dict(d.get("timing_s") or {}),
                    detections=None if detections is None else
                    {c: CameraDetection.from_json(x) for c, x in detections.items()},
-                   verdicts=d.get("pass"))
+                   verdicts=d.get("pass"),
+                   steering=Steering.from_json(d["steering"]) if isinstance(d.get("steering"), dict) else None)
 
 
 def _present(d: dict) -> dict:

@@ -311,6 +311,26 @@ class CycleRecorder:
         tip_circle = circle_station(cs[-1] + length * a, a, length * np.tan(tilt) * CONE_MAGNIFIED)
         self._log(f"{base}/cone", rr.LineStrips3D([tip_circle], colors=[color]))
 
+    def log_steering(self, wheel: str, centers_station, normals_station, axis_station, point_station,
+                     radius_m: float) -> None:
+        """A steering sweep of a front wheel: its centre (K,3) and rim normal (K,3) at each steer
+        position, and the fitted steering axis (unit direction (3,), a point on it (3,)), drawn
+        from the runway (z = 0) up past the wheel's top."""
+        cs = _points(centers_station, 3, "centers_station")
+        ns = _points(normals_station, 3, "normals_station")
+        u = _vec3(axis_station, "axis_station")
+        u = u / np.linalg.norm(u)
+        p = _vec3(point_station, "point_station")
+        color = _WHEEL_COLORS.get(wheel, (200, 200, 200))
+        base = f"/vehicle/{wheel}/steering"
+        self._log(f"{base}/positions", rr.Points3D(cs, colors=[color], radii=0.006,
+                                                   labels=[f"position {k + 1}" for k in range(len(cs))]))
+        self._log(f"{base}/rim_normals", rr.Arrows3D(origins=cs, vectors=ns * max(radius_m, 0.1), colors=[color]))
+        ground = p - u * (p[2] / u[2])
+        top = ground + u * (2.2 * float(np.max(cs[:, 2])) / u[2])
+        self._log(f"{base}/axis", rr.LineStrips3D([[ground, top]], colors=[(255, 255, 255)],
+                                                  labels=[f"{wheel} steering axis"]))
+
     def log_car_frame(self, origin, R_station_car) -> None:
         """The car frame: origin (3,) and R_station_car (3,3) whose columns are x', y', z'."""
         o = _vec3(origin, "origin")
