@@ -29,9 +29,11 @@ class GuidedSteering:
     """An AlignmentOperator whose ``steer`` guides the technician to the target live."""
 
     def __init__(self, station, mover=None, show: Callable[[str], None] = print, tolerance_deg: float = 1.0,
-                 still_deg: float = 0.1, still_updates: int = 3, timeout_s: float = 300.0):
+                 still_deg: float = 0.1, still_updates: int = 3, timeout_s: float = 300.0,
+                 on_reading: Callable[[float, dict[str, float], bool], None] | None = None):
         """station: an open station.cycle.Station; mover: who turns the steering wheel when
-        asked (the simulated technician), None for a person; show: a line of the display."""
+        asked (the simulated technician), None for a person; show: a line of the display;
+        on_reading(target deg, {wheel: steer angle deg}, reached): each reading, for a PLC."""
         self.station = station
         self.mover = mover
         self.show = show
@@ -39,6 +41,7 @@ class GuidedSteering:
         self.still_deg = still_deg
         self.still_updates = still_updates
         self.timeout_s = timeout_s
+        self.on_reading = on_reading
         cfg = station.config
         self.pairs = {w: (cfg.pairs[w].precision, cfg.pairs[w].reference) for w in FRONT}
         self.cams = [c for w in FRONT for c in self.pairs[w]]
@@ -76,6 +79,8 @@ class GuidedSteering:
             self.show(f"  {where}: {abs(mean):.1f} of {abs(angle_deg):g} deg   "
                       + "   ".join(f"{w} {angles[w]:+.1f}" for w in FRONT)
                       + ("   hold still: capturing" if at and still else ""))
+            if self.on_reading is not None:
+                self.on_reading(angle_deg, angles, at and still)
             if at and still:
                 return
         raise SteerNotReached(f"the wheels did not stand at {angle_deg:+g} deg within {self.timeout_s:.0f} s",
