@@ -68,3 +68,68 @@ def test_the_rim_normals_alone_leave_sai_weak_and_the_face_turn_fixes_it():
             u = fit_steering_axis(noisy, turns, centers, cov, var, reference=3).direction_station
             out.append(np.degrees(np.arctan2(u[0], u[2])))
     assert np.std(sai_full) < 0.05 and np.std(sai_alone) > 3 * np.std(sai_full)
+
+
+@pytest.fixture(scope="module")
+def station(tmp_path_factory):
+    from station.cycle import Station
+    from tests.station_fixtures import small_station_config, truth_calibration
+
+    # full resolution (the half-resolution station loses the rims' detail at a steer); square
+    # rims, so that the included angle's camber is the spin axis'; one frame per capture
+    config = small_station_config(tmp_path_factory.mktemp("steering"), 1.0, capture__frames_averaged=1,
+                                  simulation__runout_max_deg=0.0)
+    truth_calibration(config)
+    with Station(config, seed=3301, progress=lambda msg: None, workers=0) as s:
+        yield s
+
+
+@pytest.mark.slow
+def test_a_guided_sweep_gives_caster_sai_and_included_angle(station):
+    from station.procedures.steer_guide import GuidedSteering
+    from station.records.recording import read_recording_summary
+
+    shown = []
+    guide = GuidedSteering(station, mover=station.context.simulation, show=shown.append)
+    result = station.caster(guide, sweep_deg=10.0, job_id="JOB-S1")
+    assert result.valid, result.failure
+    s = result.steering
+    assert s is not None and s.sweep_deg == 10.0
+    for w in ("FL", "FR"):
+        t = result.truth["wheels"][w]
+        r = s.wheels[w]
+        assert r.caster_deg == pytest.approx(t["caster_deg"], abs=0.15), w
+        assert r.sai_deg == pytest.approx(t["sai_deg"], abs=0.25), w
+        assert r.included_angle_deg == pytest.approx(t["included_angle_deg"], abs=0.25), w
+        assert 8.0 < r.steer_left_deg < 12.0 and -12.0 < r.steer_right_deg < -8.0
+        assert abs(result.errors[w]["caster_error_deg"]) < 0.15
+    assert any("left: " in line and "of 10 deg" in line for line in shown)
+    assert sum("hold still: capturing" in line for line in shown) == 3
+    assert result.to_json()["steering"]["wheels"]["FL"]["caster_deg"] == s.wheels["FL"].caster_deg
+    entities = read_recording_summary(result.recording)["entities"]
+    assert {"/vehicle/FL/steering/axis", "/vehicle/FR/steering/axis"} <= set(entities)
+
+
+class _SteersLittle:
+    """An operator who steers a fifth of what is asked."""
+
+    def __init__(self, simulation):
+        self.simulation = simulation
+
+    def roll_car(self, distance_m: float) -> None:
+        pass
+
+    def steer(self, angle_deg: float) -> None:
+        self.simulation.steer(0.2 * angle_deg)
+
+
+@pytest.mark.slow
+def test_a_sweep_too_small_is_refused_with_its_code_and_kept(station):
+    from station.errors import SweepTooSmall
+    from station.records.history import History
+
+    result = station.caster(_SteersLittle(station.context.simulation), sweep_deg=10.0, job_id="JOB-S2")
+    assert not result.valid and result.failure.code == SweepTooSmall.code
+    assert "at least 4 deg each way" in result.failure.message and result.failure.hint
+    with History(station.config.data_path("history.sqlite"), read_only=True) as h:
+        assert not h.get(result.cycle_id)["valid"]
