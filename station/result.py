@@ -19,6 +19,8 @@ SCHEMA_VERSION = 1
 # the named angles of a result: pass/fail, the PLC map, the history, the report
 ANGLE_NAMES = ("FL.toe", "FL.camber", "FR.toe", "FR.camber", "RL.toe", "RL.camber",
                "RR.toe", "RR.camber", "front.total_toe", "rear.total_toe", "thrust")
+# the named angles of a steering sweep (station caster): pass/fail and the report
+STEERING_ANGLE_NAMES = ("FL.caster", "FL.sai", "FL.included_angle", "FR.caster", "FR.sai", "FR.included_angle")
 
 
 @dataclass
@@ -262,8 +264,11 @@ class Measurement:
         self.errors = errors
 
     def angle(self, name: str) -> float | None:
-        """The value (deg) of a named angle of ANGLE_NAMES, or None."""
+        """The value (deg) of a named angle of ANGLE_NAMES or STEERING_ANGLE_NAMES, or None."""
         head, _, kind = name.partition(".")
+        if name in STEERING_ANGLE_NAMES:
+            wheel = self.steering.wheels.get(head) if self.steering is not None else None
+            return None if wheel is None else getattr(wheel, f"{kind}_deg", None)
         if head in self.wheels:
             return getattr(self.wheels[head], f"{kind}_deg", None)
         if head in self.axles:
@@ -310,6 +315,8 @@ class Measurement:
             out.update(self.errors[wheel])
         if self.verdicts is not None:
             out["pass"] = {"toe": self.verdicts.get(f"{wheel}.toe"), "camber": self.verdicts.get(f"{wheel}.camber")}
+            out["pass"].update({k: self.verdicts[f"{wheel}.{k}"] for k in ("caster", "sai", "included_angle")
+                                if f"{wheel}.{k}" in self.verdicts})
         return out
 
     @classmethod

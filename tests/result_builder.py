@@ -8,7 +8,7 @@ import copy
 import numpy as np
 
 from calibration.station_frame import SIDE, WHEELS
-from station.result import AxleResult, Failure, Measurement, WheelQuality, WheelResult
+from station.result import AxleResult, Failure, Measurement, Steering, SteeringWheel, WheelQuality, WheelResult
 
 
 def make_result(seed: int = 0, *, cycle: int = 1, job_id: str | None = "JOB-1",
@@ -58,3 +58,18 @@ def with_spec(result: Measurement, spec) -> Measurement:
     out = copy.deepcopy(result)
     apply_spec(out, spec)
     return out
+
+
+def with_steering(result: Measurement, caster: dict, sai: dict, sweep_deg: float = 20.0) -> Measurement:
+    """The result with a steering sweep's geometry ({wheel: deg} of caster and SAI; the included
+    angle is SAI + the wheel's camber), toe-out on turns at both ends of a 20 deg sweep."""
+    wheels = {w: SteeringWheel(caster_deg=caster[w], caster_std_deg=0.02, sai_deg=sai[w], sai_std_deg=0.03,
+                               included_angle_deg=sai[w] + result.wheels[w].camber_deg, included_angle_std_deg=0.03,
+                               kingpin_offset_m=0.012 if w == "FL" else 0.015, caster_trail_m=0.02,
+                               caster_classic_deg=caster[w] + 0.1, caster_from_normals_deg=caster[w],
+                               sai_from_normals_deg=sai[w] + 0.3, steer_left_deg=sweep_deg, steer_right_deg=-sweep_deg,
+                               misfit_deg=0.004) for w in ("FL", "FR")}
+    turns = {"left": {"inner_wheel": "FL", "inner_deg": 20.0, "outer_deg": 18.6},
+             "right": {"inner_wheel": "FR", "inner_deg": 20.0, "outer_deg": 18.8}} if sweep_deg >= 20 else {}
+    result.steering = Steering(sweep_deg, wheels, turns)
+    return result

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from result_builder import make_result, with_spec
+from result_builder import make_result, with_spec, with_steering
 from station.records.history import History
 from station.records.report import build_report, find_chromium, render_with_chromium, safe_filename, write_report
 from station.records.report_svg import top_view_svg
@@ -136,3 +136,28 @@ def test_the_report_says_whether_toe_and_camber_are_compensated_and_prints_the_r
     assert rr == '<td class="num">0.200</td><td class="num">270</td><td class="num">1.60</td>'
     plain = build_report("J-RUNOUT", [before], None)
     assert "Toe and camber are of the rim planes (runout not compensated)" in plain and "Rim runout" not in plain
+
+
+def test_the_steering_sweep_has_its_table_verdict_and_toe_out_on_turns():
+    echo = SPECS["toyota-echo-2003"]  # caster 2.00 +/- 0.75, SAI 10.08 +/- 0.75
+    camber = {"FL": -0.6, "FR": -0.5, "RL": -0.9, "RR": -0.9}
+    toe = {"FL": 0.0, "FR": 0.0, "RL": 0.17, "RR": 0.17}
+    before = make_result(1, cycle=1, job_id="J-ST", toe=toe, camber=camber)
+    sweep = with_steering(make_result(2, cycle=2, job_id="J-ST", toe=toe, camber=camber),
+                          {"FL": 3.10, "FR": 2.20}, {"FL": 10.0, "FR": 10.2})
+    after = make_result(3, cycle=3, job_id="J-ST", toe=toe, camber=camber)
+    html = build_report("J-ST", [before, sweep, after], echo)
+    section = html.split("Steering geometry (steered 20&deg; each way)")[1]
+    fl = re.search(r"<tr><td>FL caster</td>(.*?)</tr>", section).group(1)
+    assert '<td class="num fail">+3.10&deg;</td>' in fl and "+2.00&deg; &plusmn; 0.75&deg;" in fl
+    fr_sai = re.search(r"<tr><td>FR SAI</td>(.*?)</tr>", section).group(1)
+    assert '<td class="num pass">+10.20&deg;</td>' in fr_sai
+    assert re.search(r"<tr><td>FL included angle</td>.*?no spec", section)
+    assert "inner wheel FL at 20.0&deg;, outer wheel at 18.6&deg; (toe-out on turns +1.4&deg;)" in section
+    assert "runout was not compensated" in section
+    assert 'class="verdict fail">FAIL' in html  # toe and camber pass; FL caster does not
+    sweep.steering.wheels["FL"].caster_deg = 2.5
+    assert 'class="verdict pass">PASS' in build_report("J-ST", [before, sweep, after], echo)
+    short = with_steering(make_result(2, cycle=2, job_id="J-ST"), {"FL": 3, "FR": 3}, {"FL": 9, "FR": 9}, 10.0)
+    assert "did not reach 20&deg;" in build_report("J-ST", [short], None)
+    assert "Steering geometry" not in build_report("J-ST", [before, after], echo)

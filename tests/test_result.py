@@ -6,9 +6,9 @@ import json
 import re
 from pathlib import Path
 
-from result_builder import make_result, with_spec
+from result_builder import make_result, with_spec, with_steering
 from station.records.vehicle_specs import load_vehicle_specs
-from station.result import ANGLE_NAMES, Failure, Measurement, WarningFlag
+from station.result import ANGLE_NAMES, STEERING_ANGLE_NAMES, Failure, Measurement, WarningFlag
 
 ROOT = Path(__file__).resolve().parents[1]
 SPECS = load_vehicle_specs(ROOT / "config" / "vehicles.yaml")
@@ -35,13 +35,15 @@ def _keys(d, out=None) -> set[str]:
 
 
 def test_every_key_of_the_json_is_in_the_schema_document():
-    r = with_spec(make_result(3), SPECS["dodge-caravan-2007"])
+    r = with_spec(with_steering(make_result(3), {"FL": 3.0, "FR": 3.1}, {"FL": 12.0, "FR": 12.1}),
+                  SPECS["toyota-echo-2003"])
     r.warn("pair FR (cam1, cam2): epipolar residual 0.9 px", WarningFlag("drift", "FR"))
     r.warning_flags.append(WarningFlag("centreline", "FL", because_of=["FR"]))
     r.warning_flags.append(WarningFlag("focus", "RL", camera="cam5"))
     r.method, r.runout_compensated = "circle", True
     r.wheels["FL"].runout_deg, r.wheels["FL"].runout_phase_deg, r.wheels["FL"].runout_mm = 0.1, 20.0, 0.8
-    keys = _keys(r.to_json()) - {w for w in ("FL", "FR", "RL", "RR", "front", "rear", "left", "right")} - set(ANGLE_NAMES)
+    keys = _keys(r.to_json()) - {w for w in ("FL", "FR", "RL", "RR", "front", "rear", "left", "right")} - set(ANGLE_NAMES + STEERING_ANGLE_NAMES)
+    assert "caster" in r.to_json()["wheels"]["FL"]["pass"] and "steering" in r.to_json()
     assert keys <= _schema_keys() | {"overall", "because_of", "camera", "pass"}, keys - _schema_keys()
 
 

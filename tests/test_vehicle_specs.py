@@ -5,10 +5,10 @@ from pathlib import Path
 import pytest
 import yaml
 
-from result_builder import make_result
+from result_builder import make_result, with_steering
 from station.errors import ConfigError
 from station.records.vehicle_specs import apply_spec, evaluate, get_spec, load_vehicle_specs
-from station.result import ANGLE_NAMES
+from station.result import ANGLE_NAMES, STEERING_ANGLE_NAMES
 
 SHIPPED = Path(__file__).resolve().parent.parent / "config" / "vehicles.yaml"
 
@@ -31,7 +31,7 @@ def test_shipped_file_has_the_primer_figures(specs):
     assert echo.angles["thrust"] is None  # the manual has no figure: not checked
     for spec in specs.values():
         assert spec.source
-        assert set(spec.angles) == set(ANGLE_NAMES)
+        assert set(spec.angles) == set(ANGLE_NAMES + STEERING_ANGLE_NAMES)
         for a in spec.angles.values():
             assert a is None or a.source
 
@@ -119,3 +119,39 @@ def test_apply_spec_writes_schema_keys(specs):
     assert r.verdicts["overall"] is True
     assert r.to_json()["wheels"]["FL"]["pass"] == {"toe": True, "camber": True}
     assert r.vehicle_spec == "dodge-caravan-2007"
+
+
+def test_caster_and_sai_are_judged_on_a_steering_sweep_only(specs):
+    echo = specs["toyota-echo-2003"]  # caster 2.00 +/- 0.75, SAI 10.08 +/- 0.75, included angle: no figure
+    assert echo.angles["FR.sai"].nominal_deg == pytest.approx(10.08) and echo.angles["FL.included_angle"] is None
+    plain = make_result(0, camber={"FL": -0.6, "FR": -0.6})
+    verdict = evaluate(plain, echo)
+    assert not set(STEERING_ANGLE_NAMES) & set(verdict)  # a plain measurement has no caster to judge
+    swept = with_steering(make_result(0, camber={"FL": -0.6, "FR": -0.6}), {"FL": 2.74, "FR": 2.76},
+                          {"FL": 9.34, "FR": 10.0})
+    verdict = evaluate(swept, echo)
+    assert verdict["FL.caster"] is True and verdict["FR.caster"] is False  # 2.76 > 2.00 + 0.75
+    assert verdict["FL.sai"] is True and verdict["FL.included_angle"] is None
+    assert verdict["overall"] is (verdict["FR.caster"] and all(v is not False for v in verdict.values()))
+    apply_spec(swept, echo)
+    fl = swept.to_json()["wheels"]["FL"]["pass"]
+    assert fl["caster"] is True and fl["sai"] is True and fl["included_angle"] is None
+    assert "caster" not in swept.to_json()["wheels"]["RL"]["pass"]
+
+
+def test_steering_keys_are_optional_and_checked(tmp_path):
+    def drop(r):
+        for k in ("front.caster", "front.sai", "front.included_angle"):
+            r["vehicles"]["toyota-echo-2003"]["angles"].pop(k, None)
+    assert load_vehicle_specs(_write(tmp_path, drop))["toyota-echo-2003"].angles["FL.caster"] is None
+
+    def typo(r):
+        r["vehicles"]["toyota-echo-2003"]["angles"]["front.castor"] = {"nominal_deg": 3, "tolerance_deg": 1,
+                                                                         "source": "x"}
+    with pytest.raises(ConfigError, match="front.castor.*did you mean 'front.caster'"):
+        load_vehicle_specs(_write(tmp_path, typo))
+
+    def implausible(r):
+        r["vehicles"]["toyota-echo-2003"]["angles"]["front.sai"]["nominal_deg"] = 40
+    with pytest.raises(ConfigError, match="front.sai.nominal_deg"):
+        load_vehicle_specs(_write(tmp_path, implausible))

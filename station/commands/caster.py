@@ -63,16 +63,21 @@ def run(args) -> int:
 
 
 def print_steering(result, out=sys.stdout) -> None:
-    """The steering table of a result with ``steering``."""
+    """The steering table of a result with ``steering`` (with a vehicle spec, each angle's
+    ok / OUT / - against it)."""
+    from station.commands.measure import verdict_word
     s = result.steering
     p = lambda *a: print(*a, file=out)  # noqa: E731
     errors = result.errors or {}
     p(f"steering geometry (steered {s.sweep_deg:g} deg each way){'':8}{'FL':>18}{'FR':>18}")
     rows = [("caster (deg)", "caster_deg", "caster_std_deg"), ("SAI (deg)", "sai_deg", "sai_std_deg"),
             ("included angle (deg)", "included_angle_deg", "included_angle_std_deg")]
+    verdicts = result.verdicts
     for label, key, std in rows:
+        name = key.removesuffix("_deg")
         p(f"  {label:<48}" + "".join(f"{getattr(s.wheels[w], key):+9.2f} +/- {getattr(s.wheels[w], std):.2f}"
                                        for w in ("FL", "FR"))
+          + ("   " + " ".join(f"{verdict_word(verdicts.get(f'{w}.{name}')):>3}" for w in ("FL", "FR")) if verdicts else "")
           + ("   error " + " ".join(f"{errors[w].get(key.replace('_deg', '_error_deg'), float('nan')):+.3f}"
                                     for w in ("FL", "FR")) if errors else ""))
     p(f"  {'kingpin offset at the runway (mm, + inboard)':<48}"

@@ -114,17 +114,17 @@ def print_result(result: Measurement, out=sys.stdout) -> None:
         d = result.wheels[w]
         line = f"{w:<6}{_pm(d.toe_deg, d.toe_std_deg):>20}{_pm(d.camber_deg, d.camber_std_deg):>20}"
         if spec:
-            line += f"{_verdict(verdicts.get(f'{w}.toe')):>7}{_verdict(verdicts.get(f'{w}.camber')):>8}"
+            line += f"{verdict_word(verdicts.get(f'{w}.toe')):>7}{verdict_word(verdicts.get(f'{w}.camber')):>8}"
         if sim:
             e = result.errors[w]
             line += f"{e['toe_error_deg']:>+10.4f}{e['camber_error_deg']:>+12.4f}"
         p(line)
     for axle in AXLES:
         a = result.axles[axle]
-        verdict = f"  {_verdict(verdicts.get(axle + '.total_toe'))}" if spec else ""
+        verdict = f"  {verdict_word(verdicts.get(axle + '.total_toe'))}" if spec else ""
         p(f"{axle} total toe {_pm(a.total_toe_deg, a.total_toe_std_deg)} deg{verdict}   "
           f"setback {a.setback_m * 1000:+.1f} mm   track {a.track_m:.3f} m")
-    verdict = f"  {_verdict(verdicts.get('thrust'))}" if spec else ""
+    verdict = f"  {verdict_word(verdicts.get('thrust'))}" if spec else ""
     p(f"thrust angle {_pm(result.thrust_deg, result.thrust_std_deg)} deg{verdict}   "
       f"wheelbase L {result.wheelbase_m['left']:.3f} m  R {result.wheelbase_m['right']:.3f} m")
     if result.runout_compensated:
@@ -139,5 +139,5 @@ def print_result(result: Measurement, out=sys.stdout) -> None:
         p(f"recording: {result.recording}")
 
 
-def _verdict(v):
+def verdict_word(v):
     return {True: "ok", False: "OUT", None: "-"}[v]

@@ -24,9 +24,10 @@ from station.records.printable import visible
 from station.errors import StorageError
 from station.records.report_svg import top_view_svg
 from station.records.vehicle_specs import VehicleSpec, angle_value, evaluate
-from station.result import ANGLE_NAMES, Measurement
+from station.result import ANGLE_NAMES, STEERING_ANGLE_NAMES, Measurement
 
-_LABELS = {"toe": "toe", "camber": "camber", "total_toe": "total toe"}
+_LABELS = {"toe": "toe", "camber": "camber", "total_toe": "total toe", "caster": "caster", "sai": "SAI",
+           "included_angle": "included angle"}
 _CSS = """
 @page { size: A4; margin: 14mm; }
 body { font-family: "DejaVu Sans", Arial, sans-serif; font-size: 10.5pt; color: #222; margin: 0; }
@@ -64,6 +65,51 @@ def _runout_section(before: Measurement, after: Measurement, same: bool) -> str:
             f"{rows}</table>")
 
 
+def _steering_section(results: list[Measurement], spec: VehicleSpec | None) -> tuple[str, bool | None]:
+    """The steering sweep's table (the job's first and last valid sweeps: before and after a
+    caster adjustment), and its verdict (None: no sweep, or no figure to judge)."""
+    sweeps = [r for r in results if r.valid and r.steering is not None]
+    if not sweeps:
+        return "", None
+    first, last = sweeps[0], sweeps[-1]
+    same = first is last
+    vf, vl = _verdicts(first, spec, STEERING_ANGLE_NAMES), _verdicts(last, spec, STEERING_ANGLE_NAMES)
+    rows = []
+    for name in STEERING_ANGLE_NAMES:
+        wheel, kind = name.split(".")
+        s = spec.angles.get(name) if spec else None
+        limits = (f"{s.nominal_deg:+.2f}&deg; &plusmn; {s.tolerance_deg:.2f}&deg;") if s else "&mdash;"
+        cls, word = _status(vl.get(name))
+        rows.append(f"<tr><td>{wheel} {_LABELS[kind]}</td><td>{limits}</td>"
+                    + ("" if same else _cell(first.angle(name), vf.get(name)))
+                    + f'{_cell(last.angle(name), vl.get(name))}<td class="{cls}">{word}</td></tr>')
+    st = last.steering
+    extra = [("kingpin offset at the runway (mm, + inboard)",
+              {w: f"{r.kingpin_offset_m * 1000:+.1f}" for w, r in st.wheels.items()}),
+             ("caster by the shops' 1.5x camber-change rule (deg)",
+              {w: f"{r.caster_classic_deg:+.2f}" for w, r in st.wheels.items()}),
+             ("steered left / right (deg)",
+              {w: f"{r.steer_left_deg:+.1f} / {r.steer_right_deg:+.1f}" for w, r in st.wheels.items()})]
+    details = "".join(f"<tr><td>{label}</td>" + "".join(f'<td class="num">{v.get(w, "&mdash;")}</td>'
+                                                       for w in ("FL", "FR")) + "</tr>" for label, v in extra)
+    turns = "".join(
+        f"<li>{side} turn: inner wheel {_text(t['inner_wheel'])} at {t['inner_deg']:.1f}&deg;, outer wheel at "
+        f"{t['outer_deg']:.1f}&deg; (toe-out on turns {t['inner_deg'] - t['outer_deg']:+.1f}&deg;)</li>"
+        for side, t in st.toe_out_on_turns.items())
+    note = ("" if last.runout_compensated else
+            '<p class="warn">The included angle takes the rim plane\'s camber: runout was not compensated.</p>')
+    checked = [vl.get(n) for n in STEERING_ANGLE_NAMES if vl.get(n) is not None]
+    verdict = None if not checked else all(checked)
+    html = (f"<h2>Steering geometry (steered {st.sweep_deg:g}&deg; each way)</h2>"
+            f"<table class=\"angles\"><tr><th>angle</th><th>specification</th>{'' if same else '<th>before</th>'}"
+            f"<th>{'measured' if same else 'after'}</th><th>status</th></tr>{''.join(rows)}</table>"
+            f"<table><tr><th></th><th>FL</th><th>FR</th></tr>{details}</table>"
+            + (f"<ul>{turns}</ul>" if turns else
+               "<p>Toe-out on turns: the sweep did not reach 20&deg; (steer 20&deg; each way to measure it).</p>")
+            + note)
+    return html, verdict
+
+
 def safe_filename(job_id: str) -> str:
     """A file name for a job id with any characters: readable part + a short hash (no collisions)."""
     readable = re.sub(r"[^A-Za-z0-9-]+", "_", job_id).strip("_-")[:60] or "job"
@@ -83,11 +129,11 @@ def _values(result: Measurement) -> dict:
     return {name: angle_value(result, name) for name in ANGLE_NAMES}
 
 
-def _verdicts(result: Measurement, spec: VehicleSpec | None) -> dict:
+def _verdicts(result: Measurement, spec: VehicleSpec | None, names: tuple = ANGLE_NAMES) -> dict:
     if spec is not None:
         return evaluate(result, spec)
     stored = result.verdicts or {}
-    return {name: stored.get(name) for name in (*ANGLE_NAMES, "overall")} | {"overall": stored.get("overall")}
+    return {name: stored.get(name) for name in names} | {"overall": stored.get("overall")}
 
 
 def _cell(v: float | None, ok: bool | None) -> str:
@@ -109,7 +155,8 @@ def build_report(job_id: str, results: list[Measurement], spec: VehicleSpec | No
     xb, xa = _values(before), _values(after)
     e = _text
     vehicle = spec.name if spec else (after.vehicle_spec or "no vehicle spec")
-    overall = va.get("overall")
+    steering, steering_ok = _steering_section(results, spec)
+    overall = False if steering_ok is False and va.get("overall") is not None else va.get("overall")
     vcls, vtext = {True: ("pass", "PASS"), False: ("fail", "FAIL"), None: ("none", "NOT CHECKED")}[overall]
 
     rows = []
@@ -162,6 +209,7 @@ line to the right. Front toe is measured against the geometric centreline. Colou
 <span class="pass">&nbsp;in tolerance&nbsp;</span> <span class="fail">&nbsp;out of tolerance&nbsp;</span>
 <span class="none">&nbsp;no figure in the spec&nbsp;</span>.</p>
 {_runout_section(before, after, same)}
+{steering}
 <h2>Top view</h2>
 <div class="drawings">{drawings}</div>
 {'<h2>Warnings</h2><ul>' + ''.join(f'<li class="warn">{e(which + ": ") if which else ""}{e(w)}</li>' for which, w in warnings) + '</ul>' if warnings else ''}

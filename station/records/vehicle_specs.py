@@ -4,7 +4,10 @@ A spec gives, for every angle the station checks, a nominal value and a symmetri
 degrees, and where the figure came from. The file is validated when loaded: every problem is one
 :class:`ConfigError` naming the file, the vehicle and the key. Angle names (docs/result-schema.md):
 ``FL.toe, FL.camber, FR.toe, FR.camber, RL.toe, RL.camber, RR.toe, RR.camber, front.total_toe,
-rear.total_toe, thrust``. The file is written per axle (``front.camber`` applies to FL and FR).
+rear.total_toe, thrust``, and of a steering sweep (``station caster``) ``FL.caster, FL.sai,
+FL.included_angle`` and the same of FR. The file is written per axle (``front.camber`` applies to
+FL and FR). The steering keys may be left out (files written before the station measured
+caster), which is the same as ``null``; the others must all be there.
 """
 
 from __future__ import annotations
@@ -19,7 +22,7 @@ from pathlib import Path
 
 from station.config import read_yaml
 from station.errors import ConfigError
-from station.result import ANGLE_NAMES, Measurement
+from station.result import ANGLE_NAMES, STEERING_ANGLE_NAMES, Measurement
 
 # the keys a vehicle's entry in the file must have, and the angle names each one sets
 FILE_KEYS = {
@@ -31,6 +34,13 @@ FILE_KEYS = {
     "rear.total_toe": ("rear.total_toe",),
     "thrust": ("thrust",),
 }
+STEERING_FILE_KEYS = {
+    "front.caster": ("FL.caster", "FR.caster"),
+    "front.sai": ("FL.sai", "FR.sai"),
+    "front.included_angle": ("FL.included_angle", "FR.included_angle"),
+}
+_ALL_FILE_KEYS = {**FILE_KEYS, **STEERING_FILE_KEYS}
+_PLAUSIBLE_DEG = {"front.caster": 20.0, "front.sai": 20.0, "front.included_angle": 25.0}  # others: 15
 _ANGLE_FIELDS = ("nominal_deg", "tolerance_deg", "source")
 _EPS = 1e-9  # values printed to the tolerance's last digit still pass
 
@@ -94,23 +104,24 @@ def load_vehicle_specs(path: str | os.PathLike) -> dict[str, VehicleSpec]:
         if not isinstance(angles_raw, dict):
             raise bad(f"{where}: angles", "missing; expected a mapping of " + ", ".join(FILE_KEYS))
         for k in angles_raw:
-            if k not in FILE_KEYS:
-                close = difflib.get_close_matches(str(k), FILE_KEYS, n=1)
+            if k not in _ALL_FILE_KEYS:
+                close = difflib.get_close_matches(str(k), _ALL_FILE_KEYS, n=1)
                 raise bad(f"{where}: angles.{k}", "unknown angle" + (f" (did you mean {close[0]!r}?)" if close
-                                                                     else f"; expected {', '.join(FILE_KEYS)}"))
+                                                                     else f"; expected {', '.join(_ALL_FILE_KEYS)}"))
         angles: dict[str, AngleSpec | None] = {}
-        for file_key, names in FILE_KEYS.items():
-            if file_key not in angles_raw:
+        for file_key, names in _ALL_FILE_KEYS.items():
+            if file_key not in angles_raw and file_key not in STEERING_FILE_KEYS:
                 raise bad(f"{where}: angles.{file_key}",
                           "missing (write `null` if the maker publishes no figure)")
-            spec = _angle(angles_raw[file_key], f"{where}: angles.{file_key}", bad)
+            spec = _angle(angles_raw.get(file_key), f"{where}: angles.{file_key}", bad,
+                          _PLAUSIBLE_DEG.get(file_key, 15.0))
             for name in names:
                 angles[name] = spec
         specs[str(key)] = VehicleSpec(str(key), entry["name"].strip(), entry["source"].strip(), angles)
     return specs
 
 
-def _angle(v, where: str, bad) -> AngleSpec | None:
+def _angle(v, where: str, bad, plausible_deg: float) -> AngleSpec | None:
     if v is None:
         return None
     if not isinstance(v, dict):
@@ -133,7 +144,7 @@ def _angle(v, where: str, bad) -> AngleSpec | None:
         nums[field] = number
     if not 0 < nums["tolerance_deg"] <= 10:
         raise bad(f"{where}.tolerance_deg", f"expected a tolerance in (0, 10] degrees, got {nums['tolerance_deg']}")
-    if abs(nums["nominal_deg"]) > 15:
+    if abs(nums["nominal_deg"]) > plausible_deg:
         raise bad(f"{where}.nominal_deg", f"{nums['nominal_deg']} degrees is not a plausible alignment figure")
     if not isinstance(v["source"], str) or not v["source"].strip():
         raise bad(f"{where}.source", "expected a sentence saying where the figure came from")
@@ -162,11 +173,12 @@ def evaluate(result: Measurement, spec: VehicleSpec) -> dict:
     """Pass/fail of every angle against ``spec``: ``{name: True|False|None, ..., "overall": bool}``.
 
     None: no figure in the spec, or no value in the result. Overall is True only for a valid
-    result where no angle fails and every angle with a figure has a value.
+    result where no angle fails and every angle with a figure has a value. The steering angles
+    (caster, SAI, included angle) are judged on a steering sweep's result only.
     """
     out: dict[str, bool | None] = {}
     complete = True
-    for name in ANGLE_NAMES:
+    for name in ANGLE_NAMES + (STEERING_ANGLE_NAMES if result.steering is not None else ()):
         s = spec.angles.get(name)
         value = angle_value(result, name)
         if s is None:
