@@ -138,6 +138,12 @@ class SteerNotReached(ProcedureError):
     code = 424
 
 
+class RollNotReached(ProcedureError):
+    """The car did not stand at a roll target in time (runout compensation at the station)."""
+
+    code = 425
+
+
 class PlcError(StationError):
     code = 500
     area = "plc"

@@ -2,8 +2,10 @@
 
 ``station calibrate`` asks an operator to put the box somewhere and waits until it is there
 (:class:`Operator`); the alignment procedures ask them to roll the car or turn the steering
-wheel (:class:`AlignmentOperator`). A technician at a terminal (:class:`TerminalOperator`) or
-the simulated station's operator (drivers.context.Simulation: it moves the box, rolls the car,
+wheel (:class:`AlignmentOperator`). A technician at a terminal (:class:`TerminalOperator`, the
+box), the live guides that show how far the car has rolled or the wheels are steered
+(station/procedures/roll_guide.py, steer_guide.py), a PLC (station/plc/roll_operator.py) or the
+simulated station's operator (drivers.context.Simulation: it moves the box, rolls the car,
 steers) implement them; the procedures never ask which one they have.
 """
 
@@ -34,7 +36,7 @@ class AlignmentOperator(Protocol):
 
 
 class TerminalOperator:
-    """Prompts on the terminal and waits for Enter."""
+    """The box calibration's prompts on the terminal; waits for Enter."""
 
     def __init__(self, stream_in=None, stream_out=None):
         self.inp = stream_in or sys.stdin
@@ -54,12 +56,3 @@ class TerminalOperator:
 
     def done(self) -> None:
         print("calibration images taken; remove the box", file=self.out, flush=True)
-
-    def roll_car(self, distance_m: float) -> None:
-        way = "forward" if distance_m > 0 else "back"
-        self._ask(f"roll the car {way} by about {abs(distance_m) * 100:.0f} cm (push it slowly, steering straight, "
-                  "then let it stand still)")
-
-    def steer(self, angle_deg: float) -> None:
-        where = "straight ahead" if angle_deg == 0 else f"{abs(angle_deg):.0f} deg to the {'left' if angle_deg > 0 else 'right'}"
-        self._ask(f"turn the steering wheel until the front wheels point {where}")

@@ -497,3 +497,21 @@ def test_the_circle_of_two_image_ellipses_holds_where_the_cameras_see_part_of_th
     seen = slice(0, len(X) // 2)                      # both cameras see half the rim
     paper = reconstruct_paper(cl.project(X[seen]), cr.project(X[seen]), cl, cr)
     assert np.linalg.norm(paper.center_station - c) > 0.1   # the centroid of the seen half
+
+
+def test_points_that_determine_no_circle_are_a_measurement_error_not_a_crash():
+    """A candidate pair of two points per view (no rim): the calibration share's normal
+    equations are singular; a coded MeasurementError says so (the pair resolver skips
+    such a combination instead of stopping the cycle)."""
+    from station.errors import MeasurementError
+    from station.wheel.calibration_share import calibration_covariance
+
+    v = random_vehicle(np.random.default_rng(2))
+    c, w, X = _rim(v, "FR")
+    cl, cr = _pair(c[0], c[1])
+    pl, pr = cl.project(X), cr.project(X)
+    fit = refine_circle(pl, pr, cl, cr, reconstruct_paper(pl, pr, cl, cr), settings=CircleFitSettings(bias_modes=0))
+    with pytest.raises(MeasurementError, match="do not determine one circle"):
+        calibration_covariance(pl[:2], pr[:2], cl, cr, fit, cov_pair=np.eye(30) * 1e-8)
+    cov_center, cov_axis = calibration_covariance(pl, pr, cl, cr, fit, cov_pair=np.eye(30) * 1e-8)
+    assert np.isfinite(cov_axis).all() and np.trace(cov_axis) > 0

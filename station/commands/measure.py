@@ -55,9 +55,9 @@ def run(args) -> int:
     seed = args.seed if args.seed is not None else random.randrange(1_000_000)
     with Station(config, seed=seed) as station:
         operator = None
-        if args.compensate:
-            from station.operator import TerminalOperator
-            operator = station.context.simulation or TerminalOperator()
+        if args.compensate:  # the technician follows a live bar of the roll
+            from station.procedures.roll_guide import GuidedRolling
+            operator = GuidedRolling(station, mover=station.context.simulation, show=lambda line: print(line, flush=True))
         result = station.measure(job_id=args.job, vehicle_spec=args.vehicle, method=args.method,
                                  record=not args.no_record, compensate=operator)
     if result.truth is not None:

@@ -4,23 +4,21 @@
 there: :class:`GuidedSteering` shows, several times a second, how far the front wheels are
 steered ("steer left: 8.7 of 10.0 deg") from the front cameras alone (the live loop's tracking
 detection and 3-D fit, station/live.py), and returns once the mean of both wheels is within
-``tolerance_deg`` of the target and has stood still for ``still_updates`` readings. The steer
-angle is the turn of each wheel's rim normal about the station's up since the first reading
-(straight ahead), left +. On the simulated station its technician (drivers.context.Simulation)
-turns the steering wheel when asked; at a real station the technician does.
+``tolerance_deg`` of the target and has stood still for ``still_updates`` readings
+(station/procedures/live_follow.py). The steer angle is the turn of each wheel's rim normal
+about the station's up since the first reading (straight ahead), left +. On the simulated
+station its technician (drivers.context.Simulation) turns the steering wheel when asked; at a
+real station the technician does.
 """
 
 from __future__ import annotations
 
-import time
 from typing import Callable
 
 import numpy as np
 
-from station.capture.sync import capture_cycle
-from station.errors import ProcedureError, StationError, SteerNotReached
-from station.live import live_wheel
-from station.rim.camera_response import linear_images
+from station.errors import ProcedureError, SteerNotReached
+from station.procedures.live_follow import Approach, FollowedRims, wait_until_at
 
 FRONT = ("FL", "FR")
 
@@ -34,20 +32,12 @@ class GuidedSteering:
         """station: an open station.cycle.Station; mover: who turns the steering wheel when
         asked (the simulated technician), None for a person; show: a line of the display;
         on_reading(target deg, {wheel: steer angle deg}, reached): each reading, for a PLC."""
-        self.station = station
         self.mover = mover
         self.show = show
-        self.tolerance_deg = tolerance_deg
-        self.still_deg = still_deg
-        self.still_updates = still_updates
-        self.timeout_s = timeout_s
+        self.approach = Approach(tolerance_deg, still_deg, still_updates, timeout_s)
         self.on_reading = on_reading
-        cfg = station.config
-        self.pairs = {w: (cfg.pairs[w].precision, cfg.pairs[w].reference) for w in FRONT}
-        self.cams = [c for w in FRONT for c in self.pairs[w]]
-        self.previous: dict = {}
+        self.rims = FollowedRims(station, FRONT)
         self.reference: dict | None = None   # wheel -> its rim normal straight ahead (3,)
-        self.why: dict = {}                  # wheel -> why it was not seen in the last reading
 
     def roll_car(self, distance_m: float) -> None:
         raise ProcedureError("the steering guide does not roll the car")
@@ -63,28 +53,20 @@ class GuidedSteering:
                   + ", then hold the steering wheel still")
         if self.mover is not None:
             self.mover.steer(angle_deg)
-        t0, recent = time.monotonic(), []
-        while time.monotonic() - t0 < self.timeout_s:
-            angles = self.steer_angles()
-            if len(angles) < 2:
-                lost = sorted(set(FRONT) - set(angles))
-                self.show(f"  {', '.join(lost)}: rim not seen ({'; '.join(str(self.why.get(w)) for w in lost)}); "
-                          "steer back a little")
-                recent = []
-                continue
-            mean = float(np.mean(list(angles.values())))
-            recent = (recent + [mean])[-self.still_updates:]
-            still = len(recent) == self.still_updates and np.ptp(recent) <= self.still_deg
-            at = abs(mean - angle_deg) <= self.tolerance_deg
-            self.show(f"  {where}: {abs(mean):.1f} of {abs(angle_deg):g} deg   "
-                      + "   ".join(f"{w} {angles[w]:+.1f}" for w in FRONT)
-                      + ("   hold still: capturing" if at and still else ""))
-            if self.on_reading is not None:
-                self.on_reading(angle_deg, angles, at and still)
-            if at and still:
-                return
-        raise SteerNotReached(f"the wheels did not stand at {angle_deg:+g} deg within {self.timeout_s:.0f} s",
-                              hint="steer to the target shown, hold the steering wheel still, and measure again")
+
+        def line(mean: float, angles: dict, reached: bool) -> str:
+            return (f"  {where}: {abs(mean):.1f} of {abs(angle_deg):g} deg   "
+                    + "   ".join(f"{w} {angles[w]:+.1f}" for w in FRONT) + ("   hold still: capturing" if reached else ""))
+
+        def lost(wheels: list[str]) -> str:
+            return (f"  {', '.join(wheels)}: rim not seen ({'; '.join(str(self.rims.why.get(w)) for w in wheels)}); "
+                    "steer back a little")
+
+        if not wait_until_at(angle_deg, self.steer_angles, FRONT, self.approach, line, self.show, lost,
+                             self.on_reading):
+            raise SteerNotReached(f"the wheels did not stand at {angle_deg:+g} deg within "
+                                  f"{self.approach.timeout_s:.0f} s",
+                                  hint="steer to the target shown, hold the steering wheel still, and measure again")
 
     def steer_angles(self) -> dict[str, float]:
         """{wheel: steer angle (deg, left +)} of the front wheels seen now."""
@@ -97,20 +79,4 @@ class GuidedSteering:
 
     def _normals(self) -> dict[str, np.ndarray]:
         """{wheel: rim normal (3,)} of the front wheels in one capture of their cameras."""
-        st = self.station
-        frames = capture_cycle({c: st.cameras[c] for c in self.cams}, st.timeout_s, st.trigger_board)
-        images = linear_images({c: frames[c].image for c in self.cams}, st.config)
-        out = {}
-        for w in FRONT:
-            cams = self.pairs[w]
-            got = live_wheel(w, cams, {c: images[c] for c in cams}, {c: st.models[c] for c in cams},
-                             {c: self.previous.get(c) for c in cams}, st.config)
-            for c, d in got.detections.items():  # a wheel that failed searches both whole images next time
-                if isinstance(d, StationError) or got.error is not None:
-                    self.previous.pop(c, None)
-                else:
-                    self.previous[c] = d
-            if got.error is None:
-                out[w] = np.asarray(got.observation.circle.axis_station, float)
-            self.why[w] = got.error
-        return out
+        return {w: np.asarray(c.axis_station, float) for w, c in self.rims.circles().items()}

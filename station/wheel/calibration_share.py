@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from calibration.camera_model import CameraModel
+from station.errors import MeasurementError
 from station.wheel.conics import circle_conic, sampson_px
 from station.wheel.fit import WheelFit
 from station.wheel.uncertainty import normal_from
@@ -78,7 +79,8 @@ def calibration_covariance(points_l_px: np.ndarray, points_r_px: np.ndarray, cam
     30 camera parameters (numerical). The parameters' covariance is either each camera's
     (15,15) ``cov_params_*`` (independent cameras) or the pair's joint (30,30) ``cov_pair``
     (both in :func:`perturb_camera`'s parameters). Sensitivities need not every edge point:
-    each view is thinned to ``max_points`` evenly spread ones.
+    each view is thinned to ``max_points`` evenly spread ones. Raises MeasurementError when the
+    points do not determine the circle (J_x^T J_x singular: a candidate pair that is no rim).
     """
     views_pts = tuple(p[:: max(1, len(p) // max_points)] for p in (points_l_px, points_r_px))
     n = fit.axis_station
@@ -121,7 +123,11 @@ def calibration_covariance(points_l_px: np.ndarray, points_r_px: np.ndarray, cam
                 xys[which] = moved[which].pixels_to_normalized(views_pts[which])
             cols.append((residuals(x0, moved, xys) - r0) / steps_p[k])
     Jp = np.stack(cols, axis=1)
-    dx_dp = -np.linalg.solve(Jx.T @ Jx, Jx.T @ Jp)
+    JtJ = Jx.T @ Jx
+    if not np.isfinite(JtJ).all() or np.linalg.cond(JtJ) > 1e14:
+        raise MeasurementError("the two views' rim points do not determine one circle (they fit a degenerate one)",
+                               hint="check that both cameras of the pair see the same rim")
+    dx_dp = -np.linalg.solve(JtJ, Jx.T @ Jp)
     cov_x = dx_dp @ cov_p @ dx_dp.T
     B = np.stack([e1, e2], axis=1)
     return cov_x[2:5, 2:5], B @ cov_x[:2, :2] @ B.T
