@@ -1,6 +1,6 @@
 """`station odometry DIR`: stereo visual odometry of a sequence (the paper's section 3.3).
 
-Reads our simulated layout or KITTI's (docs/odometry.md), runs the paper's method and/or the
+Reads our simulated layout, KITTI's and its common variants (docs/odometry.md), runs the paper's method and/or the
 robust variant, prints the trajectory and, when ``poses.txt`` gives the truth, the error per
 step (eq. 49) with its mean and standard deviation and the drift in % of the distance
 travelled. Writes each trajectory as a KITTI pose file and, with ``--rerun``, a recording.
@@ -18,15 +18,19 @@ from station.errors import OdometryError
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("directory", metavar="DIR", help="sequence folder (left/ right/ stereo.json, "
-                        "or KITTI's image_0/ image_1/ calib.txt); poses.txt there is the truth")
+    parser.add_argument("directory", metavar="DIR", help="sequence folder: image_0/ image_1/, "
+                        "image_l/ image_r/ or left/ right/ (colour KITTI: image_2/ image_3/, "
+                        "image_02/ image_03/) with calib.txt, or left/ right/ with stereo.json; "
+                        "DIR/poses.txt, if there, is the truth")
     parser.add_argument("--method", choices=("paper", "robust", "both"), default="both",
                         help="the paper's method, the robust variant, or both (default)")
     parser.add_argument("--out", metavar="FILE", help="trajectory file (KITTI poses; .csv for "
                         "step,x,y,z); with both methods, _paper/_robust is added to the name "
                         "(default: DIR/trajectory_<method>.txt)")
     parser.add_argument("--rerun", metavar="FILE.rrd", help="also write a Rerun recording")
-    parser.add_argument("--poses", metavar="FILE", help="ground-truth poses (KITTI format) if not DIR/poses.txt")
+    parser.add_argument("--truth", "--poses", dest="truth", metavar="FILE",
+                        help="ground-truth poses (KITTI format: one line of 12 numbers per image), "
+                        "if not DIR/poses.txt")
     parser.add_argument("--max-steps", type=int, metavar="N", help="stop after N steps")
     parser.add_argument("--quiet", action="store_true", help="print the summary only")
 
@@ -48,10 +52,13 @@ def run(args) -> int:
     if args.max_steps is not None and args.max_steps < 1:
         raise OdometryError(f"--max-steps must be at least 1, got {args.max_steps}")
     directory = Path(args.directory)
-    seq = open_sequence(directory, args.poses)
+    seq = open_sequence(directory, args.truth)
     methods = ("paper", "robust") if args.method == "both" else (args.method,)
-    print(f"{directory}: {len(seq)} stereo images ({seq.layout} layout), "
-          f"{seq.left.width}x{seq.left.height}, baseline {float(np.linalg.norm(seq.right.t_cam_station)):.3f} m")
+    span = "" if seq.times_s is None else f", {seq.times_s[-1] - seq.times_s[0]:.1f} s (times.txt)"
+    print(f"{directory}: {len(seq)} stereo images ({seq.source}), {seq.left.width}x{seq.left.height}, "
+          f"baseline {float(np.linalg.norm(seq.right.t_cam_station)):.3f} m{span}")
+    for note in seq.notes:
+        print(f"note: {note}")
     progress = None
     if sys.stderr.isatty():
         def progress(method, step, run):

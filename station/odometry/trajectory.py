@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from station.errors import StorageError
-from station.odometry.sequence_io import write_poses
+from station.odometry.poses_io import write_poses
 
 
 @dataclass
