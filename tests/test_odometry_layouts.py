@@ -173,7 +173,7 @@ def test_the_command_gives_the_same_trajectory_in_every_layout(station_seq, tmp_
         d = make(station_seq, tmp_path / layout / "seq")
         rc, text, err = _run(d, tmp_path / f"{layout}.txt", *_truth_args(layout, d))
         assert rc == 0, (layout, err)
-        assert "error (eq. 49) mean" in text, layout
+        assert "errors against the truth" in text, layout
         for m in ("paper", "robust"):
             np.testing.assert_allclose(read_poses(tmp_path / f"{layout}_{m}.txt"), expected[m],
                                        atol=1e-9, err_msg=f"{layout} {m}")
@@ -290,4 +290,4 @@ def test_poses_alias_and_longer_truth(station_seq, tmp_path):
     rc, text, err = _run(d, tmp_path / "o.txt", "--poses", str(f), "--method", "robust", "--max-steps", "1")
     assert rc == 0, err
     assert "note: poses.txt: 8 poses for 4 images; the first 4 are used" in text
-    assert "error (eq. 49) mean" in text
+    assert f"errors against the truth ({f})" in text

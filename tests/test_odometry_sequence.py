@@ -82,7 +82,7 @@ def test_command_writes_trajectory_and_recording(small_seq, tmp_path, capsys):
                    "--rerun", str(rrd)])
     text = capsys.readouterr().out
     assert rc == 0
-    assert "error (eq. 49) mean" in text and "drift" in text
+    assert "errors against the truth" in text and "drift: final error / path (%)" in text
     T = read_poses(out)
     assert T.shape == (N_IMAGES, 4, 4)
     truth = read_poses(small_seq / "poses.txt")
