@@ -141,3 +141,20 @@ def test_the_command_prints_the_errors_of_the_written_trajectories(seq_dir, tmp_
         assert _value(text, "final rotation error (deg)")[col] == pytest.approx(rot[-1], abs=6e-4)
     assert _value(text, "final translation error (m)")[1] < 0.03          # the robust variant
     assert "segments: " in text and "m (10-80 % of the path" in text
+
+
+def test_a_single_image_has_no_errors_to_print(seq_dir, tmp_path):
+    d = tmp_path / "one"
+    for side in ("left", "right"):
+        (d / side).mkdir(parents=True)
+        (d / side / "000000.png").write_bytes((seq_dir / side / "000000.png").read_bytes())
+    (d / "stereo.json").write_text((seq_dir / "stereo.json").read_text())
+    (d / "poses.txt").write_text((seq_dir / "poses.txt").read_text().splitlines()[0] + "\n")
+    out = io.StringIO()
+    with redirect_stdout(out):
+        rc = cli.main(["odometry", str(d), "--quiet", "--method", "robust"])
+    text = out.getvalue()
+    assert rc == 0
+    assert _value(text, "steps compared") == [0] and _value(text, "segments compared") == [0]
+    assert "mean translation error (m)             -" in text
+    assert "segments: none (too few images along the path)" in text

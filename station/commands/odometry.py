@@ -122,7 +122,10 @@ def _print_truth_errors(errors: dict, truth_file) -> None:
         print(f"{label:<{width}}" + "".join(cells))
     described = {}
     for m, e in errors.items():
-        described.setdefault(e.segments.lengths_m, (e.segments.kitti_lengths, []))[1].append(m)
+        if e.segments.n_segments:
+            described.setdefault(e.segments.lengths_m, (e.segments.kitti_lengths, []))[1].append(m)
+    if not described:
+        print("segments: none (too few images along the path)")
     for lengths, (kitti, names) in described.items():
         whose = f" ({', '.join(names)})" if len(described) > 1 else ""
         if kitti:

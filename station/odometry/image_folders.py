@@ -57,7 +57,10 @@ def natural_key(name: str) -> tuple:
 
 def list_images(folder: Path) -> list[Path]:
     """Image files of ``folder`` (or of ``folder/data``, KITTI raw's), sorted naturally."""
-    files = [p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_EXTS]
+    try:
+        files = [p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_EXTS]
+    except OSError as e:
+        raise OdometryError(f"{folder}: cannot list the images ({e.strerror or e})") from e
     if not files and (folder / "data").is_dir():
         return list_images(folder / "data")
     return sorted(files, key=lambda p: natural_key(p.name))
