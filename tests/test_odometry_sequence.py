@@ -11,7 +11,8 @@ from simulators.odometry_scene import Rig, path, write_sequence
 from station import cli
 from station.errors import OdometryError
 from station.odometry.pipeline import run_odometry
-from station.odometry.sequence_io import open_sequence, read_poses
+from station.odometry.poses_io import read_poses
+from station.odometry.sequence_io import open_sequence
 from station.odometry.trajectory import summarize
 
 SMALL_RIG = Rig(width=360, height=240, f_px=240.0)
@@ -81,7 +82,7 @@ def test_command_writes_trajectory_and_recording(small_seq, tmp_path, capsys):
                    "--rerun", str(rrd)])
     text = capsys.readouterr().out
     assert rc == 0
-    assert "error (eq. 49) mean" in text and "drift" in text
+    assert "errors against the truth" in text and "drift: final error / path (%)" in text
     T = read_poses(out)
     assert T.shape == (N_IMAGES, 4, 4)
     truth = read_poses(small_seq / "poses.txt")
@@ -138,7 +139,7 @@ def test_missing_calibration_and_folders(seq_copy, tmp_path):
     (seq_copy / "stereo.json").unlink()
     with pytest.raises(OdometryError, match="missing calibration"):
         open_sequence(seq_copy)
-    with pytest.raises(OdometryError, match="no image folders"):
+    with pytest.raises(OdometryError, match="has folders seq/: expected image_0/ image_1/"):
         open_sequence(tmp_path)
     (seq_copy / "right" / "000003.png").unlink()
     shutil.copy(seq_copy / "left" / "000003.png", seq_copy / "left" / "000009.png")

@@ -1,4 +1,5 @@
-"""A trajectory built step by step (eq. 47), its error against truth (eq. 49) and drift.
+"""A trajectory built step by step (eq. 47), its position error against truth (eq. 49) and
+drift (orientation and KITTI's segment errors: truth_errors.py).
 
 World frame: the left camera at step 0 (the paper's choice). ``poses[i]`` is the 4x4 transform
 from the left camera frame of step i to the world; its translation is the paper's ``B_i``.
@@ -12,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from station.errors import StorageError
-from station.odometry.sequence_io import write_poses
+from station.odometry.poses_io import write_poses
 
 
 @dataclass
@@ -69,14 +70,15 @@ def distance_travelled(B_true: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class ErrorSummary:
-    """mean_m, std_m: eq. 49 over steps 1..n (std with ddof=0); drift_pct: the final error in
-    % of the distance travelled; max_drift_pct: the largest e_i / d_i over steps with
+    """mean_m, std_m, max_m: eq. 49 over steps 1..n (std with ddof=0); final_m: at step n;
+    drift_pct: the final error in % of the distance travelled; max_drift_pct: the largest e_i / d_i over steps with
     d_i >= 1 m (NaN if none)."""
 
     n_steps: int
     mean_m: float
     std_m: float
     max_m: float
+    final_m: float
     distance_m: float
     drift_pct: float
     max_drift_pct: float
@@ -92,6 +94,7 @@ def summarize(B_est: np.ndarray, B_true: np.ndarray) -> ErrorSummary:
         mean_m=float(steps.mean()) if len(steps) else float("nan"),
         std_m=float(steps.std()) if len(steps) else float("nan"),
         max_m=float(steps.max()) if len(steps) else float("nan"),
+        final_m=float(steps[-1]) if len(steps) else float("nan"),
         distance_m=float(d[-1]),
         drift_pct=float(100 * e[-1] / d[-1]) if d[-1] > 0 else float("nan"),
         max_drift_pct=float(np.max(100 * e[far] / d[far])) if far.any() else float("nan"))
