@@ -33,7 +33,8 @@ class GuidedSteering:
                  on_reading: Callable[[float, dict[str, float], bool], None] | None = None):
         """station: an open station.cycle.Station; mover: who turns the steering wheel when
         asked (the simulated technician), None for a person; show: a line of the display;
-        on_reading(target deg, {wheel: steer angle deg}, reached): each reading, for a PLC."""
+        on_reading(target deg, {wheel: steer angle deg}, reached): each reading, for a PLC (a wheel
+        whose rim was not seen is left out); it may raise to end the steer (a PLC's timeout)."""
         self.station = station
         self.mover = mover
         self.show = show
@@ -71,6 +72,8 @@ class GuidedSteering:
                 self.show(f"  {', '.join(lost)}: rim not seen ({'; '.join(str(self.why.get(w)) for w in lost)}); "
                           "steer back a little")
                 recent = []
+                if self.on_reading is not None:  # the wheels seen, for a PLC (a lost one left out)
+                    self.on_reading(angle_deg, angles, False)
                 continue
             mean = float(np.mean(list(angles.values())))
             recent = (recent + [mean])[-self.still_updates:]
