@@ -68,10 +68,8 @@ class SteerWatch:
             if self._t is not None:
                 self.steps[-1].seconds += now - self._t
             self._t = now
-        else:
+        else:  # not in steer (state steer with step 0: the steer ended between the two reads)
             self._t = None
-            if state == STEER_STATE:
-                self.problems.append("state steer without a steer prompt (steer_step 0)")
         if self.steps and b["steer_readings"] != self._count and (step == self.steps[-1].step or b["steer_reached"]):
             self.steps[-1].readings.append((b["FL_steer_i16"], b["FR_steer_i16"], bool(b["steer_reached"])))
         self._count = b["steer_readings"]
