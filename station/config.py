@@ -262,6 +262,7 @@ SCHEMA = {
         "max_connections": Field(_number(1, 1000, integer=True), default=8),
         "idle_timeout_s": Field(_number(0, 86400), default=60.0),  # 0: never close an idle connection
         "roll_timeout_s": Field(_number(1, 3600), default=120.0),  # a roll the PLC does not confirm: fault 415
+        "steer_timeout_s": Field(_number(1, 3600), default=120.0),  # a steer target not reached: fault 424
     }), default={}),
     "recording": Field(_section({
         "enabled": Field(_bool, default=True),

@@ -109,8 +109,9 @@ def test_the_steer_guide_reads_the_heading_turn_left_positive():
 
 def test_wait_until_at_hands_each_reading_on():
     seen = []
-    values = iter([{"FL": 1.0, "FR": 2.0}, {"FL": 2.0, "FR": 2.0}, {"FL": 2.0, "FR": 2.0}])
+    values = iter([{"FL": 1.0, "FR": 2.0}, {"FR": 2.0}, {"FL": 2.0, "FR": 2.0}, {"FL": 2.0, "FR": 2.0}])
     ok = wait_until_at(2.0, lambda: next(values), ("FL", "FR"), Approach(0.5, 0.01, 2, 5.0),
                        lambda m, v, r: f"{m:.1f}", lambda s: None, lambda w: "lost",
-                       on_reading=lambda t, v, r: seen.append(r))
-    assert ok and seen == [False, False, True]
+                       on_reading=lambda t, v, r: seen.append((sorted(v), r)))
+    both_ = ["FL", "FR"]
+    assert ok and seen == [(both_, False), (["FR"], False), (both_, False), (both_, True)]  # FL lost: handed on

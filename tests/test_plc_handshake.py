@@ -33,6 +33,12 @@ LEGAL = {
     (State.ROLL, Event.IN_POSITION): State.BUSY,
     (State.ROLL, Event.ROLL_TIMEOUT): State.BUSY,
     (State.ROLL, Event.CYCLE_FAILED): State.FAULT,
+    # the steering sweep (map version 6): the station asks for steers and goes on by itself
+    (State.IDLE, Event.MEASURE_CASTER): State.BUSY,
+    (State.BUSY, Event.STEER_REQUEST): State.STEER,
+    (State.STEER, Event.STEER_REACHED): State.BUSY,
+    (State.STEER, Event.STEER_FAILED): State.BUSY,
+    (State.STEER, Event.CYCLE_FAILED): State.FAULT,
 }
 # the refusal code each illegal PLC move must carry
 ILLEGAL_PLC = {
@@ -44,9 +50,13 @@ ILLEGAL_PLC = {
     (State.FAULT, Event.MEASURE): 502, (State.FAULT, Event.CALIBRATION_CHECK): 502,
     (State.BUSY, Event.MEASURE_COMPENSATED): 501, (State.DONE, Event.MEASURE_COMPENSATED): 502,
     (State.FAULT, Event.MEASURE_COMPENSATED): 502,
-    **{(s, Event.IN_POSITION): 508 for s in (State.IDLE, State.BUSY, State.DONE, State.FAULT)},
+    **{(s, Event.IN_POSITION): 508 for s in (State.IDLE, State.BUSY, State.DONE, State.FAULT, State.STEER)},
     **{(State.ROLL, e): 501 for e in (Event.MEASURE, Event.CALIBRATION_CHECK, Event.MEASURE_COMPENSATED,
-                                      Event.RESET_FAULT, Event.ACKNOWLEDGE)},
+                                      Event.RESET_FAULT, Event.ACKNOWLEDGE, Event.MEASURE_CASTER)},
+    (State.BUSY, Event.MEASURE_CASTER): 501, (State.DONE, Event.MEASURE_CASTER): 502,
+    (State.FAULT, Event.MEASURE_CASTER): 502,
+    **{(State.STEER, e): 501 for e in (Event.MEASURE, Event.CALIBRATION_CHECK, Event.MEASURE_COMPENSATED,
+                                       Event.RESET_FAULT, Event.ACKNOWLEDGE, Event.MEASURE_CASTER)},
 }
 
 
@@ -76,7 +86,7 @@ def test_trigger_while_busy_is_refused_not_queued():
         next_state(State.IDLE, Event.ACKNOWLEDGE)
 
 
-@pytest.mark.parametrize("value", [0, 7, 101, 102, 103, 104, 999, 65535])
+@pytest.mark.parametrize("value", [0, 8, 101, 102, 103, 104, 105, 106, 107, 999, 65535])
 def test_unknown_command_values(value):
     with pytest.raises(PlcUnknownCommand) as info:
         event_for_command(value)
@@ -84,11 +94,12 @@ def test_unknown_command_values(value):
 
 
 def test_command_values_map_to_plc_events():
-    assert [event_for_command(v) for v in (1, 2, 3, 4, 5, 6)] == list(PLC_EVENTS)
-    assert {v: rm.COMMANDS[v] for v in (1, 2, 3, 4, 5, 6)} == {
+    assert [event_for_command(v) for v in (1, 2, 3, 4, 5, 6, 7)] == list(PLC_EVENTS)
+    assert {v: rm.COMMANDS[v] for v in (1, 2, 3, 4, 5, 6, 7)} == {
         1: "measure", 2: "calibration_check", 3: "reset_fault", 4: "acknowledge",  # unchanged since version 1
-        5: "measure_compensated", 6: "in_position"}
-    assert {v: rm.STATES[v] for v in range(5)} == {0: "idle", 1: "busy", 2: "done", 3: "fault", 4: "roll"}
+        5: "measure_compensated", 6: "in_position", 7: "measure_caster"}
+    assert {v: rm.STATES[v] for v in range(6)} == {0: "idle", 1: "busy", 2: "done", 3: "fault", 4: "roll",
+                                                   5: "steer"}
 
 
 def test_refusal_codes_are_plc_area_and_distinct_from_other_areas():
@@ -135,8 +146,11 @@ def test_map_areas_and_block_read():
     for needed in ("state", "fault_code", "heartbeat", "cycle_counter", "result_valid", "pass_bits",
                    "fault_reason", "thrust_f32", "thrust_i16", "front_total_toe_f32", "RR_camber_i16"):
         assert needed in names
-    assert len([n for n in names if n.endswith("_f32") and "runout" not in n]) == len(rm.ANGLES) == 11
+    steering = [f.name for f in rm.STATION_FIELDS if f.address >= rm.STEER_BLOCK[0]]
+    assert len([n for n in names if n.endswith("_f32") and "runout" not in n and n not in steering]) \
+        == len(rm.ANGLES) == 11
     assert len([n for n in names if n.endswith("_runout_f32")]) == 4  # map version 5: one per wheel
+    assert len([n for n in steering if n.endswith("_f32")]) == 8  # map version 6: 3 angles + offset, FL and FR
 
 
 def test_docs_tables_are_generated_from_the_map():

@@ -33,10 +33,14 @@ def add_arguments(parser):
     parser.add_argument("--heartbeat-s", type=float, default=0.1, help="heartbeat period (s)")
     parser.add_argument("--cycle-timeout-s", type=float, default=300.0,
                         help="a cycle longer than this ends in fault 505 (the time the PLC takes to roll the "
-                             "car for runout compensation not counted)")
+                             "car for runout compensation, and the time the front wheels take to be steered in a "
+                             "steering sweep, not counted)")
     parser.add_argument("--roll-timeout-s", type=float,
                         help="a roll of the car (runout compensation, command 5) that the PLC does not confirm "
                              "within this ends the cycle in fault 415 (default: plc.roll_timeout_s, 120)")
+    parser.add_argument("--steer-timeout-s", type=float,
+                        help="a steer target of a steering sweep (command 7) that the front wheels do not stand at "
+                             "within this ends the cycle in fault 424 (default: plc.steer_timeout_s, 120)")
     parser.add_argument("--log-level", default="info", choices=("debug", "info", "warning", "error"))
 
 
@@ -58,8 +62,10 @@ async def _serve(args, runner, transport, where, device_id, plc) -> int:
     from station.plc.server import PlcServer, wait_until
 
     roll_timeout_s = plc.roll_timeout_s if args.roll_timeout_s is None else args.roll_timeout_s
+    steer_timeout_s = plc.steer_timeout_s if args.steer_timeout_s is None else args.steer_timeout_s
     device = PlcDevice(runner, device_id=device_id, heartbeat_s=args.heartbeat_s,
-                       cycle_timeout_s=args.cycle_timeout_s, roll_timeout_s=roll_timeout_s)
+                       cycle_timeout_s=args.cycle_timeout_s, roll_timeout_s=roll_timeout_s,
+                       steer_timeout_s=steer_timeout_s)
     server = PlcServer(device, allowed_clients=plc.allowed_clients, max_connections=plc.max_connections,
                        idle_timeout_s=plc.idle_timeout_s)
     stop = asyncio.Event()
@@ -94,6 +100,8 @@ async def _serve(args, runner, transport, where, device_id, plc) -> int:
     notes = [f"{n} {what}" for what, n in closed if n]
     if s["rolls"]:
         notes.insert(0, f"{s['rolls']} rolls of the car asked of the PLC, {s['roll_timeouts']} not confirmed in time")
+    if s["steers"]:
+        notes.insert(0, f"{s['steers']} steers of the front wheels asked, {s['steer_timeouts']} not reached in time")
     if notes:
         print("; ".join(notes), flush=True)
     return 0
@@ -108,6 +116,8 @@ def run(args) -> int:
     transport, where = _transport(args, plc)
     if args.roll_timeout_s is not None and not 0 < args.roll_timeout_s <= 3600:
         raise ConfigError(f"--roll-timeout-s {args.roll_timeout_s:g}: expected more than 0 and at most 3600 s")
+    if args.steer_timeout_s is not None and not 0 < args.steer_timeout_s <= 3600:
+        raise ConfigError(f"--steer-timeout-s {args.steer_timeout_s:g}: expected more than 0 and at most 3600 s")
     from station.plc.runner import dry_run_runner, measurement_runner
     from station.plc.server import parse_allowed
 

@@ -7,11 +7,20 @@ it is written. The cycle itself (the injected :data:`runner.CycleRunner`) runs i
 thread.
 
 A cycle with runout compensation (command 5) asks for the car to be rolled from its worker
-thread (:class:`_RollGate`, station/plc/roll_operator.py): the prompt is published and state roll
+thread (station/plc/gates.py, station/plc/roll_operator.py): the prompt is published and state roll
 entered on the loop, and the thread waits until the PLC's in position (command 6), the roll
 timeout (``roll_timeout_s``: back to busy, the cycle ends in fault 415) or the server stopping.
-Time spent in roll is the PLC's, not the station's: it counts neither against the cycle timeout
-nor in ``cycle_time_us``.
+
+A steering sweep (command 7) asks for each steer of the front wheels the same way
+(station/plc/steer_operator.py): the steer prompt is published and state steer entered; the
+station's guide hands every live reading on (the live steer registers) and ends the steer once
+the wheels stand still at the target (back to busy: the PLC confirms nothing). A steer not ended
+within ``steer_timeout_s`` goes back to busy on its own, clears the steer registers and fails the
+guide's next reading, so the cycle ends in fault 424.
+
+Time spent in roll and in steer is the operator's (the PLC's conveyor, the technician at the
+steering wheel), not the station's: it counts neither against the cycle timeout nor in
+``cycle_time_us``.
 """
 
 from __future__ import annotations
@@ -26,21 +35,24 @@ from dataclasses import dataclass
 from pymodbus.constants import ExcCodes
 from pymodbus.simulator import DataType, SimData, SimDevice
 
-from station.errors import CODED_ERRORS, MeasurementError, PlcError, RollNotConfirmed, StationError
+from station.errors import (CODED_ERRORS, MeasurementError, PlcError, RollNotConfirmed, StationError,
+                            SteerNotReached)
 from station.plc import register_map as rm
+from station.plc.gates import LoopRollGate, LoopSteerGate
 from station.plc.handshake import (TRIGGERS, Event, PlcBadJobId, PlcCycleTimeout, State, event_for_command,
-                                   modbus_exception, next_state, roll_timeout_error)
-from station.plc.results import cleared_registers, result_registers, roll_prompt_registers
+                                   modbus_exception, next_state, roll_timeout_error, steer_timeout_error)
+from station.plc.results import (cleared_registers, result_registers, roll_prompt_registers, steer_live_registers,
+                                 steer_prompt_registers)
 from station.plc.roll_operator import RollPrompt
 from station.plc.runner import CycleRequest, CycleRunner
+from station.plc.steer_operator import SteerPrompt
 from station.result import Measurement
 
 log = logging.getLogger("station.plc")
 
 BIT_FUNCTIONS = (1, 2, 5, 15)  # coils / discrete inputs: the map has none
 REQUEST_COMMANDS = {Event.MEASURE: "measure", Event.CALIBRATION_CHECK: "calibration_check",
-                    Event.MEASURE_COMPENSATED: "measure_compensated"}
-ROLL_POLL_S = 0.2  # how often a cycle waiting for a roll looks whether the server stopped
+                    Event.MEASURE_COMPENSATED: "measure_compensated", Event.MEASURE_CASTER: "measure_caster"}
 
 
 @dataclass
@@ -54,49 +66,40 @@ class _PendingRoll:
     t0: float
 
 
-class _RollGate:
-    """A compensated cycle's :class:`~station.plc.roll_operator.RollGate`: called in the cycle's
-    worker thread, it asks the device on its event loop and waits for the answer."""
+@dataclass
+class _PendingSteer:
+    """The steer the station waits for: its cycle, prompt, timer, start; ``error``: why it ended
+    without the wheels at the target (the timeout, the station stopping), raised at the guide's
+    next reading."""
 
-    def __init__(self, device: "PlcDevice", loop: asyncio.AbstractEventLoop, cycle: int):
-        self.device, self.loop, self.cycle = device, loop, cycle
-
-    def roll(self, prompt: RollPrompt) -> None:
-        done: concurrent.futures.Future = concurrent.futures.Future()
-        stopped = RollNotConfirmed(f"roll {prompt.step}/{prompt.steps}: the station stopped waiting for the PLC")
-        try:
-            self.loop.call_soon_threadsafe(self.device._ask_roll, self.cycle, prompt, done)
-        except RuntimeError:  # the loop is closed: the server stopped
-            raise stopped from None
-        # The loop answers (in position, the roll timeout); a stopped server may never run the
-        # request, so the thread also looks at the device now and then.
-        deadline = time.monotonic() + self.device.roll_timeout_s + 30.0
-        while True:
-            try:
-                return done.result(timeout=ROLL_POLL_S)
-            except concurrent.futures.TimeoutError:
-                if self.device.stopped or time.monotonic() > deadline:
-                    raise stopped from None
+    cycle: int
+    prompt: SteerPrompt
+    timer: asyncio.TimerHandle | None
+    t0: float
+    error: Exception | None = None
 
 
 class PlcDevice:
     """Register memory + handshake. ``stats`` counts cycles and refusals."""
 
     def __init__(self, runner: CycleRunner, *, device_id: int = 1, heartbeat_s: float = 0.1,
-                 cycle_timeout_s: float = 300.0, roll_timeout_s: float = 120.0):
+                 cycle_timeout_s: float = 300.0, roll_timeout_s: float = 120.0, steer_timeout_s: float = 120.0):
         self.runner = runner
         self.device_id = device_id
         self.heartbeat_s = heartbeat_s
         self.cycle_timeout_s = cycle_timeout_s
         self.roll_timeout_s = roll_timeout_s
+        self.steer_timeout_s = steer_timeout_s
         self.state = State.IDLE
         self.cycle_number = 0  # cycles started
         self.stats = {"started": 0, "done": 0, "fault": 0, "acknowledged": 0, "refused": 0, "rolls": 0,
-                      "roll_timeouts": 0}
+                      "roll_timeouts": 0, "steers": 0, "steer_timeouts": 0}
         self.last_result: Measurement | None = None
         self.stopped = False
         self._roll: _PendingRoll | None = None  # the roll the running cycle waits for
-        self._roll_wait_s = 0.0  # time the running cycle has spent in roll
+        self._steer: _PendingSteer | None = None  # the steer the running cycle waits for
+        self._operator_s = 0.0  # time the running cycle has spent in roll and in steer
+        self._steer_readings = 0  # live steer readings in the running cycle
         self._regs: list[int] | None = None
         self._start = 0
         self._task: asyncio.Task | None = None
@@ -200,10 +203,13 @@ class PlcDevice:
         self.cycle_number += 1
         self.stats["started"] += 1
         loop = asyncio.get_running_loop()
-        gate = _RollGate(self, loop, self.cycle_number) if event is Event.MEASURE_COMPENSATED else None
-        request = CycleRequest(REQUEST_COMMANDS[event], job, spec, self.cycle_number, roll=gate)
-        self._roll_wait_s = 0.0
+        roll = LoopRollGate(self, loop, self.cycle_number) if event is Event.MEASURE_COMPENSATED else None
+        steer = LoopSteerGate(self, loop, self.cycle_number) if event is Event.MEASURE_CASTER else None
+        request = CycleRequest(REQUEST_COMMANDS[event], job, spec, self.cycle_number, roll=roll, steer=steer)
+        self._operator_s = 0.0
+        self._steer_readings = 0
         self._put(cleared_registers())
+        self._put(steer_live_registers())
         for name in ("result_valid", "fault_code"):
             self._set(name, 0)
         self._put({rm.FIELDS["cycle_time_us"].address: rm.u32_to_regs(0)})
@@ -212,17 +218,18 @@ class PlcDevice:
         self._task = loop.create_task(self._run(request))
 
     def _station_time(self, t0: float) -> float:
-        """Seconds since ``t0`` that the station spent on the cycle: the time in roll, the PLC's,
-        left out."""
-        rolling = time.perf_counter() - self._roll.t0 if self._roll is not None else 0.0
-        return time.perf_counter() - t0 - self._roll_wait_s - rolling
+        """Seconds since ``t0`` that the station spent on the cycle: the time in roll and in steer,
+        the operator's, left out."""
+        now = time.perf_counter()
+        waiting = sum(now - p.t0 for p in (self._roll, self._steer) if p is not None)
+        return now - t0 - self._operator_s - waiting
 
     async def _wait(self, work: asyncio.Future, t0: float):
         """``work``'s result; asyncio.TimeoutError once the station's own time (not the time in
         roll) exceeds the cycle timeout."""
         while True:
             budget = self.cycle_timeout_s - self._station_time(t0)
-            if budget <= 0 and self._roll is None:
+            if budget <= 0 and self._roll is None and self._steer is None:
                 raise asyncio.TimeoutError
             done, _ = await asyncio.wait({work}, timeout=max(budget, 0.05))
             if done:
@@ -253,7 +260,8 @@ class PlcDevice:
                 failure = result.failure
                 code = failure.code if failure is not None and isinstance(failure.code, int) else MeasurementError.code
                 return self._fault(request, code, str((failure and failure.message) or "invalid result"), elapsed)
-            values = result_registers(result, request.job_id, request.command == "measure")
+            values = result_registers(result, request.job_id, request.command in ("measure", "measure_caster"),
+                                      steering_required=request.command == "measure_caster")
         except StationError as e:
             return self._fault(request, e.code, str(e), elapsed)
         self._finish(request, Event.CYCLE_OK, values, elapsed)
@@ -274,6 +282,9 @@ class PlcDevice:
             return
         if self._roll is not None:  # never left waiting in roll (a crash, the cycle timeout)
             self._end_roll().done.set_exception(RollNotConfirmed(f"cycle {request.cycle} ended"))
+        if self._steer is not None:  # nor in steer
+            self._release_steer().error = SteerNotReached(f"cycle {request.cycle} ended")
+        self._put(steer_live_registers())  # a steering sweep's last live reading goes with its cycle
         self._put(values)
         self._put({rm.FIELDS["cycle_time_us"].address: rm.u32_to_regs(round(elapsed * 1e6))})
         self._set("result_valid", int(event is Event.CYCLE_OK))
@@ -289,8 +300,8 @@ class PlcDevice:
         why = None
         if self.stopped:
             why = "the station stopped"
-        elif cycle != self.cycle_number or self._roll is not None:
-            why = f"cycle {cycle} is not the running cycle, or it waits for a roll already"
+        elif cycle != self.cycle_number or self._roll is not None or self._steer is not None:
+            why = f"cycle {cycle} is not the running cycle, or it waits for a roll or a steer already"
         else:
             try:
                 new = next_state(self.state, Event.ROLL_REQUEST)
@@ -314,7 +325,7 @@ class PlcDevice:
         pending, self._roll = self._roll, None
         if pending.timer is not None:
             pending.timer.cancel()
-        self._roll_wait_s += time.perf_counter() - pending.t0
+        self._operator_s += time.perf_counter() - pending.t0
         self._put(roll_prompt_registers())
         return pending
 
@@ -333,6 +344,87 @@ class PlcDevice:
         self._enter(new)  # busy: the cycle ends in fault 415 as its worker thread unwinds
         log.warning("cycle %d: %s not confirmed within %g s", pending.cycle, p.describe(), self.roll_timeout_s)
 
+    # --- steers (a steering sweep) ---------------------------------------------------------------
+    def _ask_steer(self, cycle: int, prompt: SteerPrompt, done: concurrent.futures.Future) -> None:
+        """On the loop: cycle ``cycle`` asks for ``prompt``. Publishes the prompt, no live reading
+        yet, enters steer and answers ``done`` with the pending steer; or answers the refusal (a
+        cycle abandoned after its timeout, a stopped server: it must not steer on)."""
+        why = None
+        if self.stopped:
+            why = "the station stopped"
+        elif cycle != self.cycle_number or self._roll is not None or self._steer is not None:
+            why = f"cycle {cycle} is not the running cycle, or it waits for a roll or a steer already"
+        else:
+            try:
+                new = next_state(self.state, Event.STEER_REQUEST)
+            except PlcError as e:  # a cycle abandoned after its timeout: the station is not busy
+                why = str(e)
+        if why is not None:
+            log.warning("cycle %d: %s not asked of the PLC: %s", cycle, prompt.describe(), why)
+            done.set_exception(SteerNotReached(f"steer {prompt.step}/{prompt.steps} not asked of the PLC: {why}"))
+            return
+        pending = _PendingSteer(cycle, prompt, None, time.perf_counter())
+        pending.timer = asyncio.get_running_loop().call_later(self.steer_timeout_s, self._steer_timed_out, pending)
+        self._steer = pending
+        self.stats["steers"] += 1
+        self._put(steer_prompt_registers(prompt.step, prompt.steps, prompt.target_deg))
+        self._put(steer_live_registers(readings=self._steer_readings))
+        self._enter(new)
+        done.set_result(pending)
+        log.info("cycle %d: %s asked (state steer)", cycle, prompt.describe())
+
+    def _steer_reading(self, pending: _PendingSteer, angles: dict[str, float], reached: bool) -> None:
+        """On the loop: a live reading of the running steer -> the live registers (one that comes
+        after its steer ended is dropped)."""
+        if self._steer is not pending:
+            return
+        self._steer_readings += 1
+        self._put(steer_live_registers(angles, reached, self._steer_readings))
+
+    def _end_steer(self, pending: _PendingSteer, error: BaseException | None, done: concurrent.futures.Future) -> None:
+        """On the loop: the guide is done with ``pending``: the wheels stand at the target (``error``
+        None: busy, the last reading kept) or it gave up (busy, the live registers cleared; the
+        cycle ends in fault with ``error``'s code)."""
+        if self._steer is pending:
+            try:
+                new = next_state(self.state, Event.STEER_REACHED if error is None else Event.STEER_FAILED)
+            except PlcError as e:
+                log.warning("cycle %d: %s", pending.cycle, e)
+                new = None
+            self._release_steer()
+            if error is not None:
+                self._put(steer_live_registers(readings=self._steer_readings))
+                self.stats["steer_timeouts"] += isinstance(error, SteerNotReached)
+                log.warning("cycle %d: %s not reached: %s", pending.cycle, pending.prompt.describe(), error)
+            if new is not None:
+                self._enter(new)
+        done.set_result(None)
+
+    def _release_steer(self) -> _PendingSteer:
+        """The pending steer, no longer pending: its timer stopped, its time counted (the operator's),
+        the prompt cleared (the caller moves the state)."""
+        pending, self._steer = self._steer, None
+        if pending.timer is not None:
+            pending.timer.cancel()
+        self._operator_s += time.perf_counter() - pending.t0
+        self._put(steer_prompt_registers())
+        return pending
+
+    def _steer_timed_out(self, pending: _PendingSteer) -> None:
+        if self._steer is not pending:
+            return
+        try:
+            new = next_state(self.state, Event.STEER_FAILED)
+        except PlcError as e:
+            log.warning("cycle %d: %s", pending.cycle, e)
+            return
+        p = pending.prompt
+        self._release_steer().error = steer_timeout_error(p.step, p.steps, p.target_deg, self.steer_timeout_s)
+        self._put(steer_live_registers(readings=self._steer_readings))
+        self.stats["steer_timeouts"] += 1
+        self._enter(new)  # busy: the cycle ends in fault 424 at the guide's next reading
+        log.warning("cycle %d: %s not reached within %g s", pending.cycle, p.describe(), self.steer_timeout_s)
+
     # --- heartbeat ------------------------------------------------------------------------------
     def start_heartbeat(self) -> None:
         async def beat():
@@ -345,6 +437,8 @@ class PlcDevice:
         self.stopped = True
         if self._roll is not None:  # let the cycle's thread go: nobody will confirm the roll now
             self._end_roll().done.set_exception(RollNotConfirmed("the station stopped waiting for the PLC's roll"))
+        if self._steer is not None:  # the guide's next reading ends the cycle
+            self._release_steer().error = SteerNotReached("the station stopped waiting for the steer")
         for task in (self._heartbeat, self._task):
             if task and not task.done():
                 task.cancel()

@@ -4,6 +4,7 @@ checks every step and prints the results.
     station serve --dry-run &                      # or the real station: station serve
     python -m station.plc.master --cycles 3 --dry-run-check
     python -m station.plc.master --cycles 3 --compensate --dry-run-check   # runout compensation
+    python -m station.plc.master --cycles 3 --caster --dry-run-check       # a steering sweep
     python -m station.plc.master --rtu /dev/ttyUSB0 --cycles 3
 
 Per cycle it writes job id, vehicle spec and the trigger in one request, polls the state, reads
@@ -18,6 +19,13 @@ simulator is the line's conveyor too: whenever the station is in state roll it r
 prompt (115..118), checks it (the next step, its distance adding up to its position), "moves the
 car" (``--conveyor-s``) and writes 6 (in position); it prints each roll and each wheel's runout,
 and checks that the result says it is compensated.
+
+With ``--caster`` every trigger is command 7 (a steering sweep: caster, SAI, included angle,
+kingpin offset). The simulator confirms nothing: while the station is in state steer it reads
+the steer prompt and the live steer angle (225..231) at every poll and checks the prompt
+(station/plc/steer_watch.py); it prints each steer with the live readings it saw and the steering
+result (232..256), and checks it (float32 against int16, ``steering_valid``, with
+``--dry-run-check`` the dry run's values).
 """
 
 from __future__ import annotations
@@ -36,6 +44,8 @@ from station.errors import StationError
 from station.plc import register_map as rm
 from station.plc.roll_operator import roll_plan
 from station.plc.runner import CycleRequest, synthetic_result
+from station.plc.steer_operator import steer_plan
+from station.plc.steer_watch import SteerWatch, check_steering, format_steering, steering_values
 
 
 @dataclass
@@ -55,12 +65,15 @@ class CycleReport:
     rolls: list = field(default_factory=list)  # runout compensation: the RollStep of each roll made
     compensated: int = 0  # runout_compensated of the result
     runout: dict = field(default_factory=dict)  # wheel -> (deg (float32 copy), mm) or None
+    steers: list = field(default_factory=list)  # a steering sweep: the SteerStep of each steer seen
+    steering_valid: int = 0  # steering_valid of the result
+    steering: dict = field(default_factory=dict)  # FL, FR -> {caster, sai, included_angle, kingpin_offset_mm}
 
     @property
     def handshake_s(self) -> float:
-        """PLC-side cycle time minus the measurement and the conveyor's rolls: the cost of the
-        handshake itself."""
-        return self.total_s - self.measure_s - sum(r.seconds for r in self.rolls)
+        """PLC-side cycle time minus the measurement, the conveyor's rolls and the steering: the
+        cost of the handshake itself."""
+        return self.total_s - self.measure_s - sum(r.seconds for r in self.rolls) - sum(s.seconds for s in self.steers)
 
 
 @dataclass(frozen=True)
@@ -87,15 +100,17 @@ class PlcSimulator:
     """Drives the handshake over a connected pymodbus sync client."""
 
     def __init__(self, client, *, device_id: int = 1, timeout_s: float = 60.0, poll_s: float = 0.0,
-                 conveyor_s: float = 0.0, on_roll=None):
+                 conveyor_s: float = 0.0, on_roll=None, on_steer=None):
         """``conveyor_s``: how long moving the car takes at each roll prompt; ``on_roll(step)``:
-        called with each RollStep once confirmed (a PLC program's log, the CLI's output)."""
+        called with each RollStep once confirmed (a PLC program's log, the CLI's output);
+        ``on_steer(step)``: with each SteerStep of a steering sweep once the cycle ended."""
         self.client = client
         self.device_id = device_id
         self.timeout_s = timeout_s
         self.poll_s = poll_s
         self.conveyor_s = conveyor_s
         self.on_roll = on_roll
+        self.on_steer = on_steer
 
     # --- Modbus primitives ----------------------------------------------------------------------
     def read_block(self, status_only: bool = False) -> dict:
@@ -107,6 +122,12 @@ class PlcSimulator:
         if r.isError():
             raise ModbusFailure(f"reading registers {lo}..{hi - 1} failed: {r}")
         return rm.decode_block(r.registers, lo)
+
+    def read(self, address: int, count: int) -> list[int]:
+        r = self.client.read_holding_registers(address, count=count, device_id=self.device_id)
+        if r.isError():
+            raise ModbusFailure(f"reading registers {address}..{address + count - 1} failed: {r}")
+        return r.registers
 
     def write(self, address: int, values: list[int]):
         """Write registers; returns the response (check ``isError()``)."""
@@ -134,6 +155,8 @@ class PlcSimulator:
             rep.problems.append(f"trigger refused: {r}")
             return rep
         deadline = t0 + self.timeout_s
+        steering = command == rm.COMMAND_CODES["measure_caster"]
+        watch = SteerWatch(self.read)
         while True:
             b = self.read_block(status_only=True)
             state = rm.STATES.get(b["state"], str(b["state"]))
@@ -147,6 +170,12 @@ class PlcSimulator:
             if state == "roll":
                 self.roll(rep, b)
                 deadline += self.conveyor_s  # the conveyor's time is the PLC's
+            elif state == "steer" and not steering:
+                rep.problems.append(f"state steer in a cycle without a steering sweep (command {command})")
+            if steering and state in ("busy", "steer"):
+                before = watch.seconds
+                watch.poll(b["state"])
+                deadline += watch.seconds - before  # the technician's time at the steering wheel
             elif state in ("done", "fault", "idle"):
                 break
             if time.perf_counter() > deadline:
@@ -154,6 +183,11 @@ class PlcSimulator:
             if self.poll_s:
                 time.sleep(self.poll_s)
         rep.state = state
+        rep.steers = watch.steps
+        rep.problems += watch.problems
+        if steering and self.on_steer is not None:
+            for step in rep.steers:
+                self.on_steer(step)
         if state not in ("done", "fault"):
             rep.problems.append(f"no result within {self.timeout_s:g} s (state {state})")
             return rep
@@ -166,6 +200,11 @@ class PlcSimulator:
         rep.fault_code, rep.reason = b["fault_code"], b["fault_reason"] or ""
         rep.angles = rm.angles_from_block(b, "f32")
         rep.pass_bits, rep.judged_bits = b["pass_bits"], b["judged_bits"]
+        if steering:  # the steering block: a second read (other cycles leave it alone: one read less)
+            lo, hi = rm.STEER_BLOCK
+            sb = rm.decode_block(self.read(lo, hi - lo), lo)
+            rep.steering_valid, rep.steering = sb["steering_valid"], steering_values(sb)
+            rep.problems += check_steering(sb, steering, state == "done")
         self._check(rep, b, expect)
         self.acknowledge(rep)
         rep.total_s = time.perf_counter() - t0
@@ -247,6 +286,17 @@ class PlcSimulator:
                         or mm is None or abs(mm - want.wheels[w].runout_mm) > 0.0051:
                     p.append(f"{w}: runout {deg} deg, {mm} mm, expected {want.wheels[w].runout_deg:.4f} deg, "
                              f"{want.wheels[w].runout_mm:.2f} mm")
+        if kind == rep.state == "done" and want.steering is not None:
+            for w, values in rep.steering.items():
+                sw = want.steering.wheels[w]
+                for key, got, exp in [(k, values[k], getattr(sw, f"{k}_deg")) for k, _ in rm.STEERING_ANGLES] + \
+                        [("kingpin_offset_mm", values["kingpin_offset_mm"], sw.kingpin_offset_m * 1000)]:
+                    if got is None or not math.isclose(got, exp, abs_tol=1e-4):
+                        p.append(f"{w} {key}: got {got}, expected {exp:.4f}")
+        if kind in ("done", "fault") and rep.command == rm.COMMAND_CODES["measure_caster"]:
+            plan = steer_plan()  # the dry run walks every steer, then fails or not
+            if [s.target_deg for s in rep.steers] != plan:
+                p.append(f"steer targets {[s.target_deg for s in rep.steers]} deg, expected {plan} deg")
         if kind in ("done", "fault") and rep.command == rm.COMMAND_CODES["measure_compensated"]:
             plan = [round(d * 1000) for d in roll_plan()]  # the dry run asks for every roll, then fails or not
             if [r.distance_mm for r in rep.rolls] != plan:
@@ -296,6 +346,8 @@ def format_row(i: int, rep: CycleReport) -> str:
     line = f"{i:>4} {rep.job_id:<12} {status:<9} {vals} {verdict:>4} {rep.handshake_s * 1e3:6.1f}"
     if rep.state == "fault":
         line += f"  {rep.reason}"
+    if rep.steering_valid:
+        line += "\n       " + format_steering(rep.steering)
     if rep.compensated:
         line += "\n       runout compensated: " + ", ".join(
             f"{w} {deg:.3f} deg {mm:.2f} mm" if deg is not None and mm is not None else f"{w} -"
@@ -342,27 +394,37 @@ def main(argv=None) -> int:
     ap.add_argument("--compensate", action="store_true",
                     help="every trigger measures with runout compensation (command 5): the simulator rolls "
                          "the car whenever the station asks (state 4) and confirms each roll (command 6)")
+    ap.add_argument("--caster", action="store_true",
+                    help="every trigger is a steering sweep (command 7): the simulator watches the steer state "
+                         "(5) and the live steer angle, and prints each steer and the caster, SAI, included angle "
+                         "and kingpin offset")
     ap.add_argument("--conveyor-s", type=float, default=0.2,
                     help="with --compensate: seconds the simulated conveyor takes to move the car (default 0.2)")
     ap.add_argument("--quiet", action="store_true", help="print only the summary")
     args = ap.parse_args(argv)
     if args.conveyor_s < 0:
         ap.error(f"--conveyor-s {args.conveyor_s:g}: expected 0 or more seconds")
+    if args.caster and args.compensate:
+        ap.error("--caster and --compensate: a cycle is one or the other (command 7 or 5)")
     try:
         client, where = connect(args)
     except ModbusFailure as e:
         print(f"plc_sim: {e}", file=sys.stderr)
         return 2
-    show_roll = None if args.quiet else (lambda r: print(f"       {r.describe()}", flush=True))
+    show = None if args.quiet else (lambda r: print(f"       {r.describe()}", flush=True))
     sim = PlcSimulator(client, device_id=args.device_id, poll_s=args.poll_s, conveyor_s=args.conveyor_s,
-                       on_roll=show_roll)
+                       on_roll=show, on_steer=show)
     expect = dry_run_expectation(args.fail_every) if args.dry_run_check else None
-    command = rm.COMMAND_CODES["measure_compensated" if args.compensate else "measure"]
-    kind = ", runout compensation (command 5)" if args.compensate else ""
+    if args.caster:
+        steer_plan()  # the procedure's module imported now, not inside the first cycle's time
+    command = rm.COMMAND_CODES["measure_compensated" if args.compensate else "measure_caster" if args.caster
+                               else "measure"]
+    kind = ", runout compensation (command 5)" if args.compensate else ", steering sweep (command 7)" if args.caster \
+        else ""
     print(f"PLC simulator: {args.cycles} cycles on {where}, device id {args.device_id}{kind}")
     if not args.quiet:
         print(header())
-    bad = rolls = 0
+    bad = rolls = steers = 0
     try:
         hb0 = sim.read_block()["heartbeat"]
         t_start = time.perf_counter()
@@ -370,6 +432,7 @@ def main(argv=None) -> int:
             rep = sim.run_cycle(f"{args.job_prefix}{args.first_job + i:06d}", args.spec, command, expect=expect)
             bad += bool(rep.problems)
             rolls += len(rep.rolls)
+            steers += len(rep.steers)
             if not args.quiet:
                 print(format_row(i + 1, rep))
                 for p in rep.problems:
@@ -382,7 +445,7 @@ def main(argv=None) -> int:
         client.close()
     beat = (f"advancing ({hb0} -> {hb1})" if hb1 != hb0
             else f"STOPPED (still {hb0} after {time.perf_counter() - t_start:.1f} s)")
-    made = f", {rolls} rolls of the car" if args.compensate else ""
+    made = f", {rolls} rolls of the car" if args.compensate else f", {steers} steers" if args.caster else ""
     print(f"{args.cycles} cycles, {bad} with problems{made}; heartbeat {beat}")
     return 1 if bad or hb1 == hb0 else 0
 

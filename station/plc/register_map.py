@@ -12,14 +12,16 @@ Two areas:
   Modbus exception 2 (illegal data address).
 * **Station -> PLC** (``100 .. 299``, read-only): state, fault code, heartbeat, counters, the
   result-valid flag, the roll prompt of a compensated cycle, every angle as float32 and as scaled
-  int16, pass/fail bits, each wheel's runout.
+  int16, pass/fail bits, each wheel's runout (one read: :data:`RESULT_BLOCK`); then the steering
+  sweep's prompt, the front wheels' live steer angle and the steering results (a second read:
+  :data:`STEER_BLOCK`).
 
 Encoding (docs/conventions.md, "Modbus"):
 
 * ``f32``: IEEE 754 single in two registers, **big-endian word order** (high word first),
   big-endian bytes in a word (ABCD). A missing angle is NaN.
-* ``i16``: two's complement, **0.01 degree** per count (0.01 mm for a runout in mm, 1 mm for
-  the roll prompt: a field's ``scale``), saturated to +-32766 counts; ``-32768`` (0x8000) means
+* ``i16``: two's complement, **0.01 degree** per count (0.01 mm for a runout or a kingpin offset
+  in mm, 1 mm for the roll prompt: a field's ``scale``), saturated to +-32766 counts; ``-32768`` (0x8000) means
   "no value".
 * ``ascii``: two characters per register, the first in the high byte, padded with NUL (0).
 * ``u32``: two registers, high word first.
@@ -44,16 +46,20 @@ MM_PER_M = 1000  # roll distances are whole millimetres (int16) on the wire
 
 # --- values of the command, state and active-command registers ----------------------------------
 COMMANDS = {0: "none", 1: "measure", 2: "calibration_check", 3: "reset_fault", 4: "acknowledge",
-            5: "measure_compensated", 6: "in_position"}
+            5: "measure_compensated", 6: "in_position", 7: "measure_caster"}
 COMMAND_CODES = {name: code for code, name in COMMANDS.items()}
-STATES = {0: "idle", 1: "busy", 2: "done", 3: "fault", 4: "roll"}
+STATES = {0: "idle", 1: "busy", 2: "done", 3: "fault", 4: "roll", 5: "steer"}
 STATE_CODES = {name: code for code, name in STATES.items()}
-MAP_VERSION = 5  # 2: warning_bits (113) added; 3: station_warning_bits (114), and bit 15 of
+MAP_VERSION = 6  # 2: warning_bits (113) added; 3: station_warning_bits (114), and bit 15 of
                  # warning_bits is RR's runner-up alone (it also meant "any warning" in 2);
                  # 4: bit 4 of station_warning_bits (a rim another size than its axle partner's);
                  # 5: runout compensation (issue 32): command 5 measure compensated, command 6 in
                  # position, state 4 roll, the roll prompt 115..118, runout_compensated and each
-                 # wheel's runout 208..224 (the whole output is 100..224 now); nothing moved
+                 # wheel's runout 208..224 (the whole output is 100..224 now); nothing moved;
+                 # 6: the steering sweep (issue 33): command 7 measure caster, state 5 steer, the
+                 # steer prompt and the front wheels' live steer angle 225..231, steering_valid and
+                 # each front wheel's caster, SAI, included angle and kingpin offset 232..256 (a
+                 # second read, STEER_BLOCK: 100..224 stays one read); nothing moved
 # bits of warning_bits: (first bit, kind of the result's warning_flags); bit first + i for wheel i
 # of WHEELS (FL, FR, RL, RR)
 WARNING_KINDS = ((0, "uncertain"), (4, "drift"), (8, "unchecked"), (12, "runner_up"))
@@ -112,10 +118,53 @@ def _runout_fields() -> list[Field]:
     return out
 
 
+STEERING_ANGLES = (("caster", "caster"), ("sai", "SAI"), ("included_angle", "included angle (SAI + camber)"))
+FRONT = ("FL", "FR")
+
+
+def _steer_fields() -> list[Field]:
+    """The steering sweep (issue 33), after the runout: the prompt and the live steer angle a PLC
+    reads in state steer (225..231), then the result (232..256): each front wheel's caster, SAI
+    and included angle in degrees as float32 and as int16 (0.01 deg, like the angles), and its
+    kingpin offset in mm (float32, and int16 in 0.01 mm like the runout)."""
+    out = [Field("steer_step", 225, "u16", 1, "in state steer: the steer the station waits for, 1..steer_steps; 0 in "
+                 "any other state"),
+           Field("steer_steps", 226, "u16", 1, "in state steer: the steer targets of the whole sweep (3); 0 in any "
+                 "other state"),
+           Field("steer_target_i16", 227, "i16", 1, "in state steer: where the front wheels must point, + left, "
+                 "- right, 0 straight ahead (x 100); 0 in any other state", unit="0.01 deg")]
+    for i, w in enumerate(FRONT):
+        out.append(Field(f"{w}_steer_i16", 228 + i, "i16", 1, f"{w}'s live steer angle, + left, against its "
+                         "first reading straight ahead (x 100): several readings a second in state steer, the last "
+                         "kept after a steer reached until the next steer or the cycle's end; -32768: its rim not "
+                         "seen in the last reading, or no reading", unit="0.01 deg"))
+    out += [Field("steer_reached", 230, "u16", 1, "1: the last reading found the front wheels at the target and "
+                  "standing still: the station leaves state steer and captures (the reading stays until the next "
+                  "steer or the cycle's end); 0 otherwise"),
+            Field("steer_readings", 231, "u16", 1, "live steer readings taken in this cycle (moves while the live "
+                  "angle is fresh), wraps at 65535; 0 at the trigger and once the cycle ended"),
+            Field("steering_valid", 232, "u16", 1, "1: the last valid result holds the steering geometry below "
+                  "(a steering sweep, command 7); 0: none (NaN / -32768)")]
+    for i, (w, (key, text)) in enumerate((w, k) for w in FRONT for k in STEERING_ANGLES):
+        out.append(Field(f"{w}_{key}_f32", 233 + 2 * i, "f32", 2, f"{w}: {text} (NaN: no steering sweep)", unit="deg"))
+    for i, (w, (key, text)) in enumerate((w, k) for w in FRONT for k in STEERING_ANGLES):
+        out.append(Field(f"{w}_{key}_i16", 245 + i, "i16", 1, f"{w}: {text.split(' (')[0]} x 100 (-32768: no "
+                         "steering sweep)", unit="0.01 deg"))
+    for i, w in enumerate(FRONT):
+        out.append(Field(f"{w}_kingpin_offset_mm_f32", 251 + 2 * i, "f32", 2, f"{w}: kingpin offset (scrub radius): "
+                         "where the steering axis meets the runway, + inboard of the point under the wheel centre "
+                         "(NaN: no steering sweep)", unit="mm"))
+    for i, w in enumerate(FRONT):
+        out.append(Field(f"{w}_kingpin_offset_mm_i16", 255 + i, "i16", 1, f"{w}: kingpin offset x 100 (-32768: no "
+                         "steering sweep)", unit="0.01 mm"))
+    return out
+
+
 PLC_FIELDS = [
     Field("command", 0, "u16", 1, "command mailbox: 1 measure, 2 calibration check, 3 reset fault, "
           "4 acknowledge, 5 measure with runout compensation, 6 in position (the car rolled as state 4 "
-          "asked); consumed on receipt (reads back 0)", writable=True),
+          "asked), 7 measure caster (a steering sweep: the station asks for each steer in state 5); "
+          "consumed on receipt (reads back 0)", writable=True),
     Field("job_id", 1, "ascii", 16, "job id / VIN for the next cycle, up to 32 ASCII characters",
           writable=True),
     Field("vehicle_spec", 17, "ascii", 16, "vehicle spec id for the next cycle (e.g. "
@@ -123,7 +172,8 @@ PLC_FIELDS = [
 ]
 STATION_FIELDS = [
     Field("state", 100, "u16", 1, "0 idle, 1 busy, 2 done, 3 fault, 4 roll (roll the car as 115..118 say, "
-          "then write command 6)"),
+          "then write command 6), 5 steer (the front wheels are to be steered as 225..227 say; the station "
+          "goes on by itself once they stand there)"),
     Field("fault_code", 101, "u16", 1, "station error code of the failed cycle (`station errors`); "
           "0 unless state is fault"),
     Field("heartbeat", 102, "u16", 1, "increments every heartbeat period, wraps at 65535"),
@@ -158,12 +208,15 @@ STATION_FIELDS = [
     Field("result_job_id", 160, "ascii", 16, "job id of the cycle the result belongs to"),
     Field("fault_reason", 176, "ascii", 32, "readable reason of the fault, up to 64 characters"),
     *_runout_fields(),
+    *_steer_fields(),
 ]
 FIELDS = {f.name: f for f in PLC_FIELDS + STATION_FIELDS}
 
 PLC_AREA = (0, 100)  # [start, end) of the PLC -> station area
 STATION_AREA = (100, 300)  # [start, end) of the station -> PLC area
-RESULT_BLOCK = (100, 225)  # one read (<= 125 registers) that returns the whole station output
+RESULT_BLOCK = (100, 225)  # one read (<= 125 registers): the whole station output up to map version 5
+STEER_BLOCK = (225, 257)  # a second read: the steer prompt, the live steer angle, the steering results
+STEER_STATUS_END = 232  # registers 225..231: what a PLC polls in state steer
 RESULT_BLOCK_V4 = (100, 208)  # the whole output up to map version 4: a PLC reading only it still works
 STATUS_END = 120  # registers 100..119: state, codes, counters, flags (what a PLC polls)
 COMMAND = FIELDS["command"].address
@@ -180,8 +233,9 @@ def _check_map() -> None:
             if a in taken:
                 raise AssertionError(f"{f.name} overlaps {taken[a]} at {a}")
             taken[a] = f.name
-    assert RESULT_BLOCK[1] - RESULT_BLOCK[0] <= 125
-    assert all(RESULT_BLOCK[0] <= f.address and f.end <= RESULT_BLOCK[1] for f in STATION_FIELDS)
+    blocks = (RESULT_BLOCK, STEER_BLOCK)
+    assert all(hi - lo <= 125 for lo, hi in blocks)
+    assert all(any(lo <= f.address and f.end <= hi for lo, hi in blocks) for f in STATION_FIELDS)
 
 
 _check_map()

@@ -112,8 +112,53 @@ def runout_registers(runout: dict[str, tuple[float | None, float | None]], compe
     return out
 
 
-def result_registers(result: Measurement, job_id: str | None, angles_required: bool = True) -> dict[int, list[int]]:
-    """{address: register values} for a finished, valid result."""
+STEERING_KEYS = tuple(f"{key}_deg" for key, _ in rm.STEERING_ANGLES) + ("kingpin_offset_m",)
+
+
+def result_steering(result: Measurement, required: bool = False) -> dict[str, dict[str, float]] | None:
+    """{front wheel: {caster_deg, sai_deg, included_angle_deg, kingpin_offset_m}} of a steering
+    sweep's result, None for a result without one. Raises MeasurementError naming the key when a
+    result lacks the steering geometry though ``required`` (a steering sweep's), lacks a front
+    wheel's value or holds a non-number."""
+    if result.steering is None:
+        if required:
+            raise MeasurementError("the steering sweep's result lacks steering; it does not follow "
+                                   "docs/result-schema.md")
+        return None
+    out = {}
+    for w in rm.FRONT:
+        wheel = result.steering.wheels.get(w)
+        out[w] = {}
+        for key in STEERING_KEYS:
+            value = getattr(wheel, key, None)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise MeasurementError(f"the measurement result has steering.wheels.{w}.{key} = {value!r}, not a "
+                                       "finite number")
+            out[w][key] = float(value)
+    return out
+
+
+def steering_registers(steering: dict[str, dict[str, float]] | None) -> dict[int, list[int]]:
+    """{address: values} of ``steering_valid`` and each front wheel's caster, SAI, included angle
+    (deg as f32 and i16) and kingpin offset (mm as f32 and i16); None: no steering (NaN, -32768)."""
+    out = {rm.FIELDS["steering_valid"].address: [int(steering is not None)]}
+    for w in rm.FRONT:
+        values = (steering or {}).get(w, {})
+        for key, _ in rm.STEERING_ANGLES:
+            deg = values.get(f"{key}_deg")
+            out[rm.FIELDS[f"{w}_{key}_f32"].address] = rm.f32_to_regs(deg)
+            out[rm.FIELDS[f"{w}_{key}_i16"].address] = [rm.deg_to_i16(deg)]
+        m = values.get("kingpin_offset_m")
+        mm = None if m is None else m * rm.MM_PER_M
+        out[rm.FIELDS[f"{w}_kingpin_offset_mm_f32"].address] = rm.f32_to_regs(mm)
+        out[rm.FIELDS[f"{w}_kingpin_offset_mm_i16"].address] = [rm.to_i16(mm, rm.FIELDS[f"{w}_kingpin_offset_mm_i16"].scale)]
+    return out
+
+
+def result_registers(result: Measurement, job_id: str | None, angles_required: bool = True,
+                     steering_required: bool = False) -> dict[int, list[int]]:
+    """{address: register values} for a finished, valid result (``steering_required``: a
+    steering sweep's, which must hold the steering geometry)."""
     angles = result_angles(result, angles_required)
     passed, judged = result_verdicts(result)
     out: dict[int, list[int]] = {}
@@ -126,6 +171,7 @@ def result_registers(result: Measurement, job_id: str | None, angles_required: b
     out[rm.FIELDS["warning_bits"].address] = [result_warning_bits(result)]
     out[rm.FIELDS["station_warning_bits"].address] = [result_station_warning_bits(result)]
     out.update(runout_registers(result_runout(result), bool(result.runout_compensated)))
+    out.update(steering_registers(result_steering(result, steering_required)))
     f = rm.FIELDS["result_job_id"]
     out[f.address] = rm.ascii_to_regs(job_id, f.count)
     return out
@@ -144,6 +190,7 @@ def cleared_registers() -> dict[int, list[int]]:
     out[rm.FIELDS["station_warning_bits"].address] = [0]
     out[rm.FIELDS["result_job_id"].address] = [0] * rm.FIELDS["result_job_id"].count
     out.update(runout_registers({}, False))
+    out.update(steering_registers(None))
     return out
 
 
@@ -152,3 +199,21 @@ def roll_prompt_registers(step: int = 0, steps: int = 0, distance_mm: int = 0, p
     return {rm.FIELDS["roll_step"].address: [step & 0xFFFF], rm.FIELDS["roll_steps"].address: [steps & 0xFFFF],
             rm.FIELDS["roll_distance_mm"].address: [rm.to_i16(distance_mm, 1)],
             rm.FIELDS["roll_position_mm"].address: [rm.to_i16(position_mm, 1)]}
+
+
+def steer_prompt_registers(step: int = 0, steps: int = 0, target_deg: float = 0.0) -> dict[int, list[int]]:
+    """{address: values} of the steer prompt (225..227); all 0: no steer asked for."""
+    return {rm.FIELDS["steer_step"].address: [step & 0xFFFF], rm.FIELDS["steer_steps"].address: [steps & 0xFFFF],
+            rm.FIELDS["steer_target_i16"].address: [rm.deg_to_i16(target_deg)]}
+
+
+def steer_live_registers(angles: dict[str, float] | None = None, reached: bool = False,
+                         readings: int = 0) -> dict[int, list[int]]:
+    """{address: values} of a live steer reading (228..231): each front wheel's steer angle
+    (-32768 for a wheel not in ``angles``), whether it stands at the target, the readings so far.
+    No arguments: no reading."""
+    angles = angles or {}
+    out = {rm.FIELDS[f"{w}_steer_i16"].address: [rm.deg_to_i16(angles.get(w))] for w in rm.FRONT}
+    out[rm.FIELDS["steer_reached"].address] = [int(bool(reached))]
+    out[rm.FIELDS["steer_readings"].address] = [readings & 0xFFFF]
+    return out

@@ -81,5 +81,5 @@ class PlcRollOperator:
             self.simulation.roll_car(distance_m)
 
     def steer(self, angle_deg: float) -> None:
-        raise ProcedureError(f"the PLC cannot steer the front wheels ({angle_deg:+.0f} deg asked): the PLC "
-                             "register map has no steering prompt", hint="run steering procedures at the station")
+        raise ProcedureError(f"runout compensation does not steer the front wheels ({angle_deg:+.0f} deg asked)",
+                             hint="the steering sweep is PLC command 7 (station/plc/steer_operator.py)")

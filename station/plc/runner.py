@@ -16,7 +16,10 @@ Two runners:
 
 A cycle with runout compensation (``measure_compensated``, PLC command 5) carries the PLC's
 :class:`~station.plc.roll_operator.RollGate` in ``CycleRequest.roll``; both runners roll the car
-through it (station/plc/roll_operator.py), the dry run without cameras.
+through it (station/plc/roll_operator.py), the dry run without cameras. A steering sweep
+(``measure_caster``, command 7) carries a :class:`~station.plc.steer_operator.SteerGate` in
+``CycleRequest.steer``: the real runner's guide (``GuidedSteering``, the front wheels followed live)
+and the dry run's synthetic wheels (station/plc/dry_steering.py) report through it.
 """
 
 from __future__ import annotations
@@ -30,21 +33,24 @@ from typing import Callable
 
 from calibration.errors import CalibrationError
 from calibration.station_frame import AXLES, WHEELS
-from station.errors import PlcError, RimNotFound, WheelSlipped
+from station.errors import PlcError, RimNotFound, WheelRolledWhileSteered, WheelSlipped
+from station.plc.dry_steering import SyntheticSteering, synthetic_steering
 from station.plc.roll_operator import PlcRollOperator, RollGate, roll_plan
+from station.plc.steer_operator import MakeGuide, PlcSteerOperator, SteerGate, steer_plan
 from station.result import ANGLE_NAMES, AxleResult, Measurement, WheelResult
 
-COMMANDS = ("measure", "calibration_check", "measure_compensated")
+COMMANDS = ("measure", "calibration_check", "measure_compensated", "measure_caster")
 LIP_DIAMETER_M = 0.432  # a 17-inch rim's lip: the dry run's runout in mm
 
 
 @dataclass(frozen=True)
 class CycleRequest:
-    command: str  # "measure" | "calibration_check" | "measure_compensated" (COMMANDS)
+    command: str  # "measure" | "calibration_check" | "measure_compensated" | "measure_caster" (COMMANDS)
     job_id: str | None  # None when the PLC left the job id empty
     vehicle_spec: str | None
     cycle: int  # the station's running cycle number (1, 2, ...), also the simulation seed
     roll: RollGate | None = None  # measure_compensated: who rolls the car (the PLC device)
+    steer: SteerGate | None = None  # measure_caster: who shows each steer to the PLC (the PLC device)
 
     def roll_operator(self, simulation=None, steps: int | None = None) -> PlcRollOperator:
         """The operator that rolls the car ``steps`` times (default: the procedure's rolls) for
@@ -54,6 +60,14 @@ class CycleRequest:
             raise PlcError(f"cycle {self.cycle}: runout compensation needs the PLC to roll the car, and "
                            "this request has no roll gate")
         return PlcRollOperator(self.roll, len(roll_plan()) if steps is None else steps, simulation)
+
+    def steer_operator(self, make_guide: MakeGuide, steps: int | None = None) -> PlcSteerOperator:
+        """The operator whose ``steps`` steers (default: the sweep's) the PLC sees, steered and
+        watched by ``make_guide(on_reading)``; PlcError without a gate."""
+        if self.steer is None:
+            raise PlcError(f"cycle {self.cycle}: a steering sweep shows its steers to the PLC, and this request "
+                           "has no steer gate")
+        return PlcSteerOperator(self.steer, len(steer_plan()) if steps is None else steps, make_guide)
 
 
 CycleRunner = Callable[[CycleRequest], Measurement]
@@ -69,9 +83,13 @@ def measurement_runner(config, seed: int | None = None) -> CycleRunner:
     measures the random vehicle of its cycle number; ``seed`` keeps that one vehicle on the lift
     for every cycle instead.
     """
+    import logging
+
     from station.cycle import Station
+    from station.procedures.steer_guide import GuidedSteering
 
     holder: dict = {}
+    guide_log = logging.getLogger("station.plc.steer")
 
     def station() -> Station:
         if "station" not in holder:
@@ -88,6 +106,11 @@ def measurement_runner(config, seed: int | None = None) -> CycleRunner:
             if request.command == "measure_compensated":  # the PLC rolls the (simulated) car
                 return assembled.measure(job_id=request.job_id, vehicle_spec=request.vehicle_spec,
                                          compensate=request.roll_operator(assembled.context.simulation))
+            if request.command == "measure_caster":  # the technician (simulated: the simulation) steers
+                operator = request.steer_operator(lambda on_reading: GuidedSteering(
+                    assembled, mover=assembled.context.simulation, show=guide_log.debug,
+                    timeout_s=request.steer.timeout_s, on_reading=on_reading))
+                return assembled.caster(operator, job_id=request.job_id, vehicle_spec=request.vehicle_spec)
             return assembled.measure(job_id=request.job_id, vehicle_spec=request.vehicle_spec)
         except CalibrationError:
             holder.pop("station", None)
@@ -109,12 +132,15 @@ def synthetic_result(request: CycleRequest, fail_every: int = 10) -> Measurement
     command), so a PLC simulator can check that it got the result of *its* job. Raises
     RimNotFound for every ``fail_every``-th job number (the cycle number when there is no job id;
     0: never); WheelSlipped instead for a cycle with runout compensation, whose result also holds
-    each wheel's runout."""
+    each wheel's runout; WheelRolledWhileSteered for a steering sweep, whose result also holds
+    the steering geometry (station/plc/dry_steering.py)."""
     n = job_number(request.job_id) if request.job_id else request.cycle
     compensate = request.command == "measure_compensated"
     if fail_every and n % fail_every == 0:
         if compensate:
             raise WheelSlipped(f"RL: its turn does not match the car's travel (dry run, job {n})")
+        if request.command == "measure_caster":
+            raise WheelRolledWhileSteered(f"FL: it rolled while steered (dry run, job {n})")
         raise RimNotFound(f"RR cam7: no closed rim contour (dry run, job {n})")
     rng = random.Random(zlib.crc32(f"{request.job_id}|{request.command}".encode()))
     toe = {w: round(rng.uniform(-0.3, 0.3), 4) for w in WHEELS}
@@ -134,6 +160,8 @@ def synthetic_result(request: CycleRequest, fail_every: int = 10) -> Measurement
             runout = round(rng.uniform(0.0, 0.3), 4)
             wheels[w].runout_deg, wheels[w].runout_phase_deg = runout, round(rng.uniform(0.0, 360.0), 2)
             wheels[w].runout_mm = round(LIP_DIAMETER_M * 1000 * math.tan(math.radians(runout)), 3)
+    if request.command == "measure_caster":
+        result.steering = synthetic_steering(rng, camber, steer_plan())
     if request.vehicle_spec:
         limits = {"toe": 0.3, "camber": 1.2, "total_toe": 0.5, "thrust": 0.25}
         verdict = {name: abs(result.angle(name)) <= limits[name.split(".")[-1]] for name in ANGLE_NAMES}
@@ -142,14 +170,18 @@ def synthetic_result(request: CycleRequest, fail_every: int = 10) -> Measurement
     return result
 
 
-def dry_run_runner(fail_every: int = 10, delay_s: float = 0.0) -> CycleRunner:
+def dry_run_runner(fail_every: int = 10, delay_s: float = 0.0, reading_s: float = 0.1) -> CycleRunner:
     """A runner returning :func:`synthetic_result`, after ``delay_s`` seconds (a stand-in for the
     measurement time). A cycle with runout compensation first asks the PLC for every roll of the
     real procedure (station/procedures/runout.py), ``delay_s`` apart, as the station would between
-    its captures, so a PLC programmer can commission the roll steps without cameras."""
+    its captures, so a PLC programmer can commission the roll steps without cameras. A steering
+    sweep first walks the sweep's steer targets (station/procedures/steering.py) with synthetic
+    front wheels that turn to each target, one live reading every ``reading_s`` seconds, and stand
+    still there (station/plc/dry_steering.py)."""
     import time
 
     plan = roll_plan()  # imported now, not in the first compensated cycle's time
+    targets = steer_plan()
 
     def run(request: CycleRequest) -> Measurement:
         if request.command == "measure_compensated":
@@ -158,6 +190,13 @@ def dry_run_runner(fail_every: int = 10, delay_s: float = 0.0) -> CycleRunner:
                 if delay_s:
                     time.sleep(delay_s)  # a capture
                 operator.roll_car(distance_m)
+        if request.command == "measure_caster":
+            timeout_s = request.steer.timeout_s if request.steer is not None else 300.0
+            operator = request.steer_operator(
+                lambda on_reading: SyntheticSteering(on_reading, reading_s, timeout_s=timeout_s), steps=len(targets))
+            for target in targets:
+                operator.steer(target)
+                time.sleep(delay_s or reading_s)  # the capture where the wheels stand (the reading stays)
         if delay_s:
             time.sleep(delay_s)
         return synthetic_result(request, fail_every)

@@ -74,7 +74,8 @@ def wait_until_at(target: float, read: Callable[[], dict[str, float]], wheels: t
                   lost: Callable[[list[str]], str], on_reading: Callable | None = None) -> bool:
     """Read until the mean over ``wheels`` of ``read()`` ({wheel: value}) stands at ``target``;
     each reading is shown (``line(mean, values, reached)``) and handed to ``on_reading(target,
-    values, reached)``; a reading that misses a wheel shows ``lost(wheels missed)``. Returns True
+    values, reached)`` (which may raise to end the wait); a reading that misses a wheel shows
+    ``lost(wheels missed)`` and is handed on without that wheel. Returns True
     when reached, False when ``approach.timeout_s`` passed first."""
     t0, recent = time.monotonic(), []
     while time.monotonic() - t0 < approach.timeout_s:
@@ -83,6 +84,8 @@ def wait_until_at(target: float, read: Callable[[], dict[str, float]], wheels: t
         if missed:
             show(lost(missed))
             recent = []
+            if on_reading is not None:  # the wheels seen (a PLC shows "no value" for the others)
+                on_reading(target, values, False)
             continue
         mean = float(np.mean([values[w] for w in wheels]))
         recent = (recent + [mean])[-approach.still_updates:]

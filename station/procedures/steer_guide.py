@@ -31,7 +31,8 @@ class GuidedSteering:
                  on_reading: Callable[[float, dict[str, float], bool], None] | None = None):
         """station: an open station.cycle.Station; mover: who turns the steering wheel when
         asked (the simulated technician), None for a person; show: a line of the display;
-        on_reading(target deg, {wheel: steer angle deg}, reached): each reading, for a PLC."""
+        on_reading(target deg, {wheel: steer angle deg}, reached): each reading, for a PLC (a wheel
+        whose rim was not seen is left out); it may raise to end the steer (a PLC's timeout)."""
         self.mover = mover
         self.show = show
         self.approach = Approach(tolerance_deg, still_deg, still_updates, timeout_s)
