@@ -130,6 +130,10 @@ def import_calibration(sources: list[Source], layout: Layout, *, poses: dict[str
                                    hint="run `station calibrate`, or give its pose with --pose CAM=FILE")
         m = current.model(cam)
         place(cam, m.R_cam_station, m.t_cam_station, "the current calibration (--anchor)")
+    for cam, what in [*((c, f"--pose {c}={p}") for c, p in (poses or {}).items()), *((c, f"--anchor {c}") for c in anchors)]:
+        if cam not in intrinsics:
+            raise CalibrationError(f"{what}: no file gives camera {cam}'s intrinsics, so nothing of it is imported",
+                                   hint=f"give {cam}'s file (or its pair's), or leave out {what.split('=')[0]}")
     _follow_links(links, placed)
 
     cameras, kept = {}, []

@@ -230,13 +230,15 @@ def _bad_inputs(tmp_path: Path, current) -> dict:
                                                     "configured for 1280x1024"]),
         "placed twice": ([f"FL={intr}", f"FL={extr}", "--anchor", "cam3", "--anchor", "cam4"],
                          ["places cam4 relative to cam3, but both are already placed"]),
+        "a pose for a camera not imported": ([f"FL={intr}", f"FL={extr}", "--anchor", "cam3", "--anchor", "cam1"],
+                                             ["--anchor cam1: no file gives camera cam1's intrinsics"]),
         "implausible distortion": ([f"cam3={_write(tmp_path / 'x.yml', camera_matrix=K, distortion_coefficients=np.array([-0.2, 0.1, 0, 0, 0, 8.0, 0, 0]))}",
                                     "--anchor", "cam3"], ["x.yml: distortion_coefficients (cam3): the distortion cannot be undone"]),
     }
 
 
 BAD = ["only the intrinsics", "no pose", "no target", "wrong shape", "no distortion", "six coefficients", "a PNG",
-       "a text", "missing file", "unknown camera", "millimetres as metres", "metres as millimetres", "a pose in metres, T in mm", "other resolution", "placed twice",
+       "a text", "missing file", "a pose for a camera not imported", "unknown camera", "millimetres as metres", "metres as millimetres", "a pose in metres, T in mm", "other resolution", "placed twice",
        "implausible distortion"]
 
 
@@ -288,3 +290,16 @@ def test_dry_run_checks_and_saves_nothing(tmp_path, capsys):
     rc, out, _ = _run(capsys, "import", f"FL={intr}", f"FL={extr}", "--anchor", "cam3", "--dry-run")
     assert rc == 0 and "nothing saved" in out and config.calibration_file.read_bytes() == before
     assert json.loads(before)["method"] != "imported from OpenCV files"
+
+
+def test_a_damaged_current_calibration_is_replaced_by_a_complete_import_but_cannot_lend_poses(tmp_path, capsys):
+    config, current = _station()
+    assert _run(capsys, "export", tmp_path / "ocv")[0] == 0
+    intr, extr, _ = _stereo_files(tmp_path, current, 8)
+    config.calibration_file.write_text('{"format": "wheel-alignment-station/calibration", "form')
+    rc, _, err = _run(capsys, "import", f"FL={intr}", f"FL={extr}", "--anchor", "cam3")
+    assert rc == 2 and "the current calibration cannot be used" in err and "not valid JSON" in err
+    rc, out, err = _run(capsys, "import", *sorted((tmp_path / "ocv").glob("*.yaml")))
+    assert rc == 0, err
+    assert "replacing a file that could not be read" in out
+    assert load_calibration(config.calibration_file, config).model("cam3").dist.size == 5

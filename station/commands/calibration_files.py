@@ -108,7 +108,8 @@ def _import(args) -> int:
         print("checked; nothing saved (--dry-run)")
         return 0
     path = save_calibration(calib, config.calibration_file)
-    replaced = f", replacing {current.calibration_id}" if current is not None else ""
+    replaced = (f", replacing {current.calibration_id}" if current is not None
+                else ", replacing a file that could not be read" if unreadable is not None else "")
     print(f"saved {path} (calibration id {calib.calibration_id}{replaced})")
     if args.json:
         save_calibration(calib, Path(args.json))
