@@ -118,7 +118,8 @@ def undistort_normalized(xy_d: np.ndarray, dist: np.ndarray, iterations: int = 3
     """Invert :func:`distort_normalized` exactly (Newton's method to machine precision).
 
     xy_d: (N, 2) distorted normalised coordinates; dist: (5,), (8,) or (12,) as
-    :func:`distort_normalized`. Returns (N, 2) undistorted ones. Points where Newton does not converge (far outside a lens's valid field) come back NaN.
+    :func:`distort_normalized`. Returns (N, 2) undistorted ones. Points where Newton does not
+    converge (far outside a lens's valid field) come back NaN.
     """
     xy_d = np.asarray(xy_d, dtype=float)
     if not np.any(dist):

@@ -126,11 +126,13 @@ def import_calibration(sources: list[Source], layout: Layout, *, poses: dict[str
     for cam in anchors:
         _known(cam, layout, f"--anchor {cam}")
         if current is None or cam not in current.cameras:
-            raise CalibrationError(f"--anchor {cam}: there is no current calibration of camera {cam} to take its pose from",
+            raise CalibrationError(f"--anchor {cam}: there is no current calibration of camera {cam} to take its "
+                                   "pose from",
                                    hint="run `station calibrate`, or give its pose with --pose CAM=FILE")
         m = current.model(cam)
         place(cam, m.R_cam_station, m.t_cam_station, "the current calibration (--anchor)")
-    for cam, what in [*((c, f"--pose {c}={p}") for c, p in (poses or {}).items()), *((c, f"--anchor {c}") for c in anchors)]:
+    given = [*((c, f"--pose {c}={p}") for c, p in (poses or {}).items()), *((c, f"--anchor {c}") for c in anchors)]
+    for cam, what in given:
         if cam not in intrinsics:
             raise CalibrationError(f"{what}: no file gives camera {cam}'s intrinsics, so nothing of it is imported",
                                    hint=f"give {cam}'s file (or its pair's), or leave out {what.split('=')[0]}")
@@ -323,7 +325,8 @@ def _follow_links(links: list[_Link], placed: dict) -> None:
         if not progress:
             link = todo[0]
             raise CalibrationError(f"{link.where}: R and T place {link.b} relative to {link.a}, but nothing places "
-                                   f"either in the station frame", hint=f"for {link.a}: {POSE_TODO.replace('CAM', link.a)}")
+                                   "either in the station frame",
+                                   hint=f"for {link.a}: {POSE_TODO.replace('CAM', link.a)}")
 
 
 def _model(intr: _Intrinsics, placed: dict) -> CameraModel:
