@@ -236,13 +236,15 @@ def _bad_inputs(tmp_path: Path, current) -> dict:
                          ["places cam4 relative to cam3, but both are already placed"]),
         "a pose for a camera not imported": ([*pair, "--anchor", "cam3", "--anchor", "cam1"],
                                              ["--anchor cam1: no file gives camera cam1's intrinsics"]),
+        "a pose given twice": ([*pair, "--pose", f"cam3={_write(tmp_path / 'q.yml', R=R3, T=t3)}",
+                                "--pose", f"cam3={tmp_path / 'q.yml'}"], ["--pose cam3= is given twice"]),
     }
 
 
 BAD = ["only the intrinsics", "no pose", "no target", "wrong shape", "no distortion", "six coefficients",
        "implausible distortion", "other resolution", "a PNG", "a text", "missing file", "unknown camera",
        "millimetres as metres", "metres as millimetres", "a pose in metres, T in mm", "placed twice",
-       "a pose for a camera not imported"]
+       "a pose for a camera not imported", "a pose given twice"]
 
 
 @pytest.mark.parametrize("case", BAD)

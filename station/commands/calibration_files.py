@@ -87,6 +87,12 @@ def _import(args) -> int:
             same.paths.append(path)
         else:
             sources.append(Source(target, [path]))
+    poses = {}
+    for cam, path in args.pose:
+        if cam in poses:
+            raise CalibrationError(f"--pose {cam}= is given twice ({poses[cam]}, {path})",
+                                   hint="give each camera's pose once")
+        poses[cam] = path
     current, unreadable = None, None
     if config.calibration_file.exists():
         try:
@@ -94,7 +100,7 @@ def _import(args) -> int:
         except CalibrationError as e:
             unreadable = e
     try:
-        result = import_calibration(sources, layout, poses=dict(args.pose), anchors=args.anchor, current=current,
+        result = import_calibration(sources, layout, poses=poses, anchors=args.anchor, current=current,
                                     unit_m=UNITS_M[args.unit], station_name=config.name)
     except CalibrationError as e:
         if unreadable is not None and (args.anchor or "in none of the files" in str(e)):
