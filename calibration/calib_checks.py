@@ -15,7 +15,7 @@ from datetime import datetime
 
 import numpy as np
 
-from calibration.camera_model import CameraModel, distort_normalized, undistort_normalized
+from calibration.camera_model import CameraModel, dist_length_problem, distort_normalized, undistort_normalized
 from calibration.stereo import StereoPair
 
 SIZE_PX = (8, 32768)              # image width and height a camera can have
@@ -170,7 +170,7 @@ def read_camera(cam_id: str, c) -> tuple[CameraModel, float, int, dict]:
     width = integer(c["width"], f"{where}.width", *SIZE_PX)
     height = integer(c["height"], f"{where}.height", *SIZE_PX)
     K = array(c["K"], f"{where}.K", (3, 3))
-    dist = array(c["dist"], f"{where}.dist", (5,))
+    dist = read_dist(c["dist"], f"{where}.dist")
     R = array(c["R_cam_station"], f"{where}.R_cam_station", (3, 3))
     t = array(c["t_cam_station_m"], f"{where}.t_cam_station_m", (3,))
     check_intrinsics(where, width, height, K)
@@ -188,6 +188,16 @@ def read_camera(cam_id: str, c) -> tuple[CameraModel, float, int, dict]:
     rms = math.nan if rms is None else number(rms, f"{where}.reprojection_rms_px", 0, max(width, height))
     n_points = integer(c.get("n_points", 0), f"{where}.n_points", 0, 10**9)
     return model, rms, n_points, read_std(c.get("std", {}), f"{where}.std", model)
+
+
+def read_dist(v, where: str) -> np.ndarray:
+    """OpenCV's distortion coefficients: a list of 5, 8 or 12 finite numbers (camera_model.DIST_LENGTHS)."""
+    if not isinstance(v, list):
+        raise FieldError(where, f"expected a list of 5, 8 or 12 numbers, got {_kind(v)}")
+    problem = dist_length_problem(len(v))
+    if problem:
+        raise FieldError(where, f"has {problem}")
+    return array(v, where, (len(v),))
 
 
 def check_intrinsics(where: str, width: int, height: int, K: np.ndarray) -> None:
@@ -233,7 +243,7 @@ def distortion_problem(model: CameraModel, n: int = 48) -> str | None:
     with np.errstate(all="ignore"):
         xy = undistort_normalized(xy_d, model.dist)
     if not np.all(np.isfinite(xy)):
-        return "the distortion cannot be undone at the image border (k1 k2 p1 p2 k3 beyond any lens)"
+        return "the distortion cannot be undone at the image border (coefficients beyond any lens)"
     r = np.linalg.norm(xy, axis=1)
     keep = r > 1e-9
     moved = np.linalg.norm(xy_d - xy, axis=1)

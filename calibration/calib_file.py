@@ -1,5 +1,5 @@
-"""The station calibration file (JSON, versioned; docs/calibration-format.md) and OpenCV
-import/export.
+"""The station calibration file (JSON, versioned; docs/calibration-format.md). OpenCV's files:
+calibration/opencv_files.py (reading, writing, export) and calibration/opencv_import.py.
 
 Saving is atomic (write a temporary file beside the target, fsync, rename): a crash or a failed
 run never leaves a half-written file, and a good file is replaced only by a validated one.
@@ -20,7 +20,6 @@ from datetime import datetime, timezone
 from importlib import metadata
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from calibration import calib_checks as checks
@@ -227,83 +226,3 @@ def load_calibration(path: str | os.PathLike, config=None) -> StationCalibration
     if config is not None:
         calib.check_against_config(config, str(path))
     return calib
-
-
-# --- OpenCV interchange -----------------------------------------------------------------------
-def export_opencv(calib: StationCalibration, directory: str | os.PathLike) -> list[Path]:
-    """One ``<cam_id>.yaml`` per camera as ``cv2.FileStorage`` writes it: image_width,
-    image_height, camera_matrix (3x3), distortion_coefficients (1x5: k1 k2 p1 p2 k3),
-    R (3x3, R_cam_station), T (3x1, t_cam_station in metres), rvec (3x1)."""
-    directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
-    out = []
-    for cam_id, c in calib.cameras.items():
-        m = c.model
-        path = directory / f"{cam_id}.yaml"
-        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
-        fs.write("camera_id", cam_id)
-        fs.write("image_width", int(m.width))
-        fs.write("image_height", int(m.height))
-        fs.write("camera_matrix", np.asarray(m.K, float))
-        fs.write("distortion_coefficients", np.asarray(m.dist, float).reshape(1, 5))
-        fs.write("R", np.asarray(m.R_cam_station, float))
-        fs.write("T", np.asarray(m.t_cam_station, float).reshape(3, 1))
-        fs.write("rvec", np.asarray(m.rvec, float).reshape(3, 1))
-        fs.release()
-        out.append(path)
-    return out
-
-
-def import_opencv(paths: dict[str, str | os.PathLike], pairs: dict | None = None,
-                  station_name: str = "") -> StationCalibration:
-    """Build a calibration from per-camera OpenCV files {cam_id: path} (YAML/JSON/XML as
-    ``cv2.FileStorage`` reads). Needs camera_matrix, distortion_coefficients (4, 5, or more:
-    only k1 k2 p1 p2 k3 are used; extra non-zero terms are refused), image size, and R (3x3)
-    or rvec, and T. T is taken in metres."""
-    cams = {}
-    for cam_id, p in paths.items():
-        p = Path(p)
-        if not p.exists():
-            raise CalibrationError(f"{p}: OpenCV calibration file for camera {cam_id} not found")
-        fs = cv2.FileStorage(str(p), cv2.FILE_STORAGE_READ)
-        try:
-            def mat(name, required=True):
-                node = fs.getNode(name)
-                if node.empty():
-                    if required:
-                        raise CalibrationError(f"{p}: camera {cam_id}: missing {name!r}")
-                    return None
-                m = node.mat()
-                if m is None:
-                    raise CalibrationError(f"{p}: camera {cam_id}: {name!r} is not a matrix")
-                m = np.asarray(m, float)
-                if not np.all(np.isfinite(m)):
-                    raise CalibrationError(f"{p}: camera {cam_id}: {name!r} contains NaN or infinity")
-                return m
-            K = mat("camera_matrix")
-            d = mat("distortion_coefficients").ravel()
-            if d.size < 4:
-                raise CalibrationError(f"{p}: camera {cam_id}: distortion_coefficients needs at least 4 values")
-            if d.size > 5 and np.any(d[5:] != 0):
-                raise CalibrationError(f"{p}: camera {cam_id}: distortion terms beyond k1 k2 p1 p2 k3 are not "
-                                       "supported by this station's camera model")
-            dist = np.zeros(5)
-            dist[:min(5, d.size)] = d[:5]
-            R = mat("R", required=False)
-            if R is None:
-                rvec = mat("rvec", required=False)
-                R = cv2.Rodrigues(rvec.reshape(3))[0] if rvec is not None else np.eye(3)
-            T = mat("T", required=False)
-            T = np.zeros(3) if T is None else T.reshape(3)
-            w = int(fs.getNode("image_width").real())
-            h = int(fs.getNode("image_height").real())
-            if w <= 0 or h <= 0:
-                raise CalibrationError(f"{p}: camera {cam_id}: image_width/image_height missing")
-            try:
-                model = CameraModel(cam_id, w, h, K, dist, R, T)
-            except ValueError as e:
-                raise CalibrationError(f"{p}: {e}") from None
-        finally:
-            fs.release()
-        cams[cam_id] = CameraCalibration(model)
-    return StationCalibration(cams, dict(pairs or {}), station_name, method="imported from OpenCV files")

@@ -1,4 +1,9 @@
-"""Pinhole camera with OpenCV's (k1, k2, p1, p2, k3) distortion, vectorised over points.
+"""Pinhole camera with OpenCV's lens distortion, vectorised over points.
+
+The distortion vector is OpenCV's, of 5, 8 or 12 coefficients (docs/conventions.md, "Camera
+model"): ``k1 k2 p1 p2 k3`` (what the station's own calibration estimates), + ``k4 k5 k6`` (the
+rational model's denominator), + ``s1 s2 s3 s4`` (thin prism). OpenCV's 14 add the tilted sensor
+``tauX tauY``, which this model does not have: such a camera is refused with that reason.
 
 Frames and pixel conventions are in docs/conventions.md:
 ``x_cam = R_cam_station @ x_station + t_cam_station``; pixel origin at the centre of the
@@ -11,15 +16,31 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-DIST_NAMES = ("k1", "k2", "p1", "p2", "k3")
+DIST_NAMES = ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6", "s1", "s2", "s3", "s4")
+DIST_LENGTHS = (5, 8, 12)  # k1 k2 p1 p2 k3 | + k4 k5 k6 (rational) | + s1 s2 s3 s4 (thin prism)
+TILT_LENGTH = 14           # OpenCV's + tauX tauY (tilted sensor): not this model
+
+
+def dist_length_problem(n: int) -> str | None:
+    """Why a distortion vector of ``n`` coefficients is not one this model has (None if it is),
+    to follow "dist has "."""
+    if n in DIST_LENGTHS:
+        return None
+    if n == TILT_LENGTH:
+        return ("14 coefficients: the last two are OpenCV's tilted-sensor terms tauX tauY (CALIB_TILTED_MODEL), "
+                "which this camera model does not have; use a calibration with 5, 8 or 12 coefficients")
+    return (f"{n} coefficients; this camera model takes 5 (k1 k2 p1 p2 k3), 8 (+ k4 k5 k6, the rational "
+            "model) or 12 (+ s1 s2 s3 s4, thin prism), as OpenCV orders them")
 
 
 def distort_normalized(xy: np.ndarray, dist: np.ndarray) -> np.ndarray:
     """Apply OpenCV's distortion to undistorted normalised points.
 
-    xy: (N, 2) undistorted normalised coordinates. dist: (5,) k1 k2 p1 p2 k3.
-    Returns (N, 2) distorted normalised coordinates.
+    xy: (N, 2) undistorted normalised coordinates. dist: (5,) k1 k2 p1 p2 k3, or (8,) / (12,)
+    with the rational and thin-prism terms. Returns (N, 2) distorted normalised coordinates.
     """
+    if len(dist) != 5:
+        return _distort_rational(xy, dist)
     k1, k2, p1, p2, k3 = dist
     x = xy[:, 0]
     y = xy[:, 1]
@@ -32,6 +53,8 @@ def distort_normalized(xy: np.ndarray, dist: np.ndarray) -> np.ndarray:
 
 def _distortion_jacobian(xy: np.ndarray, dist: np.ndarray) -> np.ndarray:
     """d(distorted)/d(undistorted) for each point: (N, 2, 2)."""
+    if len(dist) != 5:
+        return _rational_jacobian(xy, dist)
     k1, k2, p1, p2, k3 = dist
     x = xy[:, 0]
     y = xy[:, 1]
@@ -46,12 +69,57 @@ def _distortion_jacobian(xy: np.ndarray, dist: np.ndarray) -> np.ndarray:
     return J
 
 
+# --- the rational and thin-prism terms (8 or 12 coefficients), as OpenCV's projectPoints ------
+# radial = (1 + k1 r2 + k2 r2^2 + k3 r2^3) / (1 + k4 r2 + k5 r2^2 + k6 r2^3)
+# xd = x radial + 2 p1 x y + p2 (r2 + 2 x^2) + s1 r2 + s2 r2^2
+# yd = y radial + p1 (r2 + 2 y^2) + 2 p2 x y + s3 r2 + s4 r2^2
+# The 5-term functions above stay separate: they are the station's hot path, bit for bit as before.
+def _rational_terms(dist: np.ndarray) -> tuple[float, ...]:
+    """(k1 k2 p1 p2 k3 k4 k5 k6 s1 s2 s3 s4) of an (8,) or (12,) vector (thin prism 0 for 8)."""
+    n = len(dist)
+    if n not in (8, 12):
+        raise ValueError(f"the distortion has {dist_length_problem(n) or f'{n} coefficients, not 8 or 12'}")
+    return (*(float(v) for v in dist), *((0.0,) * (12 - n)))
+
+
+def _distort_rational(xy: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4 = _rational_terms(dist)
+    x = xy[:, 0]
+    y = xy[:, 1]
+    r2 = x * x + y * y
+    radial = (1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1.0 + r2 * (k4 + r2 * (k5 + r2 * k6)))
+    xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x) + r2 * (s1 + r2 * s2)
+    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y + r2 * (s3 + r2 * s4)
+    return np.stack([xd, yd], axis=1)
+
+
+def _rational_jacobian(xy: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """:func:`_distortion_jacobian` of the 8- and 12-term model: (N, 2, 2)."""
+    k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4 = _rational_terms(dist)
+    x = xy[:, 0]
+    y = xy[:, 1]
+    r2 = x * x + y * y
+    den = 1.0 + r2 * (k4 + r2 * (k5 + r2 * k6))
+    radial = (1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))) / den
+    # d(num/den)/dr2 = (num' - radial den') / den
+    dradial_dr2 = (k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2) - radial * (k4 + r2 * (2.0 * k5 + 3.0 * k6 * r2))) / den
+    dprism_x = s1 + 2.0 * s2 * r2  # d(s1 r2 + s2 r2^2)/dr2
+    dprism_y = s3 + 2.0 * s4 * r2
+    J = np.empty((len(x), 2, 2))
+    J[:, 0, 0] = radial + 2 * x * (x * dradial_dr2 + dprism_x) + 2 * p1 * y + 6 * p2 * x
+    J[:, 0, 1] = 2 * y * (x * dradial_dr2 + dprism_x) + 2 * p1 * x + 2 * p2 * y
+    J[:, 1, 0] = 2 * x * (y * dradial_dr2 + dprism_y) + 2 * p1 * x + 2 * p2 * y
+    J[:, 1, 1] = radial + 2 * y * (y * dradial_dr2 + dprism_y) + 6 * p1 * y + 2 * p2 * x
+    return J
+
+
 def undistort_normalized(xy_d: np.ndarray, dist: np.ndarray, iterations: int = 30,
                          tol: float = 1e-15) -> np.ndarray:
     """Invert :func:`distort_normalized` exactly (Newton's method to machine precision).
 
-    xy_d: (N, 2) distorted normalised coordinates. Returns (N, 2) undistorted ones.
-    Points where Newton does not converge (far outside a lens's valid field) come back NaN.
+    xy_d: (N, 2) distorted normalised coordinates; dist: (5,), (8,) or (12,) as
+    :func:`distort_normalized`. Returns (N, 2) undistorted ones. Points where Newton does not
+    converge (far outside a lens's valid field) come back NaN.
     """
     xy_d = np.asarray(xy_d, dtype=float)
     if not np.any(dist):
@@ -105,7 +173,8 @@ def matrix_to_rodrigues(R: np.ndarray) -> np.ndarray:
 class CameraModel:
     """One calibrated camera.
 
-    K: (3,3) intrinsics, no skew. dist: (5,) k1 k2 p1 p2 k3.
+    K: (3,3) intrinsics, no skew. dist: (5,) k1 k2 p1 p2 k3, or OpenCV's (8,) / (12,) with
+    k4 k5 k6 and s1 s2 s3 s4 (DIST_LENGTHS; 14, the tilted sensor, is refused).
     R_cam_station: (3,3), t_cam_station: (3,) metres, x_cam = R x_station + t.
     """
 
@@ -118,10 +187,14 @@ class CameraModel:
     t_cam_station: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
     def __post_init__(self):
-        for name, shape in (("K", (3, 3)), ("dist", (5,)), ("R_cam_station", (3, 3)),
+        for name, shape in (("K", (3, 3)), ("dist", None), ("R_cam_station", (3, 3)),
                             ("t_cam_station", (3,))):
             arr = np.array(getattr(self, name), dtype=float)
-            if arr.shape != shape:
+            if shape is None:  # dist: one of DIST_LENGTHS
+                problem = dist_length_problem(arr.size) if arr.ndim == 1 else f"shape {arr.shape}"
+                if problem:
+                    raise ValueError(f"camera {self.name}: dist has {problem}")
+            elif arr.shape != shape:
                 raise ValueError(f"camera {self.name}: {name} must have shape {shape}, got {arr.shape}")
             if not np.all(np.isfinite(arr)):
                 raise ValueError(f"camera {self.name}: {name} contains NaN or infinity")

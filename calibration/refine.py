@@ -57,7 +57,12 @@ def _skew(w: np.ndarray) -> np.ndarray:
 
 
 def intrinsics_vector(K: np.ndarray, dist: np.ndarray) -> np.ndarray:
-    return np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2], *np.asarray(dist, float)])
+    """(9,) fx fy cx cy k1 k2 p1 p2 k3: the adjustment estimates OpenCV's five terms only."""
+    dist = np.asarray(dist, float).ravel()
+    if dist.size != 5:
+        raise CalibrationError(f"the bundle adjustment estimates k1 k2 p1 p2 k3, not {dist.size} distortion "
+                               "coefficients (OpenCV's rational and thin-prism terms come only with an import)")
+    return np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2], *dist])
 
 
 def K_from_vector(x: np.ndarray) -> np.ndarray:

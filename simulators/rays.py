@@ -16,7 +16,7 @@ from collections import OrderedDict
 
 import numpy as np
 
-from calibration.camera_model import CameraModel, distort_normalized
+from calibration.camera_model import CameraModel, distort_normalized, undistort_normalized
 from simulators.shading import rowmat
 
 _GRID_CACHE: "OrderedDict[bytes, np.ndarray]" = OrderedDict()
@@ -33,6 +33,8 @@ def undistort_fast(xy_d: np.ndarray, dist: np.ndarray, xy0: np.ndarray | None = 
     xy_d = np.asarray(xy_d, float)
     if not np.any(dist):
         return xy_d.copy()
+    if len(dist) != 5:  # OpenCV's rational / thin-prism terms: the camera model's general solver
+        return undistort_normalized(xy_d, np.asarray(dist, float))
     k1, k2, p1, p2, k3 = (float(v) for v in dist)
     xy = (xy_d if xy0 is None else np.asarray(xy0, float)).copy()
     active = np.arange(len(xy))

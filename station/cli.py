@@ -28,6 +28,7 @@ from station.errors import CODED_ERRORS, user_message  # noqa: E402
 COMMANDS = {
     "measure": ("measure", "measure toe and camber of all four wheels (one cycle on the configured station)"),
     "calibrate": ("calibrate", "calibrate the eight cameras and four pairs with the calibration box"),
+    "calibration": ("calibration_files", "import the calibration from OpenCV files, or export it to them"),
     "simulate": ("simulate", "render the simulated station with a random vehicle and save it as a replay set (+ truth)"),
     "detect": ("detect", "find the rim ellipse in one photograph of a wheel (PNG or JPEG, colour or grey, any size)"),
     "box-print": ("box_print", "write the calibration box's faces as PNG images at true scale for manufacturing"),

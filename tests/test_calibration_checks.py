@@ -65,6 +65,11 @@ CORRUPTIONS = [  # (field, new value or KeyError to delete it, what the message 
     ("cameras.cam3.dist.0", 50.0, "cameras.cam3.dist: the distortion"),
     ("cameras.cam3.dist.0", -5.0, "cameras.cam3.dist: the distortion"),
     ("cameras.cam3.dist.4", NAN, "cameras.cam3.dist[4]: not a finite number"),
+    ("cameras.cam3.dist", [0.0] * 14, "cameras.cam3.dist: has 14 coefficients: the last two are OpenCV's tilted-sensor"),
+    ("cameras.cam3.dist", [0.0] * 6, "cameras.cam3.dist: has 6 coefficients; this camera model takes 5"),
+    ("cameras.cam3.dist", {"k1": 0}, "cameras.cam3.dist: expected a list of 5, 8 or 12 numbers, got an object"),
+    ("cameras.cam3.dist", [-0.2, 0.1, 0, 0, 0, 8.0, 0, 0], "cameras.cam3.dist: the distortion cannot be undone"),
+    ("cameras.cam3.dist", [-0.2, 0.1, 0, 0, 0, 0, 0, 0, 3.0, 0, 0, 0], "cameras.cam3.dist: the distortion cannot be"),
     ("cameras.cam3.R_cam_station.0.0", 2.0, "cameras.cam3.R_cam_station: is not a rotation"),
     ("cameras.cam3.t_cam_station_m", [1000.0, 0, 0], "cameras.cam3.t_cam_station_m: puts the camera 1e+03 m"),
     ("cameras.cam3.center_station_m.0", 9.0, "cameras.cam3.center_station_m: does not agree"),
@@ -157,6 +162,19 @@ def test_the_id_is_a_checksum_of_the_content_and_an_edit_changes_it(doc):
     assert load_calibration(path).calibration_id == edited.calibration_id
     saved = save_calibration(edited, path.with_name("again.json"))
     assert json.loads(saved.read_text())["calibration_id"] == edited.calibration_id
+
+
+@pytest.mark.parametrize("dist", [[-0.2, 0.1, 3e-4, -2e-4, 0.01, 0.03, -0.02, 0.01],
+                                  [-0.2, 0.1, 3e-4, -2e-4, 0.01, 0.03, -0.02, 0.01, 1e-3, -5e-4, -1e-3, 4e-4]])
+def test_a_camera_with_opencvs_longer_distortion_loads_exactly(doc, dist):
+    path, d = doc
+    d["cameras"]["cam3"]["dist"] = dist
+    for p in d["pairs"].values():  # an imported camera has no covariance, and then no pair has one
+        p.pop("covariance", None)
+    path.write_text(json.dumps(d))
+    back = load_calibration(path)
+    assert back.model("cam3").dist.tolist() == dist and back.model("cam4").dist.shape == (5,)
+    assert back.calibration_id != d["calibration_id"]  # the content changed, so did its id
 
 
 def test_the_truth_calibration_of_the_tests_loads_with_its_written_id(tmp_path):

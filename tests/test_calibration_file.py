@@ -7,8 +7,10 @@ import json
 import numpy as np
 import pytest
 
-from calibration.calib_file import CameraCalibration, export_opencv, import_opencv, load_calibration, save_calibration
+from calibration.calib_file import CameraCalibration, load_calibration, save_calibration
 from calibration.errors import CalibrationError, CalibrationMismatch
+from calibration.opencv_files import export_opencv
+from calibration.opencv_import import import_opencv
 from calibration.stereo import StereoPair, epipolar_distance, pair_extrinsics
 from station.config import load_config
 from tests.station_fixtures import nominal_calibration
@@ -35,7 +37,7 @@ def test_json_round_trip_is_exact(config, tmp_path):
 
 def test_opencv_export_import_round_trip(config, tmp_path):
     calib = nominal_calibration(config)
-    files = export_opencv(calib, tmp_path / "ocv")
+    files = [f for f in export_opencv(calib, tmp_path / "ocv") if f.parent == tmp_path / "ocv"]
     assert len(files) == 8
     back = import_opencv({f.stem: f for f in files}, calib.pairs)
     for cam_id in config.cameras:

@@ -30,7 +30,7 @@ def test_station_help_imports_no_command_and_no_heavy_library():
     assert _imported_after(["--help"]) == set()
 
 
-@pytest.mark.parametrize("command", ["measure", "calibrate", "live", "review", "history", "serve", "simulate"])
+@pytest.mark.parametrize("command", ["measure", "calibrate", "calibration", "live", "review", "history", "serve", "simulate"])
 def test_a_commands_help_imports_no_pipeline(command):
     assert command in COMMANDS
     heavy = _imported_after([command, "--help"]) - {"numpy"}  # numpy alone is cheap enough to allow

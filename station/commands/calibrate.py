@@ -114,7 +114,7 @@ def print_tables(calib) -> None:
         m, s = c.model, c.std
         pos = np.max(s.get("position_m", [np.nan])) * 1000
         rot = np.max(s.get("rotation_deg", [np.nan]))
-        k1, k2, p1, p2, k3 = m.dist
+        k1, k2, p1, p2, k3 = m.dist[:5]  # the box calibration's five (an import may add k4.. s4)
         print(f"{cam_id:7s} {m.K[0, 0]:9.2f} {m.K[1, 1]:9.2f} {m.K[0, 2]:8.2f} {m.K[1, 2]:8.2f} {k1:8.4f} {k2:8.4f} "
               f"{k3:8.4f} {p1:9.2e} {p2:9.2e} {c.reprojection_rms_px:7.3f} {c.n_points:6d}  {s.get('fx', np.nan):6.3f}"
               f"  {s.get('cx', np.nan):6.3f}  {s.get('cy', np.nan):6.3f}  {s.get('k1', np.nan):7.5f}  {pos:10.4f}  {rot:11.5f}")

@@ -20,7 +20,8 @@ CAMERA_PARAMS = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "rx", "ry
 
 
 def perturb_camera(cam: CameraModel, delta: np.ndarray) -> CameraModel:
-    """A camera with its 15 parameters (CAMERA_PARAMS order) moved by ``delta`` (15,).
+    """A camera with its 15 parameters (CAMERA_PARAMS order) moved by ``delta`` (15,); any
+    distortion terms beyond k1 k2 p1 p2 k3 (an OpenCV import's) stay as they are.
 
     The rotation moves by the small rotation vector delta[9:12] applied in the camera frame
     (R' = exp([d]x) R), the translation by delta[12:15] (m).
@@ -32,7 +33,9 @@ def perturb_camera(cam: CameraModel, delta: np.ndarray) -> CameraModel:
     K[1, 1] += delta[1]
     K[0, 2] += delta[2]
     K[1, 2] += delta[3]
-    return CameraModel(cam.name, cam.width, cam.height, K, cam.dist + delta[4:9],
+    dist = cam.dist.copy()
+    dist[:5] += delta[4:9]  # the bundle adjustment's five; an imported camera's k4.. s4 are held
+    return CameraModel(cam.name, cam.width, cam.height, K, dist,
                        rodrigues_to_matrix(delta[9:12]) @ cam.R_cam_station, cam.t_cam_station + delta[12:15])
 
 
