@@ -131,8 +131,10 @@ def wheel_boxes(camera: CameraModel, scene: Scene, margin_px: float = 4.0) -> li
 
 
 def _caliper_angle(vehicle, name: str, R: np.ndarray) -> float:
-    """Angle in the wheel's u-v plane of the caliper: behind the axle, a little above it."""
-    rear = vehicle.R_station_vehicle @ np.array([0.0, -1.0, 0.35 if name.startswith("F") else 0.2])
+    """Angle in the wheel's u-v plane of the caliper: behind the axle, a little above it, on the
+    knuckle (it steers with the wheel but does not roll with it)."""
+    rear = vehicle.knuckle_turn_station(name) @ vehicle.R_station_vehicle @ np.array(
+        [0.0, -1.0, 0.35 if name.startswith("F") else 0.2])
     e = R.T @ rear
     return float(np.arctan2(e[1], e[0]))
 

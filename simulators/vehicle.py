@@ -169,6 +169,15 @@ class Vehicle:
             frame = turn @ frame
         return center, frame
 
+    def knuckle_turn_station(self, wheel: str) -> np.ndarray:
+        """(3,3) how the wheel's knuckle (and the brake caliper on it) is turned by the steering
+        about its kingpin, in the station frame; the identity for a wheel not steered."""
+        steer = self.steer_angles_deg()[wheel]
+        if not steer:
+            return np.eye(3)
+        _, k = self.kingpin_axis_vehicle(wheel)
+        return _rotation(self.R_station_vehicle @ k, np.radians(steer))
+
     def wheel_frame_station(self, wheel: str) -> tuple[np.ndarray, np.ndarray]:
         """(center (3,), R_station_wheel (3,3)) of the wheel as the cameras see it (the rim, the
         tyre, the spokes): the spin frame, tilted and offset by the rim's runout. Columns u, v,
