@@ -7,7 +7,8 @@ set -euo pipefail
 cd "$(dirname "$0")"
 
 APT_PACKAGES=(socat mbpoll aravis-tools aravis-tools-cli gir1.2-aravis-0.8
-              libgirepository1.0-dev libcairo2-dev pkg-config chromium iproute2 util-linux)
+              libgirepository1.0-dev libcairo2-dev pkg-config chromium iproute2 util-linux
+              postgresql)
 
 missing=()
 for p in "${APT_PACKAGES[@]}"; do
@@ -33,7 +34,7 @@ stamp=.venv/.installed-$(cat pyproject.toml | sha1sum | cut -c1-12)
 if [ ! -f "$stamp" ]; then
     echo "setup: installing the station and its Python dependencies into .venv"
     .venv/bin/python -m pip install -q --upgrade pip >/dev/null
-    .venv/bin/python -m pip install -q -e ".[test]"
+    .venv/bin/python -m pip install -q -e ".[test,shop]"
     # PyGObject for the Aravis driver builds against Debian's girepository; optional.
     if pkg-config --exists gobject-introspection-1.0 2>/dev/null; then
         .venv/bin/python -m pip install -q "pygobject<3.51" \

@@ -223,7 +223,13 @@ class History:
                     raise b.error(e, f"cannot store cycle {cycle_id}") from e
                 raise
         station = row[ROW_COLUMNS.index("station")]
-        if b.reachable() and b.contains(station, cycle_id):
+        try:
+            known = b.contains(station, cycle_id)
+        except Exception as e:  # noqa: BLE001 - the server is away: the outbox keeps the cycle
+            if not b.is_connection_error(e):
+                raise b.error(e, f"cannot store cycle {cycle_id}") if b.is_database_error(e) else e
+            known = False
+        if known:
             raise StorageError(f"{self.where}: cycle {cycle_id} of station {station} is already in the history",
                                hint="every cycle needs a unique cycle_id")
         self._outbox.put(station, cycle_id, row, angles)  # on the station's disk before anything is sent
