@@ -400,3 +400,14 @@ def export_csv(rows: list[dict], path_or_file) -> int:
         raise StorageError(f"{path}: cannot write the CSV export: {e.strerror or e}",
                            hint="choose a writable folder with free space") from e
     return len(rows)
+
+
+def send_outbox(config) -> int:
+    """Send the cycles waiting in the configured station's outbox; how many the server took now
+    (0 without a shared history or an outbox)."""
+    if config.history.url is None or not config.data_path(OUTBOX_FILE).exists():
+        return 0
+    with open_history(config) as history:
+        if not history.queued():
+            return 0
+        return len(history.flush())
