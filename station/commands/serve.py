@@ -26,6 +26,8 @@ def add_arguments(parser):
     parser.add_argument("--fail-every", type=int, default=10, metavar="N",
                         help="with --dry-run: jobs whose number is a multiple of N fail with fault "
                              "401, so the PLC's fault branch is exercised (0: never; default 10)")
+    parser.add_argument("--delay-s", type=float, default=0.0, metavar="S",
+                        help="with --dry-run: each synthetic cycle takes this long (a stand-in for the measurement)")
     parser.add_argument("--store", action="store_true",
                         help="with --dry-run: keep every synthetic result in the history too (history.url or "
                              "SQLite), as a measuring station does")
@@ -168,7 +170,10 @@ def run(args) -> int:
     from station.plc.server import parse_allowed
 
     parse_allowed(plc.allowed_clients)  # a bad entry fails before anything opens
-    runner = dry_run_runner(args.fail_every) if args.dry_run else measurement_runner(config, seed=args.seed)
+    if not 0 <= args.delay_s <= 600:
+        raise ConfigError(f"--delay-s {args.delay_s:g}: expected 0 to 600 s")
+    runner = dry_run_runner(args.fail_every, delay_s=args.delay_s) if args.dry_run \
+        else measurement_runner(config, seed=args.seed)
     if args.store and not args.dry_run:
         raise ConfigError("--store goes with --dry-run (a measuring station keeps every cycle anyway)")
     if args.store:
