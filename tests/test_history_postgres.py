@@ -221,3 +221,49 @@ def test_outbox_keeps_cycles_while_the_server_is_down_and_sends_each_once(url, p
     with History(url, station="bay-1", outbox=outbox) as h3:
         assert h3.flush() and h3.queued() == 0
     assert _count(url) == 9
+
+
+def test_serve_stores_into_the_shared_history_and_resends_its_outbox(url, pg, tmp_path, station_data_dir):
+    """`station serve --dry-run --store` with history.url: every acknowledged cycle is in the
+    shared history, tagged with the station; with the server stopped the PLC still gets its
+    results, and the cycles reach the server by serve's own resend once it is back."""
+    import subprocess
+    import sys
+    import time
+    cfg = _config(tmp_path, url, "bay-7")
+    text = open(cfg).read().replace("connect_timeout_s: 2", "connect_timeout_s: 2\n  retry_s: 0.5")
+    open(cfg, "w").write(text)
+    port = pg_server.free_port()
+    serve = subprocess.Popen([sys.executable, "-m", "station.cli", "--config", cfg, "serve", "--dry-run", "--store",
+                              "--fail-every", "0", "--port", str(port)], stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, text=True)
+
+    def plc(first: int, n: int) -> str:
+        out = subprocess.run([sys.executable, "-m", "station.plc.master", "--port", str(port), "--cycles", str(n),
+                              "--first-job", str(first), "--fail-every", "0", "--dry-run-check", "--quiet"],
+                             capture_output=True, text=True, timeout=120)
+        assert out.returncode == 0, out.stdout + out.stderr
+        return out.stdout
+
+    try:
+        assert "station serving" in serve.stdout.readline()
+        plc(1, 3)
+        assert _count(url, "SELECT COUNT(*) FROM cycles WHERE station = 'bay-7'") == 3
+        pg.stop()
+        try:
+            assert "2 cycles, 0 with problems" in plc(4, 2)  # the PLC's results, with the server away
+            con = sqlite3.connect(station_data_dir / "history-outbox.sqlite")
+            assert con.execute("SELECT COUNT(*) FROM outbox").fetchone()[0] == 2
+            con.close()
+        finally:
+            pg.start()
+        deadline = time.monotonic() + 20
+        while _count(url) < 5 and time.monotonic() < deadline:
+            time.sleep(0.2)
+        with psycopg.connect(url) as c:
+            jobs = [r[0] for r in c.execute("SELECT job_id FROM cycles WHERE station = 'bay-7' ORDER BY id")]
+        assert jobs == [f"JOB-{i:06d}" for i in range(1, 6)]
+    finally:
+        serve.terminate()
+        out, err = serve.communicate(timeout=30)
+    assert serve.returncode == 0 and "Traceback" not in err, err
