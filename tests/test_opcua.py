@@ -312,7 +312,7 @@ def test_login_required_beyond_loopback_and_checked(tmp_path):
     try:
         async def run():
             for login in ({}, {"user": "mes", "password": "wrong"}, {"user": "nobody", "password": "line-3-secret"}):
-                with pytest.raises(Exception):  # anonymous and wrong logins are refused
+                with pytest.raises(ua.UaStatusCodeError):  # anonymous and wrong logins are refused
                     c, _ = await _connect(op, **login)
                     await c.disconnect()
             client, st = await _connect(op, user="mes", password="line-3-secret")

@@ -95,16 +95,6 @@ class PostgresBackend:
         self.last_error = None
         return conn
 
-    def reachable(self) -> bool:
-        """Whether the server answers now (connecting if need be)."""
-        try:
-            with self._lock:
-                self._connect()
-            return True
-        except self.connection_errors:
-            self._drop()
-            return False
-
     def _drop(self) -> None:
         if self._conn is not None:
             try:
