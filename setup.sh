@@ -7,7 +7,8 @@ set -euo pipefail
 cd "$(dirname "$0")"
 
 APT_PACKAGES=(socat mbpoll aravis-tools aravis-tools-cli gir1.2-aravis-0.8
-              libgirepository1.0-dev libcairo2-dev pkg-config chromium iproute2 util-linux)
+              libgirepository1.0-dev libcairo2-dev pkg-config chromium iproute2 util-linux
+              postgresql)
 
 missing=()
 for p in "${APT_PACKAGES[@]}"; do
@@ -17,6 +18,9 @@ if [ ${#missing[@]} -gt 0 ]; then
     if [ "$(id -u)" -eq 0 ] && command -v apt-get >/dev/null; then
         echo "setup: installing Debian packages: ${missing[*]}"
         export DEBIAN_FRONTEND=noninteractive
+        # postgresql is for the tests' throw-away servers (tests/pg_server.py): no system cluster
+        mkdir -p /etc/postgresql-common/createcluster.d
+        echo "create_main_cluster = false" > /etc/postgresql-common/createcluster.d/station-no-main-cluster.conf
         apt-get update -qq >/dev/null
         apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
     else
@@ -33,7 +37,7 @@ stamp=.venv/.installed-$(cat pyproject.toml | sha1sum | cut -c1-12)
 if [ ! -f "$stamp" ]; then
     echo "setup: installing the station and its Python dependencies into .venv"
     .venv/bin/python -m pip install -q --upgrade pip >/dev/null
-    .venv/bin/python -m pip install -q -e ".[test]"
+    .venv/bin/python -m pip install -q -e ".[test,shop]"
     # PyGObject for the Aravis driver builds against Debian's girepository; optional.
     if pkg-config --exists gobject-introspection-1.0 2>/dev/null; then
         .venv/bin/python -m pip install -q "pygobject<3.51" \

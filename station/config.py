@@ -87,6 +87,35 @@ def _string_list(v, key):
     return tuple(v)
 
 
+def _history_url(v, key):
+    """null, or a PostgreSQL URL with a host and a database (its password never repeated in errors)."""
+    if v is None:
+        return None
+    from urllib.parse import urlsplit
+    if not isinstance(v, str) or not v.startswith(("postgresql://", "postgres://")):
+        raise _Bad("expected null (SQLite in data_dir) or postgresql://user:password@host:port/database")
+    try:
+        parts = urlsplit(v)
+        parts.port  # noqa: B018 - raises ValueError for a port that is not a number
+    except ValueError as e:
+        raise _Bad(f"not a usable PostgreSQL URL ({e})") from None
+    if not parts.hostname or not parts.path.strip("/"):
+        raise _Bad("expected postgresql://user:password@host:port/database (a host and a database)")
+    return v
+
+
+def _password_hashes(v, key):
+    """{user: hex SHA-256 of the password}: who may log in to the OPC UA server."""
+    if not isinstance(v, dict):
+        raise _Bad(f"expected a mapping of user: sha256 hex of the password, got {type(v).__name__}")
+    for user, digest in v.items():
+        if not isinstance(user, str) or not user or not isinstance(digest, str) \
+                or len(digest) != 64 or any(ch not in "0123456789abcdef" for ch in digest.lower()):
+            raise _Bad(f"user {user!r}: expected the password's SHA-256 as 64 hex digits "
+                       "(python -c \"import hashlib;print(hashlib.sha256(b'PASSWORD').hexdigest())\")")
+    return {u: d.lower() for u, d in v.items()}
+
+
 def _section(schema: dict[str, Field]):
     def check(v, key):
         return _validate(v, schema, key)
@@ -263,6 +292,16 @@ SCHEMA = {
         "idle_timeout_s": Field(_number(0, 86400), default=60.0),  # 0: never close an idle connection
         "roll_timeout_s": Field(_number(1, 3600), default=120.0),  # a roll the PLC does not confirm: fault 415
         "steer_timeout_s": Field(_number(1, 3600), default=120.0),  # a steer target not reached: fault 424
+    }), default={}),
+    "history": Field(_section({
+        "url": Field(_history_url, default=None),  # null: <data_dir>/history.sqlite; postgresql://...: shared
+        "connect_timeout_s": Field(_number(0.5, 60), default=3.0),
+        "retry_s": Field(_number(0.5, 3600), default=10.0),  # station serve: resend the outbox this often
+    }), default={}),
+    "opcua": Field(_section({
+        "host": Field(_string(), default="127.0.0.1"),
+        "port": Field(_number(1, 65535, integer=True), default=4840),
+        "users": Field(_password_hashes, default={}),  # {user: sha256 hex of the password}
     }), default={}),
     "recording": Field(_section({
         "enabled": Field(_bool, default=True),

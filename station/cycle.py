@@ -331,9 +331,12 @@ class Station:
                 _not_kept(result, str(e))
         if store:
             try:
-                from station.records.history import History
-                with History(self.config.data_path("history.sqlite")) as history:
+                from station.records.history import open_history
+                with open_history(self.config) as history:
                     history.store(result)
+                    if history.last_queued:  # kept on this PC; sent when the server answers again
+                        result.warn(f"the history server did not take this cycle now ({history.where}); it waits "
+                                    f"in the station's outbox ({history.queued()} cycle(s)) and is sent once it answers")
             except StorageError as e:
                 _not_kept(result, f"{e}; the measurement is kept, this cycle is not in the history")
         result.timing_s["record_and_store"] = time.perf_counter() - t0

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from station.config import load_config
 from station.errors import ConfigError, StorageError
-from station.records.history import History
+from station.records.history import open_history
 from station.records.printable import visible
 from station.records.report import build_report, render_with_chromium, safe_filename, write_report
 from station.records.vehicle_specs import load_vehicle_specs
@@ -18,7 +18,7 @@ def add_arguments(parser):
 
 def run(args) -> int:
     config = load_config(args.config)
-    with History(config.data_path("history.sqlite"), read_only=True) as history:
+    with open_history(config, read_only=True) as history:
         results = history.jobs(args.job)
         if not results:
             known = [visible(j) for j, _, _ in history.job_ids()[:5]]

@@ -1,4 +1,5 @@
-"""`station serve`: the station as a Modbus device for the shop PLC (docs/plc.md)."""
+"""`station serve`: the station as a Modbus device for the shop PLC (docs/plc.md), and with
+`--opcua` as an OPC UA server too (docs/shop.md)."""
 
 from __future__ import annotations
 
@@ -25,6 +26,17 @@ def add_arguments(parser):
     parser.add_argument("--fail-every", type=int, default=10, metavar="N",
                         help="with --dry-run: jobs whose number is a multiple of N fail with fault "
                              "401, so the PLC's fault branch is exercised (0: never; default 10)")
+    parser.add_argument("--delay-s", type=float, default=0.0, metavar="S",
+                        help="with --dry-run: each synthetic cycle takes this long (a stand-in for the measurement)")
+    parser.add_argument("--store", action="store_true",
+                        help="with --dry-run: keep every synthetic result in the history too (history.url or "
+                             "SQLite), as a measuring station does")
+    parser.add_argument("--opcua", action="store_true",
+                        help="also serve the same device over OPC UA (default opcua.host:opcua.port, 127.0.0.1:4840; "
+                             "docs/shop.md)")
+    parser.add_argument("--opcua-host", help="OPC UA address to listen on (default: opcua.host); beyond loopback "
+                                             "opcua.users must name who may log in")
+    parser.add_argument("--opcua-port", type=int, help="OPC UA TCP port (default: opcua.port, 4840)")
     parser.add_argument("--seed", type=seed, default=None,
                         help="simulated station only: this random vehicle stands on the lift for every "
                              "cycle (default: each cycle measures the vehicle of its cycle number)")
@@ -57,7 +69,24 @@ def _transport(args, plc) -> tuple[str, dict]:
     return "tcp", {"host": args.host or plc.host, "port": port}
 
 
-async def _serve(args, runner, transport, where, device_id, plc) -> int:
+async def _send_outbox(config) -> None:
+    """Every history.retry_s: send the cycles the history server could not take (station/records/outbox.py)."""
+    from station.errors import StorageError
+    from station.records.history import send_outbox
+
+    log = logging.getLogger("station.history")
+    while True:
+        await asyncio.sleep(config.history.retry_s)
+        try:
+            sent = await asyncio.get_running_loop().run_in_executor(None, send_outbox, config)
+        except StorageError as e:
+            log.warning("outbox not sent: %s", e)
+            continue
+        if sent:
+            log.info("%d cycle(s) from the outbox sent to the history server", sent)
+
+
+async def _serve(args, runner, transport, where, device_id, plc, config) -> int:
     from station.plc.device import PlcDevice
     from station.plc.server import PlcServer, wait_until
 
@@ -77,8 +106,23 @@ async def _serve(args, runner, transport, where, device_id, plc) -> int:
     else:
         where["port"] = await server.start_tcp(**where)
         server.address = f"Modbus TCP {where['host']}:{where['port']}"
+    opcua = None
+    if args.opcua:
+        from station.plc.opcua_server import OpcUaServer
+        opcua = OpcUaServer(device, host=args.opcua_host or config.opcua.host,
+                            port=config.opcua.port if args.opcua_port is None else args.opcua_port,
+                            users=config.opcua.users, station_name=config.name)
+        try:
+            await opcua.start()
+        except BaseException:
+            await server.stop()
+            raise
+    background = []
+    if config.history.url is not None:  # resend what the history server could not take, while idle too
+        background.append(asyncio.create_task(_send_outbox(config)))
     mode = "dry run: synthetic results" if args.dry_run else "measuring"
-    print(f"station serving {server.address}, device id {device_id} ({mode}); Ctrl-C to stop", flush=True)
+    also = f" and OPC UA {opcua.endpoint}" if opcua else ""
+    print(f"station serving {server.address}{also}, device id {device_id} ({mode}); Ctrl-C to stop", flush=True)
     try:
         if args.cycles:
             waiter = asyncio.create_task(wait_until(
@@ -88,6 +132,10 @@ async def _serve(args, runner, transport, where, device_id, plc) -> int:
         else:
             await stop.wait()
     finally:
+        for task in background:
+            task.cancel()
+        if opcua is not None:
+            await opcua.stop()
         await server.stop()
     s, c = device.stats, server.counters
     print(f"served {s['started']} cycles ({s['done']} done, {s['fault']} fault), "
@@ -118,12 +166,26 @@ def run(args) -> int:
         raise ConfigError(f"--roll-timeout-s {args.roll_timeout_s:g}: expected more than 0 and at most 3600 s")
     if args.steer_timeout_s is not None and not 0 < args.steer_timeout_s <= 3600:
         raise ConfigError(f"--steer-timeout-s {args.steer_timeout_s:g}: expected more than 0 and at most 3600 s")
-    from station.plc.runner import dry_run_runner, measurement_runner
+    from station.plc.runner import dry_run_runner, measurement_runner, storing_runner
     from station.plc.server import parse_allowed
 
     parse_allowed(plc.allowed_clients)  # a bad entry fails before anything opens
-    runner = dry_run_runner(args.fail_every) if args.dry_run else measurement_runner(config, seed=args.seed)
+    if not 0 <= args.delay_s <= 600:
+        raise ConfigError(f"--delay-s {args.delay_s:g}: expected 0 to 600 s")
+    runner = dry_run_runner(args.fail_every, delay_s=args.delay_s) if args.dry_run \
+        else measurement_runner(config, seed=args.seed)
+    if args.store and not args.dry_run:
+        raise ConfigError("--store goes with --dry-run (a measuring station keeps every cycle anyway)")
+    if args.store:
+        from station.records.history import open_history
+        runner = storing_runner(runner, lambda: open_history(config))
+    if args.opcua:
+        from station.plc.opcua_server import check_binding
+        check_binding(args.opcua_host or config.opcua.host, config.opcua.users)
+        if args.opcua_port is not None and not 0 <= args.opcua_port <= 65535:
+            raise ConfigError(f"--opcua-port {args.opcua_port}: expected 0..65535")
     logging.basicConfig(level=getattr(logging, args.log_level.upper()), stream=sys.stderr,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     logging.getLogger("pymodbus").setLevel(logging.CRITICAL)  # its errors are ours, reported above
-    return asyncio.run(_serve(args, runner, transport, where, device_id, plc))
+    logging.getLogger("asyncua").setLevel(logging.ERROR)  # chatty at info; a bad call is logged as ours
+    return asyncio.run(_serve(args, runner, transport, where, device_id, plc, config))

@@ -104,6 +104,9 @@ class PlcDevice:
         self._start = 0
         self._task: asyncio.Task | None = None
         self._heartbeat: asyncio.Task | None = None
+        # called on the loop after each complete step (a state entered, a command refused): the
+        # OPC UA server mirrors the registers then (station/plc/opcua_server.py)
+        self.listeners: list = []
         # One worker thread runs the cycles (one at a time by the handshake); a cycle that
         # overruns its timeout keeps its thread, and the next cycle gets a fresh one.
         self._executor = ThreadPoolExecutor(1, thread_name_prefix="plc-cycle")
@@ -155,18 +158,36 @@ class PlcDevice:
             return None  # writing 0 ("none") just clears the mailbox
         plc = list(current[:rm.PLC_AREA[1]])  # the PLC area as it will be after this write
         plc[address - start:address - start + count] = values
-        try:
-            self.command(int(values[i]), plc)
-        except PlcError as e:
-            self.stats["refused"] += 1
-            self._set("reject_code", e.code)
-            self._set("reject_count", self._get("reject_count") + 1)
-            log.warning("PLC command %s refused (%d): %s", values[i], e.code, e)
-            return ExcCodes(modbus_exception(e))
+        refused = self.submit(int(values[i]), plc)
+        if refused is not None:
+            return ExcCodes(modbus_exception(refused))
         # Consumed: the mailbox reads back 0 once this write is applied. The response still
         # echoes the written value, as function 6 requires (libmodbus checks the echo).
         asyncio.get_running_loop().call_soon(self._set, "command", 0)
         return None
+
+    def submit(self, value: int, plc: list[int]) -> PlcError | None:
+        """A command from any protocol (Modbus, OPC UA): applied, or refused with the refusal
+        counted and kept in ``reject_code``/``reject_count`` (returned, None when applied)."""
+        try:
+            self.command(value, plc)
+        except PlcError as e:
+            self.refuse(e, value)
+            return e
+        return None
+
+    def refuse(self, error: PlcError, value: int | str) -> None:
+        """Count a refused command and show its code in ``reject_code``/``reject_count``."""
+        self.stats["refused"] += 1
+        self._set("reject_code", error.code)
+        self._set("reject_count", self._get("reject_count") + 1)
+        log.warning("PLC command %s refused (%d): %s", value, error.code, error)
+        self._changed()
+
+    def _changed(self) -> None:
+        """Tell the listeners (another protocol's mirror of the registers) that a step is complete."""
+        for listener in self.listeners:
+            listener()
 
     def command(self, value: int, plc: list[int]) -> None:
         """Apply a PLC command; ``plc`` is the PLC area's registers. Raises PlcError to refuse."""
@@ -197,6 +218,7 @@ class PlcDevice:
     def _enter(self, state: State) -> None:
         self.state = state
         self._set("state", state.value)
+        self._changed()  # every step that changes the state ends here, its registers all written
 
     # --- cycles ---------------------------------------------------------------------------------
     def _start_cycle(self, event: Event, job: str | None, spec: str | None) -> None:

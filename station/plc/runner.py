@@ -202,3 +202,34 @@ def dry_run_runner(fail_every: int = 10, delay_s: float = 0.0, reading_s: float 
         return synthetic_result(request, fail_every)
 
     return run
+
+
+# --- keeping the dry run's results ----------------------------------------------------------------
+def storing_runner(runner: CycleRunner, open_history: Callable) -> CycleRunner:
+    """``runner`` whose valid results are also kept in the history ``open_history()`` opens, each
+    under a new cycle id and the time it finished (``station serve --dry-run --store``: commissioning
+    a shared history, and the shop benchmark). The result reaches the PLC only after the history
+    (or, with the server away, the station's outbox) has it; a history that refuses it is a
+    warning on the result, as in a measuring cycle."""
+    import datetime as dt
+
+    from station.capture.saving import new_cycle_id
+    from station.errors import StorageError
+    from station.result import WarningFlag
+
+    def run(request: CycleRequest) -> Measurement:
+        result = runner(request)
+        if isinstance(result, Measurement) and result.valid:
+            result.cycle_id = new_cycle_id()
+            result.time_utc = dt.datetime.now(dt.timezone.utc).isoformat(timespec="milliseconds")
+            try:
+                with open_history() as history:
+                    history.store(result)
+                    if history.last_queued:
+                        result.warn(f"the history server did not take this cycle now ({history.where}); it waits "
+                                    "in the station's outbox and is sent once it answers")
+            except StorageError as e:
+                result.warn(f"{e}; the measurement is kept, this cycle is not in the history", WarningFlag("not_kept"))
+        return result
+
+    return run

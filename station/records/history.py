@@ -1,16 +1,21 @@
-"""The station's history: every cycle in an embedded SQLite database (WAL journal).
+"""The station's history: every cycle, one interface over two backends.
 
 One row per cycle in ``cycles`` (time, job id / VIN, vehicle spec, pass/fail, calibration id,
-recording, software version, the full result JSON) and one row per angle in ``angles``; a cycle
-is written in ONE transaction, so a process killed mid-write leaves either the whole cycle or
-none of it, and SQLite's journal keeps the file consistent. Every failure (corrupt file, locked
-database, full disk, read-only folder) is a :class:`~station.errors.StorageError` that says what
-to do; the caller keeps its result.
+recording, software version, station, the full result JSON) and one row per angle in ``angles``;
+a cycle is written in ONE transaction, so a process killed mid-write leaves either the whole
+cycle or none of it. Every failure (corrupt file, locked database, full disk, read-only folder,
+a history server that cannot be reached) is a :class:`~station.errors.StorageError` that says
+what to do; the caller keeps its result.
 
-A reader (``History(path, read_only=True)``) writes nothing: a missing history reads as an
-empty one (no file is made), and on a read-only disk the file is opened as SQLite's
-"immutable" (no lock, no -shm/-wal files made), or read-only through its existing -shm
-index when cycles are still in the -wal file.
+Backends: an embedded SQLite file, the default (``station/records/history_sqlite.py``), or a
+PostgreSQL server shared by the shop's stations (``history.url``,
+``station/records/history_postgres.py``) with a local outbox so that a lost connection loses no
+cycle (``station/records/outbox.py``). Their schema is versioned (``migrations.py``); a writer
+upgrades an older history in place.
+
+A reader (``History(path, read_only=True)``) writes nothing: a missing SQLite history reads as
+an empty one (no file is made), and on a read-only disk the file is opened as SQLite's
+"immutable" (history_sqlite.py).
 """
 
 from __future__ import annotations
@@ -22,51 +27,23 @@ import json
 import math
 import numbers
 import os
-import re
-import shutil
-import sqlite3
-import tempfile
-import threading
+import logging
 from pathlib import Path
-from urllib.parse import quote
 
-from station.compute.orphans import remove_orphans
 from station.records.atomic_file import write_atomic
 from station.records.printable import visible
 from station.errors import StorageError
+from station.records.migrations import SCHEMA_VERSION  # noqa: F401 - the history's schema version
 from station.result import ANGLE_NAMES, Measurement
 
-SCHEMA_VERSION = 1
-_SCHEMA = """
-CREATE TABLE IF NOT EXISTS cycles (
-    id               INTEGER PRIMARY KEY,
-    cycle_id         TEXT NOT NULL UNIQUE,
-    time_utc         TEXT NOT NULL,          -- ISO 8601, UTC, 'YYYY-MM-DDTHH:MM:SS.fffZ' (sortable)
-    job_id           TEXT,
-    vehicle_spec     TEXT,
-    valid            INTEGER NOT NULL,
-    passed           INTEGER,                -- NULL: no vehicle spec
-    calibration_id   TEXT,
-    recording        TEXT,
-    software_version TEXT,
-    station          TEXT,
-    result_json      TEXT NOT NULL
-);
-CREATE INDEX IF NOT EXISTS cycles_time ON cycles(time_utc);
-CREATE INDEX IF NOT EXISTS cycles_job ON cycles(job_id, time_utc);
-CREATE INDEX IF NOT EXISTS cycles_vehicle ON cycles(vehicle_spec, time_utc);
-CREATE TABLE IF NOT EXISTS angles (
-    cycle     INTEGER NOT NULL REFERENCES cycles(id) ON DELETE CASCADE,
-    name      TEXT NOT NULL,                 -- FL.toe ... thrust (docs/result-schema.md)
-    value_deg REAL,
-    std_deg   REAL,
-    passed    INTEGER,                       -- NULL: no spec figure
-    PRIMARY KEY (cycle, name)
-) WITHOUT ROWID;
-"""
-_COPY = re.compile(r"station-history-(?P<pid>\d+)-.+")  # a reader's private copy (read-only disk)
+log = logging.getLogger("station.history")
+URL_SCHEMES = ("postgresql://", "postgres://")
+OUTBOX_FILE = "history-outbox.sqlite"  # in the data folder: cycles the history server has not taken yet
+
 _COLUMNS = ("id", "cycle_id", "time_utc", "job_id", "vehicle_spec", "valid", "passed",
             "calibration_id", "recording", "software_version", "station")
+ROW_COLUMNS = ("cycle_id", "time_utc", "job_id", "vehicle_spec", "valid", "passed", "calibration_id",
+               "recording", "software_version", "station", "result_json")  # what a backend inserts
 
 
 def jsonable(obj):
@@ -137,130 +114,77 @@ def _angle_rows(result: Measurement) -> list[tuple[str, float | None, float | No
     return rows
 
 
-def _writable(path: Path) -> bool:
-    """Whether SQLite may write ``path`` and create its -wal/-shm files beside it."""
-    return os.access(path.parent, os.W_OK) and (not path.exists() or os.access(path, os.W_OK))
-
-
-def _disk_problem(folder: Path) -> str | None:
-    """Why ``folder`` cannot be written (read-only file system, full disk, permissions), if known."""
-    try:
-        st = os.statvfs(folder)
-    except OSError:
-        return None
-    if st.f_flag & os.ST_RDONLY:
-        return "the data folder is on a read-only file system"
-    if st.f_bavail == 0:
-        return "the data disk is full"
-    if not os.access(folder, os.W_OK):
-        return "the data folder is not writable"
-    return None
+def is_url(text) -> bool:
+    """Whether ``text`` names a history server (``postgresql://...``) rather than a file."""
+    return isinstance(text, str) and text.startswith(URL_SCHEMES)
 
 
 class History:
-    """The history database at ``path`` (created on first use). ``timeout_s``: wait for a lock.
-    ``read_only``: for reading only, creating no file (module docstring)."""
+    """The history at ``path``: a SQLite file (created on first use) or a PostgreSQL server's URL
+    (``postgresql://user:password@host:port/db``). ``timeout_s``: wait for a lock (SQLite) or a
+    connection (PostgreSQL). ``read_only``: for reading only, creating nothing (module docstring).
 
-    def __init__(self, path: str | os.PathLike, *, timeout_s: float = 5.0, read_only: bool = False):
-        self.path = Path(path)
-        self.timeout_s = timeout_s
-        self._lock = threading.RLock()
-        self._copy_dir: str | None = None
-        if read_only:
-            try:
-                self._conn = self._connect_read_only()
-            except (sqlite3.Error, OSError) as e:
-                self.close()
-                raise self._error(e, "cannot open the history") from e
-            return
-        try:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            # one connection, usable from the server's threads; self._lock serialises its use
-            self._conn = sqlite3.connect(self.path, timeout=timeout_s, isolation_level=None,
-                                         check_same_thread=False)
-            self._conn.row_factory = sqlite3.Row
-            self._conn.execute("PRAGMA foreign_keys=ON")
-            mode = self._conn.execute("PRAGMA journal_mode=WAL").fetchone()[0]
-            if mode.lower() != "wal":
-                raise sqlite3.OperationalError(f"cannot switch the journal to WAL (got {mode})")
-            self._conn.execute("PRAGMA synchronous=FULL")
-            version = self._conn.execute("PRAGMA user_version").fetchone()[0]
-            if version > SCHEMA_VERSION:
-                raise StorageError(f"{self.path}: history written by a newer station (schema {version})",
-                                   hint="update the station software, or point data_dir elsewhere")
-            if version < SCHEMA_VERSION:
-                self._conn.executescript(f"BEGIN IMMEDIATE;{_SCHEMA}PRAGMA user_version={SCHEMA_VERSION};COMMIT;")
-        except (sqlite3.Error, OSError) as e:
-            raise self._error(e, "cannot open the history") from e
+    A server's history is shared by several stations: ``station`` tags each stored cycle (the
+    configured station name), and ``outbox`` (a SQLite file in the data folder) keeps every
+    cycle until the server has it, so a lost connection loses no measurement
+    (:mod:`station.records.outbox`). The SQL lives in the backends
+    (``history_sqlite.py``, ``history_postgres.py``); this class is what callers see.
+    """
 
-    def _connect_read_only(self) -> sqlite3.Connection:
-        wal = self.path.with_name(self.path.name + "-wal")
-        shm = self.path.with_name(self.path.name + "-shm")
-        if not self.path.exists():
-            return self._empty()
-        if _writable(self.path):
-            conn = self._connect(self.path, "mode=ro")
-        elif not wal.exists() or wal.stat().st_size == 0:
-            conn = self._connect(self.path, "immutable=1")  # every cycle is in the main file
-        elif shm.exists():
-            conn = self._connect(self.path, "mode=ro")  # SQLite reads the -wal through the -shm index
+    def __init__(self, path: str | os.PathLike, *, timeout_s: float = 5.0, read_only: bool = False,
+                 station: str | None = None, outbox: str | os.PathLike | None = None):
+        self.station = station
+        self._outbox = None
+        self.last_queued = False  # whether the last store() left its cycle in the outbox
+        if is_url(path):
+            from station.records.history_postgres import PostgresBackend
+            self._backend = PostgresBackend(path, timeout_s=timeout_s, read_only=read_only,
+                                            lazy=outbox is not None and not read_only)
+            if outbox is not None and not read_only:
+                from station.records.outbox import Outbox
+                try:
+                    self._outbox = Outbox(outbox, timeout_s=max(timeout_s, 5.0))
+                except StorageError:
+                    self._backend.close()
+                    raise
         else:
-            # cycles in the -wal but no index to read them by, and none may be made there:
-            # read a private copy (SQLite rebuilds the index beside the copy)
-            remove_orphans(Path(tempfile.gettempdir()), _COPY)  # copies of readers that were killed
-            self._copy_dir = tempfile.mkdtemp(prefix=f"station-history-{os.getpid()}-")
-            copy = Path(self._copy_dir) / self.path.name
-            shutil.copyfile(self.path, copy)
-            shutil.copyfile(wal, copy.with_name(copy.name + "-wal"))
-            conn = self._connect(copy, "mode=ro")
-        version = conn.execute("PRAGMA user_version").fetchone()[0]
-        if version > SCHEMA_VERSION:
-            conn.close()
-            raise StorageError(f"{self.path}: history written by a newer station (schema {version})",
-                               hint="update the station software, or point data_dir elsewhere")
-        if version < SCHEMA_VERSION:  # an empty file (a first cycle that found the disk full): no cycles yet
-            conn.close()
-            return self._empty()
-        return conn
+            from station.records.history_sqlite import SqliteBackend
+            self._backend = SqliteBackend(path, timeout_s=timeout_s, read_only=read_only)
+        self.path = getattr(self._backend, "path", None)
+        self.where = self._backend.where
+        self.timeout_s = timeout_s
 
-    def _connect(self, path: Path, options: str) -> sqlite3.Connection:
-        conn = sqlite3.connect(f"file:{quote(str(path))}?{options}", uri=True, timeout=self.timeout_s,
-                               isolation_level=None, check_same_thread=False)
-        conn.row_factory = sqlite3.Row
-        return conn
+    @property
+    def _conn(self):
+        """The backend's open connection (diagnostics and tests)."""
+        return self._backend._conn
 
-    @staticmethod
-    def _empty() -> sqlite3.Connection:
-        """An empty history in memory: what a reader sees where no cycle was stored yet."""
-        conn = sqlite3.connect(":memory:", isolation_level=None, check_same_thread=False)
-        conn.row_factory = sqlite3.Row
-        conn.executescript(_SCHEMA)
-        return conn
+    @property
+    def shared(self) -> bool:
+        """Whether this history is a server's, shared by stations."""
+        return self._backend.shared
 
-    # -- errors ------------------------------------------------------------------------------------
-    def _error(self, e: Exception, doing: str) -> StorageError:
-        text = str(e)
-        if isinstance(e, sqlite3.DatabaseError) and ("not a database" in text or "malformed" in text
-                                                     or "corrupt" in text):
-            return StorageError(f"{self.path}: {doing}: the history database is corrupt ({text})",
-                                hint="move the file aside (keep it for recovery with `sqlite3 FILE .recover`); "
-                                     "the station starts a new one")
-        if "locked" in text or "busy" in text:
-            return StorageError(f"{self.path}: {doing}: the history database is locked by another program "
-                                f"for more than {self.timeout_s:g} s ({text})",
-                                hint="close the program holding it (an open sqlite3 shell, a backup tool) and retry")
-        if isinstance(e, OSError) or "readonly" in text or "read-only" in text or "disk" in text \
-                or "unable to open" in text or "full" in text:
-            reason = getattr(e, "strerror", None) or text
-            problem = _disk_problem(self.path.parent)
-            return StorageError(f"{self.path}: {doing}: {reason}" + (f" ({problem})" if problem else ""),
-                                hint="check that the data folder exists, is writable and has free space")
-        return StorageError(f"{self.path}: {doing}: {text}")
+    def version(self) -> int:
+        """The schema version of the history (station/records/migrations.py)."""
+        try:
+            return self._backend.version()
+        except Exception as e:  # noqa: BLE001 - a backend's driver error, wrapped
+            if self._backend.is_database_error(e):
+                raise self._backend.error(e, "cannot read the history's version") from e
+            raise
+
+    def migrate(self) -> list[int]:
+        """Apply the schema migrations the history lacks; the versions applied."""
+        try:
+            return self._backend.migrate()
+        except Exception as e:  # noqa: BLE001
+            if self._backend.is_database_error(e):
+                raise self._backend.error(e, "cannot upgrade the history") from e
+            raise
 
     # -- writing -----------------------------------------------------------------------------------
-    def store(self, result: Measurement) -> int:
-        """Store one cycle (its JSON, docs/result-schema.md) and its angles in one transaction.
-        Returns the row id."""
+    def _row(self, result: Measurement) -> tuple[tuple, list[tuple]]:
+        """(cycle row in ROW_COLUMNS order, angle rows) of ``result``; StorageError if it cannot be stored."""
         try:
             if result.cycle_id is None:
                 raise KeyError("cycle_id")
@@ -268,39 +192,86 @@ class History:
             time_utc = normalize_time(result.time_utc)
         except (KeyError, TypeError, ValueError) as e:
             raise StorageError(f"cannot store a result without a valid cycle_id and time_utc ({e})") from None
+        station = result.station
+        if self.shared:  # the shop's history: every cycle tagged with the station that measured it
+            station = self.station or result.station or "station"
         passed = (result.verdicts or {}).get("overall")
-        row = (cycle_id, time_utc, result.job_id, result.vehicle_spec, int(bool(result.valid)),
-               None if passed is None else int(bool(passed)), result.calibration_id, result.recording,
-               result.software_version, result.station, json.dumps(jsonable(result.to_json()), allow_nan=False))
         try:
-            c = self._conn
-            self._lock.acquire()
-            c.execute("BEGIN IMMEDIATE")
-            try:
-                cur = c.execute(
-                    "INSERT INTO cycles (cycle_id, time_utc, job_id, vehicle_spec, valid, passed, "
-                    "calibration_id, recording, software_version, station, result_json) "
-                    "VALUES (?,?,?,?,?,?,?,?,?,?,?)", row)
-                rowid = cur.lastrowid
-                c.executemany("INSERT INTO angles (cycle, name, value_deg, std_deg, passed) VALUES (?,?,?,?,?)",
-                              [(rowid, *a) for a in _angle_rows(result)])
-                c.execute("COMMIT")
-            except BaseException:
-                if c.in_transaction:
-                    c.execute("ROLLBACK")
-                raise
-            finally:
-                self._lock.release()
-        except sqlite3.IntegrityError as e:
-            raise StorageError(f"{self.path}: cycle {cycle_id} is already in the history ({e})",
-                               hint="every cycle needs a unique cycle_id") from None
+            text = json.dumps(jsonable(result.to_json()), allow_nan=False)
         except ValueError as e:  # json: NaN/inf
             raise StorageError(f"cannot store cycle {cycle_id}: {e}") from None
-        except (sqlite3.Error, OSError) as e:
-            raise self._error(e, f"cannot store cycle {cycle_id}") from e
-        return int(rowid)
+        row = (cycle_id, time_utc, result.job_id, result.vehicle_spec, int(bool(result.valid)),
+               None if passed is None else int(bool(passed)), result.calibration_id, result.recording,
+               result.software_version, station, text)
+        return row, _angle_rows(result)
+
+    def store(self, result: Measurement) -> int:
+        """Store one cycle (its JSON, docs/result-schema.md) and its angles in one transaction.
+        Returns the row id; 0 for a shared history whose server cannot take it now: the cycle
+        then waits in the outbox (``last_queued``) and is sent by a later store() or flush()."""
+        row, angles = self._row(result)
+        cycle_id = row[0]
+        b = self._backend
+        if self._outbox is None:
+            try:
+                return b.insert(row, angles)
+            except Exception as e:  # noqa: BLE001 - the backend's driver errors, wrapped below
+                if b.is_duplicate(e):
+                    raise StorageError(f"{self.where}: cycle {cycle_id} is already in the history ({e})",
+                                       hint="every cycle needs a unique cycle_id") from None
+                if b.is_database_error(e):
+                    raise b.error(e, f"cannot store cycle {cycle_id}") from e
+                raise
+        station = row[ROW_COLUMNS.index("station")]
+        try:
+            known = b.contains(station, cycle_id)
+        except Exception as e:  # noqa: BLE001 - the server is away: the outbox keeps the cycle
+            if not b.is_connection_error(e):
+                raise b.error(e, f"cannot store cycle {cycle_id}") if b.is_database_error(e) else e
+            known = False
+        if known:
+            raise StorageError(f"{self.where}: cycle {cycle_id} of station {station} is already in the history",
+                               hint="every cycle needs a unique cycle_id")
+        self._outbox.put(station, cycle_id, row, angles)  # on the station's disk before anything is sent
+        sent = self.flush()
+        self.last_queued = (station, cycle_id) not in sent
+        if self.last_queued:
+            log.warning("cycle %s kept in the outbox (%s): %s", cycle_id, self._outbox.path, b.last_error)
+        return sent.get((station, cycle_id)) or 0
+
+    def flush(self) -> dict[tuple[str, str], int | None]:
+        """Send the outbox's cycles to the server, oldest first, each exactly once (the insert is
+        idempotent by station and cycle id, and a cycle leaves the outbox only once the server
+        has committed it). Returns {(station, cycle id): row id (None: it was there already)}
+        of the cycles sent now; stops at the first lost connection."""
+        if self._outbox is None:
+            return {}
+        b, sent = self._backend, {}
+        for item in self._outbox.pending():
+            try:
+                rowid = b.insert(item.row, item.angles, idempotent=True)
+            except Exception as e:  # noqa: BLE001 - the driver's; kept in the outbox either way
+                if not b.is_database_error(e):
+                    raise
+                self._outbox.note(item.seq, str(e).splitlines()[0] if str(e) else type(e).__name__)
+                if b.is_connection_error(e):
+                    break
+                log.warning("cycle %s refused by the history server, kept in the outbox: %s", item.cycle_id, e)
+                continue
+            self._outbox.remove(item.seq)
+            sent[(item.station, item.cycle_id)] = rowid
+        return sent
+
+    def queued(self) -> int:
+        """Cycles waiting in the outbox for the server (0 without one)."""
+        return 0 if self._outbox is None else self._outbox.count()
 
     # -- reading -----------------------------------------------------------------------------------
+    def _fail(self, e: Exception, doing: str):
+        if self._backend.is_database_error(e):
+            raise self._backend.error(e, doing) from e
+        raise e
+
     def query(self, job: str | None = None, since=None, until=None, vehicle: str | None = None,
               passed: bool | None = None, limit: int | None = None) -> list[dict]:
         """Cycles in time order, filtered. ``since``/``until``: ISO date or time (a bare ``until``
@@ -321,30 +292,19 @@ class History:
         if limit is not None:
             sql += f" LIMIT {int(limit)}"
         try:
-            with self._lock:
-                rows, angles = self._select(sql, args)
-        except sqlite3.Error as e:
-            raise self._error(e, "cannot read the history") from e
+            rows, angles = self._backend.select(sql.replace("?", self._backend.placeholder), args)
+        except Exception as e:  # noqa: BLE001
+            self._fail(e, "cannot read the history")
         out = []
         for r in rows:
             d = {k: r[k] for k in _COLUMNS}
             d["valid"] = bool(d["valid"])
             d["passed"] = None if d["passed"] is None else bool(d["passed"])
             d["angles"] = {n: angles[r["id"]].get(n) for n in ANGLE_NAMES}
-            d["result"] = json.loads(r["result_json"])
+            raw = r["result_json"]
+            d["result"] = json.loads(raw) if isinstance(raw, (str, bytes)) else raw
             out.append(d)
         return out
-
-    def _select(self, sql: str, args: list) -> tuple[list, dict]:
-        rows = self._conn.execute(sql, args).fetchall()[::-1]
-        ids = [r["id"] for r in rows]
-        angles: dict[int, dict] = {i: {} for i in ids}
-        for start in range(0, len(ids), 500):
-            part = ids[start:start + 500]
-            for a in self._conn.execute(
-                    f"SELECT cycle, name, value_deg FROM angles WHERE cycle IN ({','.join('?' * len(part))})", part):
-                angles[a["cycle"]][a["name"]] = a["value_deg"]
-        return rows, angles
 
     def jobs(self, job_id: str) -> list[Measurement]:
         """The results of one job, in time order."""
@@ -353,35 +313,37 @@ class History:
     def get(self, cycle_id: str) -> dict | None:
         """One cycle's row (as :meth:`query` returns), or None."""
         try:
-            row = self._conn.execute("SELECT time_utc FROM cycles WHERE cycle_id = ?", (cycle_id,)).fetchone()
-        except sqlite3.Error as e:
-            raise self._error(e, "cannot read the history") from e
-        if row is None:
+            found = self._backend.scalar_rows(
+                "SELECT time_utc FROM cycles WHERE cycle_id = ?".replace("?", self._backend.placeholder), (cycle_id,))
+        except Exception as e:  # noqa: BLE001
+            self._fail(e, "cannot read the history")
+        if not found:
             return None
-        return next((r for r in self.query(since=row[0], until=row[0]) if r["cycle_id"] == cycle_id), None)
+        t = found[0][0]
+        return next((r for r in self.query(since=t, until=t) if r["cycle_id"] == cycle_id), None)
 
     def job_ids(self) -> list[tuple[str, int, str]]:
         """(job id, number of cycles, last time) of every job, newest first."""
         try:
-            return [tuple(r) for r in self._conn.execute(
+            return self._backend.scalar_rows(
                 "SELECT job_id, COUNT(*), MAX(time_utc) FROM cycles WHERE job_id IS NOT NULL "
-                "GROUP BY job_id ORDER BY MAX(time_utc) DESC")]
-        except sqlite3.Error as e:
-            raise self._error(e, "cannot read the history") from e
+                "GROUP BY job_id ORDER BY MAX(time_utc) DESC")
+        except Exception as e:  # noqa: BLE001
+            self._fail(e, "cannot read the history")
 
     def check(self) -> str:
-        """SQLite's integrity check: 'ok' or the problems found."""
+        """The backend's consistency check: 'ok' or the problems found."""
         try:
-            return "\n".join(r[0] for r in self._conn.execute("PRAGMA integrity_check"))
-        except sqlite3.Error as e:
-            raise self._error(e, "cannot check the history") from e
+            return self._backend.check()
+        except Exception as e:  # noqa: BLE001
+            self._fail(e, "cannot check the history")
 
     def close(self) -> None:
-        if getattr(self, "_conn", None) is not None:
-            self._conn.close()
-        if self._copy_dir is not None:
-            shutil.rmtree(self._copy_dir, ignore_errors=True)
-            self._copy_dir = None
+        backend = getattr(self, "_backend", None)
+        if backend is not None:
+            backend.close()
+        if self._outbox is not None:
+            self._outbox.close()
 
     def __enter__(self) -> "History":
         return self
@@ -389,6 +351,15 @@ class History:
     def __exit__(self, *exc) -> None:
         self.close()
 
+
+def open_history(config, *, read_only: bool = False) -> History:
+    """The configured history: ``history.url`` (a PostgreSQL server, cycles tagged with the
+    station's name, an outbox in the data folder) or, by default, ``<data_dir>/history.sqlite``."""
+    url = config.history.url
+    if url is None:
+        return History(config.data_path("history.sqlite"), read_only=read_only)
+    return History(url, read_only=read_only, station=config.name, timeout_s=config.history.connect_timeout_s,
+                   outbox=None if read_only else config.data_path(OUTBOX_FILE))
 
 # --- CSV --------------------------------------------------------------------------------------------
 CSV_COLUMNS = ("cycle_id", "time_utc", "job_id", "vehicle_spec", "valid", "passed", *ANGLE_NAMES,
@@ -429,3 +400,14 @@ def export_csv(rows: list[dict], path_or_file) -> int:
         raise StorageError(f"{path}: cannot write the CSV export: {e.strerror or e}",
                            hint="choose a writable folder with free space") from e
     return len(rows)
+
+
+def send_outbox(config) -> int:
+    """Send the cycles waiting in the configured station's outbox; how many the server took now
+    (0 without a shared history or an outbox)."""
+    if config.history.url is None or not config.data_path(OUTBOX_FILE).exists():
+        return 0
+    with open_history(config) as history:
+        if not history.queued():
+            return 0
+        return len(history.flush())
