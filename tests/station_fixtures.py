@@ -21,7 +21,7 @@ def small_station_config(tmp_path: Path, scale: float = 0.5, **overrides):
     data["calibration"]["box"] = str(DEFAULT_CONFIG.parent / data["calibration"].get("box", "box.yaml"))
     for key, value in overrides.items():
         section, name = key.split("__")
-        data[section][name] = value
+        data.setdefault(section, {})[name] = value
     path = tmp_path / "station.yaml"
     path.write_text(yaml.safe_dump(data))
     return load_config(path)

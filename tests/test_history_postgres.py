@@ -267,3 +267,28 @@ def test_serve_stores_into_the_shared_history_and_resends_its_outbox(url, pg, tm
         serve.terminate()
         out, err = serve.communicate(timeout=30)
     assert serve.returncode == 0 and "Traceback" not in err, err
+
+
+@pytest.mark.slow
+def test_a_real_measurement_cycle_lands_in_the_shared_history(pg, tmp_path):
+    """Not a synthetic result: the simulated station measures one car and its cycle (angles,
+    job, station tag) is in PostgreSQL, the outbox empty afterwards."""
+    from station.cycle import Station
+    from tests.station_fixtures import small_station_config, truth_calibration
+
+    if not pg.running():
+        pg.start()
+    url = pg.create_db(f"shop{next(_DBS)}")
+    config = small_station_config(tmp_path, capture__frames_averaged=1, history__url=url)
+    truth_calibration(config)
+    with Station(config, seed=3, progress=lambda msg: None, workers=0) as station:
+        result = station.measure(job_id="JOB-REAL", record=False)
+    assert result.valid, result.failure
+    with psycopg.connect(url) as c:
+        row = c.execute("SELECT station, job_id, valid FROM cycles WHERE cycle_id = %s", (result.cycle_id,)).fetchone()
+        angle = c.execute("SELECT value_deg FROM angles a JOIN cycles c ON a.cycle = c.id "
+                          "WHERE c.cycle_id = %s AND a.name = 'FL.toe'", (result.cycle_id,)).fetchone()
+    assert row == (config.name, "JOB-REAL", True)
+    assert angle[0] == pytest.approx(result.wheels["FL"].toe_deg, abs=1e-9)
+    with History(url, station=config.name) as h:
+        assert h.get(result.cycle_id)["job_id"] == "JOB-REAL"
