@@ -264,6 +264,11 @@ SCHEMA = {
         "roll_timeout_s": Field(_number(1, 3600), default=120.0),  # a roll the PLC does not confirm: fault 415
         "steer_timeout_s": Field(_number(1, 3600), default=120.0),  # a steer target not reached: fault 424
     }), default={}),
+    "ui": Field(_section({  # the technician's screen, `station ui` (docs/ui.md)
+        "host": Field(_string(), default="127.0.0.1"),
+        "port": Field(_number(1, 65535, integer=True), default=8080),
+        "password_hash": Field(_string(nullable=True), default=None),  # station/ui/auth.py; `station ui --hash-password`
+    }), default={}),
     "recording": Field(_section({
         "enabled": Field(_bool, default=True),
         "jpeg_quality": Field(_number(10, 100, integer=True), default=90),
