@@ -107,8 +107,9 @@ class LiveFeed:
         return not self._closing.is_set() and (
             self.subscribers > 0 or time.monotonic() - self._last_left < self.linger_s)
 
-    def _say(self, state: str, message: str, hint: str | None = None) -> None:
-        self.status = (self.status[0] + 1, {"state": state, "message": message, "hint": hint})
+    def _say(self, state: str, message: str, hint: str | None = None, warnings: list[str] | None = None) -> None:
+        self.status = (self.status[0] + 1, {"state": state, "message": message, "hint": hint,
+                                            "warnings": warnings or []})
 
     def _loop(self) -> None:
         while not self._closing.is_set():
@@ -149,8 +150,7 @@ class LiveFeed:
             base = session.baseline()
             note = ("toe and camber of the spin axes (the job's runout applied)" if session.runout_compensated
                     else "toe and camber of the rim planes (runout not compensated)")
-            self._say("live", note + (f"; {len(base.warnings)} warning(s): " + " | ".join(base.warnings)
-                                      if base.warnings else ""))
+            self._say("live", note, warnings=base.warnings)
             times: deque = deque(maxlen=30)
             while self._wanted() and axle == self.axle and not self.hardware.step_waiting.is_set():
                 reading = session.update()

@@ -86,6 +86,9 @@ function connect() {
     const s = JSON.parse(e.data);
     Station.message(status, s.state === "error" ? "error" : s.state === "live" ? "good" : "info", `${s.state}: ${s.message}`, s.hint);
     status.dataset.state = s.state;
+    const warnings = document.getElementById("warnings");
+    warnings.textContent = "";
+    if (s.state === "live") warnings.appendChild(warningList(s.warnings || []));
   });
   source.onmessage = (e) => show(JSON.parse(e.data));
   source.onerror = () => { Station.message(status, "error", "the connection to the station was lost; reconnecting…"); };

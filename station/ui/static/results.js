@@ -1,5 +1,12 @@
 // A measurement's values as a table (the Procedure page's result; shared).
 "use strict";
+function warningList(warnings) {
+  // The warnings, folded: a count to open (the table stays in view).
+  const d = Station.el("details", { class: "warnings" });
+  d.appendChild(Station.el("summary", { class: warnings.length ? "warn" : "" }, warnings.length ? `${warnings.length} warning(s)` : "no warning"));
+  for (const w of warnings) d.appendChild(Station.el("p", { class: "warn" }, w));
+  return d;
+}
 function resultTable(summary) {
   const wrap = Station.el("div", { class: "card", id: "result-card" });
   if (!summary) return wrap;
@@ -33,6 +40,6 @@ function resultTable(summary) {
     }
     wrap.appendChild(Station.el("h2", {}, "Steering geometry")); wrap.appendChild(st);
   }
-  for (const w of summary.warnings || []) wrap.appendChild(Station.el("p", { class: "warn" }, `warning: ${w}`));
+  wrap.appendChild(warningList(summary.warnings || []));
   return wrap;
 }
