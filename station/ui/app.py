@@ -73,7 +73,10 @@ def build_app(config: StationConfig, *, host: str = "127.0.0.1", hardware: Hardw
     async def lifespan(app):
         yield
         await asyncio.to_thread(screen.feed.close)  # the live loop closes its cameras
-        await asyncio.to_thread(runner.wait, 600)   # a running step finishes and is kept
+        running = runner.busy()
+        if running is not None:  # a running step finishes and is kept before the screen ends
+            print(f"stopping: waiting for '{running.title}' to finish (it is kept in the history)", flush=True)
+            await asyncio.to_thread(runner.wait, 600)
 
     routes = [Route(path, _page(name)) for path, name in PAGES.items() if path != "/login"]
     routes += [Route("/login", _page("login.html"), methods=["GET"]), Route("/login", login_post, methods=["POST"]),
