@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import os
 import time
 import traceback
 from dataclasses import dataclass
@@ -63,7 +64,7 @@ def build_app(config: StationConfig, *, host: str = "127.0.0.1", hardware: Hardw
     not loopback and there is no password hash (station/ui/auth.py)."""
     login = login_required(host, password_hash)
     hardware = hardware or Hardware(config)
-    crash_dir = crash_dir or Path.home() / ".cache" / "station"
+    crash_dir = crash_dir or Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "station"  # as station.cli
     runner = StepRunner(hardware, crash_dir)
     jobs = Jobs(config)
     screen = Screen(config, hardware, runner, jobs, LiveFeed(hardware, jobs, runner), Sessions(), login,
