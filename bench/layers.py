@@ -40,7 +40,7 @@ STATION_LAYERS = [
     ("measurement", ("station.measure",)),
     ("cycle", ("station.cycle", "station.live", "station.procedures.*")),
     ("plc", ("station.plc.*",)),
-    ("commands", ("station.commands.*", "station.cli")),
+    ("commands", ("station.commands.*", "station.cli", "station.ui.*")),
 ]
 # (layer, its modules, the layers it may import besides its own)
 LAYERS = PACKAGE_LAYERS + [(name, modules, (*STATION_USES, *(n for n, _ in STATION_LAYERS[:k])))

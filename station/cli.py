@@ -41,6 +41,7 @@ COMMANDS = {
     "history": ("history", "list the stored measurement cycles (filter by job, date, vehicle, pass/fail; export CSV)"),
     "report": ("report", "write the printable before/after report (HTML, optionally PDF) of a job"),
     "odometry": ("odometry", "stereo visual odometry of an image sequence (paper section 3.3)"),
+    "ui": ("ui", "the technician's screen: a local web application for the whole job (docs/ui.md)"),
     "errors": ("errors", "list the station's error codes (the PLC's fault codes)"),
 }
 

@@ -303,6 +303,11 @@ SCHEMA = {
         "port": Field(_number(1, 65535, integer=True), default=4840),
         "users": Field(_password_hashes, default={}),  # {user: sha256 hex of the password}
     }), default={}),
+    "ui": Field(_section({  # the technician's screen, `station ui` (docs/ui.md)
+        "host": Field(_string(), default="127.0.0.1"),
+        "port": Field(_number(1, 65535, integer=True), default=8080),
+        "password_hash": Field(_string(nullable=True), default=None),  # station/ui/auth.py; `station ui --hash-password`
+    }), default={}),
     "recording": Field(_section({
         "enabled": Field(_bool, default=True),
         "jpeg_quality": Field(_number(10, 100, integer=True), default=90),

@@ -1,0 +1,104 @@
+// The Adjust page: live gauges of toe and camber per wheel against the specification (green
+// inside, red outside, the target marked), total toe, thrust and the front toe against the
+// thrust line, from the station's live stream (Server-Sent Events).
+"use strict";
+let source = null, last = null;
+const SVG = "http://www.w3.org/2000/svg";
+function svgEl(tag, attrs) { const e = document.createElementNS(SVG, tag); for (const [k, v] of Object.entries(attrs)) e.setAttribute(k, v); return e; }
+function gauge(id, label) {
+  const g = Station.el("div", { class: "gauge none", id });
+  g.appendChild(Station.el("div", { class: "label" }, label));
+  const v = Station.el("div", { class: "value" }, "–");
+  g.appendChild(v);
+  const svg = svgEl("svg", { viewBox: "0 0 400 46", preserveAspectRatio: "none" });
+  svg.appendChild(svgEl("rect", { class: "track", x: 0, y: 8, width: 400, height: 20 }));
+  svg.appendChild(svgEl("rect", { class: "band-ok", x: 0, y: 8, width: 0, height: 20 }));
+  svg.appendChild(svgEl("line", { class: "target", x1: 200, x2: 200, y1: 2, y2: 34 }));
+  svg.appendChild(svgEl("line", { class: "needle", x1: 200, x2: 200, y1: 0, y2: 36 }));
+  for (const [cls, x, anchor] of [["tick lo", 2, "start"], ["tick hi", 398, "end"]]) {
+    const t = svgEl("text", { class: cls, x, y: 45, "text-anchor": anchor }); svg.appendChild(t);
+  }
+  g.appendChild(svg);
+  return g;
+}
+function setGauge(g, a) {
+  const value = a ? a.value : null;
+  g.className = `gauge ${Station.verdictClass(a ? a.ok : null)}`;
+  g.dataset.value = value === null ? "" : value;
+  const v = g.querySelector(".value");
+  v.textContent = Station.angle(value, 3) + " ";
+  if (a && a.std !== null && value !== null) v.appendChild(Station.el("span", { class: "pm" }, Station.pm(a.std)));
+  const w = a && a.window;
+  const centre = w ? w.nominal : (value || 0), half = w ? Math.max(3 * (w.high - w.nominal), 0.1) : 1.0;
+  const x = (d) => Math.min(400, Math.max(0, 200 + 200 * (d - centre) / half));
+  const band = g.querySelector(".band-ok"), target = g.querySelector(".target");
+  if (w) { band.setAttribute("x", x(w.low)); band.setAttribute("width", x(w.high) - x(w.low)); target.setAttribute("x1", x(w.nominal)); target.setAttribute("x2", x(w.nominal)); }
+  else { band.setAttribute("width", 0); }
+  target.style.display = w ? "" : "none";
+  const needle = g.querySelector(".needle");
+  needle.style.display = value === null ? "none" : "";
+  if (value !== null) { needle.setAttribute("x1", x(value)); needle.setAttribute("x2", x(value)); }
+  g.querySelector(".lo").textContent = Station.angle(centre - half);
+  g.querySelector(".hi").textContent = Station.angle(centre + half);
+}
+function build() {
+  const box = document.getElementById("gauges");
+  box.textContent = "";
+  for (const w of ["FL", "FR", "RL", "RR"]) {
+    const card = Station.el("div", { class: "card wheel-card", id: `wheel-${w}` });
+    card.appendChild(Station.el("h2", {}, { FL: "front left", FR: "front right", RL: "rear left", RR: "rear right" }[w] + ` (${w})`));
+    card.appendChild(Station.el("div", { class: "note" }));
+    card.appendChild(gauge(`g-${w}-toe`, "toe (+ in)"));
+    card.appendChild(gauge(`g-${w}-camber`, "camber (+ top out)"));
+    if (w[0] === "F") card.appendChild(Station.el("div", { class: "thrust-toe" }, "toe against the thrust line: –"));
+    box.appendChild(card);
+  }
+  const totals = document.getElementById("totals");
+  totals.textContent = "";
+  for (const [id, label] of [["g-front-total", "front total toe"], ["g-rear-total", "rear total toe"], ["g-thrust", "thrust angle (+ right)"]]) {
+    const card = Station.el("div", { class: "card" }); card.appendChild(gauge(id, label)); totals.appendChild(card);
+  }
+}
+function show(m) {
+  last = m;
+  for (const [w, v] of Object.entries(m.wheels)) {
+    setGauge(document.getElementById(`g-${w}-toe`), v.toe);
+    setGauge(document.getElementById(`g-${w}-camber`), v.camber);
+    const note = document.querySelector(`#wheel-${w} .note`);
+    note.textContent = v.error ? `no reading: ${v.error}` : v.live ? "live" : "held from the full measurement (not on the live axle)";
+    note.className = `note ${v.error ? "out-text" : ""}`;
+    const tt = document.querySelector(`#wheel-${w} .thrust-toe`);
+    if (tt) tt.textContent = `toe against the thrust line: ${Station.angle(v.toe_thrust, 3)}`;
+  }
+  setGauge(document.getElementById("g-front-total"), m.axles.front);
+  setGauge(document.getElementById("g-rear-total"), m.axles.rear);
+  setGauge(document.getElementById("g-thrust"), m.thrust);
+  const rate = document.getElementById("rate");
+  rate.textContent = `${m.rate_hz.toFixed(1)} updates/s`;
+  rate.dataset.updates = String((Number(rate.dataset.updates) || 0) + 1);
+}
+function connect() {
+  if (source) source.close();
+  const axle = document.getElementById("axle").value;
+  source = new EventSource(`/api/live/stream?axle=${axle}`);
+  const status = document.getElementById("status");
+  source.addEventListener("status", (e) => {
+    const s = JSON.parse(e.data);
+    Station.message(status, s.state === "error" ? "error" : s.state === "live" ? "good" : "info", `${s.state}: ${s.message}`, s.hint);
+    status.dataset.state = s.state;
+    const warnings = document.getElementById("warnings");
+    warnings.textContent = "";
+    if (s.state === "live") warnings.appendChild(warningList(s.warnings || []));
+  });
+  source.onmessage = (e) => show(JSON.parse(e.data));
+  source.onerror = () => { Station.message(status, "error", "the connection to the station was lost; reconnecting…"); };
+}
+document.addEventListener("DOMContentLoaded", async () => {
+  build();
+  await Station.session();
+  const r = await Station.api("/api/job");
+  if (r.ok && r.data.spec) document.getElementById("vehicle").textContent = `spec: ${r.data.spec.name}`;
+  document.getElementById("axle").addEventListener("change", () => { build(); connect(); });
+  document.addEventListener("units", () => { if (last) show(last); });
+  connect();
+});

@@ -1,0 +1,72 @@
+// The Procedure page: the steps in order, start one, follow its progress and see its result.
+"use strict";
+let nextLine = 0, shownRun = null, built = false;
+function buildSteps(steps) {
+  const box = document.getElementById("steps");
+  box.textContent = "";
+  steps.forEach((s, i) => {
+    const card = Station.el("div", { class: "card step", id: `step-${s.key}` });
+    card.appendChild(Station.el("div", { class: "num" }, String(i + 1)));
+    const text = Station.el("div");
+    const title = Station.el("strong", {}, s.title);
+    text.appendChild(title);
+    text.appendChild(Station.el("span", { class: "badge state" }, s.available ? "not run" : "not available"));
+    text.appendChild(Station.el("p", {}, s.instruction));
+    text.appendChild(Station.el("small", {}, `from the command line: ${s.command}`));
+    card.appendChild(text);
+    const button = Station.el("button", { "data-key": s.key }, "Start");
+    button.disabled = !s.available;
+    button.addEventListener("click", () => start(s.key));
+    card.appendChild(button);
+    box.appendChild(card);
+  });
+  built = true;
+}
+async function start(key) {
+  const msg = document.getElementById("message");
+  const r = await Station.api(`/api/steps/${key}/start`, { method: "POST" });
+  if (!r.ok) { Station.message(msg, "error", r.data.error, r.data.hint); return; }
+  Station.clear(msg);
+  poll();
+}
+function showRun(run) {
+  const log = document.getElementById("log");
+  if (!run) return;
+  const id = `${run.key}@${run.started_utc}`;
+  if (shownRun !== id) {  // another run: show it from its first line (asked for again on the next poll)
+    const fromStart = nextLine === 0;
+    shownRun = id; log.textContent = ""; nextLine = 0; document.getElementById("result").textContent = "";
+    if (!fromStart) return;
+  }
+  document.getElementById("running-title").textContent = `— ${run.title} (${run.state})`;
+  for (const line of run.lines) log.appendChild(document.createTextNode(line + "\n"));
+  if (run.lines.length) log.scrollTop = log.scrollHeight;
+  nextLine = run.next_line;
+  const outcome = document.getElementById("outcome");
+  if (run.state === "running") { Station.clear(outcome); return; }
+  if (run.state === "done") Station.message(outcome, "good", `${run.title}: done.`);
+  else Station.message(outcome, "error", `${run.title} ${run.state === "error" ? "stopped by an error" : "failed"}${run.code ? ` (error ${run.code})` : ""}: ${run.message}`, run.hint);
+  const result = document.getElementById("result");
+  if (!result.firstChild && run.summary && run.summary.valid) result.appendChild(resultTable(run.summary));
+}
+async function poll() {
+  const r = await Station.api(`/api/steps?since=${nextLine}`);
+  if (!r.ok) return;
+  if (!built) buildSteps(r.data.steps);
+  const job = r.data.job;
+  document.getElementById("job-line").textContent = job ? `Job: ${job.job_id}   vehicle: ${job.vehicle || "no spec"}` : "No job yet: enter it on the Job page first.";
+  const running = r.data.current && r.data.current.state === "running";
+  for (const s of r.data.steps) {
+    const card = document.getElementById(`step-${s.key}`);
+    const badge = card.querySelector(".state");
+    const state = s.last ? s.last.state : (s.available ? "not run" : "not available");
+    badge.textContent = state; badge.className = `badge state ${state}`;
+    card.querySelector("button").disabled = !s.available || running || !job;
+  }
+  showRun(r.data.current);
+}
+document.addEventListener("DOMContentLoaded", async () => {
+  await Station.session();
+  await poll();
+  setInterval(poll, 500);
+});

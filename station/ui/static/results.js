@@ -1,0 +1,45 @@
+// A measurement's values as a table (the Procedure page's result; shared).
+"use strict";
+function warningList(warnings) {
+  // The warnings, folded: a count to open (the table stays in view).
+  const d = Station.el("details", { class: "warnings" });
+  d.appendChild(Station.el("summary", { class: warnings.length ? "warn" : "" }, warnings.length ? `${warnings.length} warning(s)` : "no warning"));
+  for (const w of warnings) d.appendChild(Station.el("p", { class: "warn" }, w));
+  return d;
+}
+function resultTable(summary) {
+  const wrap = Station.el("div", { class: "card", id: "result-card" });
+  if (!summary) return wrap;
+  wrap.appendChild(Station.el("h2", {}, `Cycle ${summary.cycle_id || ""}${summary.overall === true ? " — PASS" : summary.overall === false ? " — FAIL" : ""}`));
+  if (!summary.valid) return wrap;
+  wrap.appendChild(Station.el("p", {}, summary.runout_compensated ? "Toe and camber of the wheels' spin axes (runout compensated)." : "Toe and camber of the rim planes (runout not compensated)."));
+  const table = Station.el("table", { id: "result-table" });
+  const head = Station.el("tr");
+  for (const h of ["wheel", "toe", "camber"]) head.appendChild(Station.el("th", {}, h));
+  table.appendChild(head);
+  const cell = (a) => Station.el("td", { class: `num ${Station.verdictClass(a.ok)}`, "data-value": a.value }, `${Station.angle(a.value, 3)} ${Station.pm(a.std)}`);
+  for (const [w, v] of Object.entries(summary.wheels)) {
+    const tr = Station.el("tr", { "data-wheel": w });
+    tr.appendChild(Station.el("td", {}, w)); tr.appendChild(cell(v.toe)); tr.appendChild(cell(v.camber));
+    table.appendChild(tr);
+  }
+  for (const [axle, a] of Object.entries(summary.axles)) {
+    const tr = Station.el("tr"); tr.appendChild(Station.el("td", {}, `${axle} total toe`)); tr.appendChild(cell(a)); tr.appendChild(Station.el("td"));
+    table.appendChild(tr);
+  }
+  const tr = Station.el("tr"); tr.appendChild(Station.el("td", {}, "thrust angle")); tr.appendChild(cell(summary.thrust)); tr.appendChild(Station.el("td"));
+  table.appendChild(tr);
+  wrap.appendChild(table);
+  if (summary.steering) {
+    const st = Station.el("table");
+    const h = Station.el("tr"); for (const x of ["front wheel", "caster", "SAI", "included angle"]) h.appendChild(Station.el("th", {}, x)); st.appendChild(h);
+    for (const [w, s] of Object.entries(summary.steering)) {
+      const r = Station.el("tr"); r.appendChild(Station.el("td", {}, w));
+      for (const k of ["caster", "sai", "included_angle"]) r.appendChild(cell(s[k]));
+      st.appendChild(r);
+    }
+    wrap.appendChild(Station.el("h2", {}, "Steering geometry")); wrap.appendChild(st);
+  }
+  wrap.appendChild(warningList(summary.warnings || []));
+  return wrap;
+}

@@ -1,0 +1,235 @@
+"""`station ui` without a browser or cameras: routes, login, CSRF, bad input, one step at a time,
+a failing step, the live view giving way to a step (Starlette's TestClient, fake stations)."""
+
+from __future__ import annotations
+
+import threading
+import time
+import warnings
+
+import pytest
+
+warnings.filterwarnings("ignore", message=".*httpx.*")  # Starlette 1.x suggests httpx2; httpx works
+from starlette.testclient import TestClient  # noqa: E402
+
+from station.config import load_config  # noqa: E402
+from station.errors import ConfigError, RollNotReached  # noqa: E402
+from station.ui.app import build_app  # noqa: E402
+from station.ui.auth import hash_password, verify_password  # noqa: E402
+from station.ui.hardware import Hardware  # noqa: E402
+from tests.result_builder import make_result  # noqa: E402
+
+BASE = "http://127.0.0.1:8080"
+PASSWORD = "tie-rod-42"
+
+
+class FakeStation:
+    """What a step sees of station.cycle.Station: measure() waits for ``gate`` and returns
+    ``outcome`` (a result, or an exception to raise)."""
+
+    def __init__(self, progress, gate: threading.Event, outcome):
+        self.progress, self.gate, self.outcome = progress, gate, outcome
+        self.context = type("Ctx", (), {"simulation": None})()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        pass
+
+    def measure(self, *, job_id=None, vehicle_spec=None, **kw):
+        self.progress("capturing 8 cameras")
+        if not self.gate.wait(20):
+            raise TimeoutError("the test never opened the gate")
+        if isinstance(self.outcome, BaseException):
+            raise self.outcome
+        result = self.outcome
+        result.job_id, result.vehicle_spec = job_id, vehicle_spec
+        return result
+
+
+@pytest.fixture
+def fake(tmp_path):
+    """(hardware with a fake station, its gate, a setter of the outcome, the config)."""
+    config = load_config()
+    gate = threading.Event()
+    state = {"outcome": make_result(1, cycle=1)}
+    hw = Hardware(config, seed=5, open_station=lambda cfg, seed, progress: FakeStation(progress, gate, state["outcome"]))
+    return hw, gate, state, config
+
+
+def client(config, hw=None, host="127.0.0.1", password_hash=None, tmp=None) -> TestClient:
+    app = build_app(config, host=host, hardware=hw, password_hash=password_hash, crash_dir=tmp)
+    return TestClient(app, base_url=BASE, raise_server_exceptions=False)
+
+
+def csrf(c: TestClient) -> dict:
+    return {"x-csrf-token": c.get("/api/session").json()["csrf"]}
+
+
+def test_pages_are_served_with_a_strict_content_security_policy(fake):
+    hw, _, _, config = fake
+    c = client(config, hw)
+    for path in ("/", "/procedure", "/adjust", "/cameras", "/history", "/station"):
+        r = c.get(path)
+        assert r.status_code == 200 and "<!DOCTYPE html>" in r.text, path
+        assert r.headers["content-security-policy"].startswith("default-src 'self'")
+        assert "<script>" not in r.text and "style=" not in r.text  # no inline script or style: CSP allows none
+        assert 'src="http' not in r.text and 'href="http' not in r.text  # nothing from the internet
+    assert c.get("/static/common.js").status_code == 200
+    r = c.get("/api/nothing")
+    assert r.status_code == 404 and r.json()["error"] == "nothing here: /api/nothing"
+
+
+def test_vehicle_search_and_job_validation(fake):
+    hw, _, _, config = fake
+    c = client(config, hw)
+    assert [v["key"] for v in c.get("/api/vehicles", params={"q": "caravan 2007"}).json()["vehicles"]] == \
+        ["dodge-caravan-2007"]
+    assert c.get("/api/vehicles", params={"q": "lamborghini"}).json()["vehicles"] == []
+    h = csrf(c)
+    r = c.post("/api/job", json={"job_id": "VIN1", "vehicle": "dodge-caravan"}, headers=h)
+    assert r.status_code == 400 and "no vehicle specification 'dodge-caravan'" in r.json()["error"]
+    assert "did you mean dodge-caravan-2007" in r.json()["error"]
+    r = c.post("/api/job", json={"job_id": "  ", "vehicle": None}, headers=h)
+    assert r.status_code == 400 and r.json()["error"] == "the job id / VIN is empty"
+    r = c.post("/api/job", json={"job_id": "VIN\n1\u202e", "vehicle": None}, headers=h)
+    assert r.status_code == 400 and "\\n \\u202e" in r.json()["error"]
+    r = c.post("/api/job", content=b"not json", headers={**h, "content-type": "application/json"})
+    assert r.status_code == 400 and "not a JSON object" in r.json()["error"]
+    assert c.get("/api/job").json()["job"] is None  # nothing bad was kept
+    r = c.post("/api/job", json={"job_id": "VIN1", "vehicle": "toyota-echo-2003"}, headers=h)
+    assert r.status_code == 200
+    body = c.get("/api/job").json()
+    assert body["job"] == {"job_id": "VIN1", "vehicle": "toyota-echo-2003"}
+    assert body["spec"]["windows"]["FL.toe"] == {"nominal": 0.0, "low": -0.1, "high": 0.1}  # front.toe, per wheel
+
+
+def test_changes_need_the_csrf_token_and_the_own_origin(fake):
+    hw, _, _, config = fake
+    c = client(config, hw)
+    body = {"job_id": "VIN1", "vehicle": None}
+    r = c.post("/api/job", json=body)
+    assert r.status_code == 403 and "CSRF token" in r.json()["error"]
+    r = c.post("/api/job", json=body, headers={"x-csrf-token": "forged"})
+    assert r.status_code == 403
+    h = csrf(c)
+    r = c.post("/api/job", json=body, headers={**h, "origin": "http://evil.example"})
+    assert r.status_code == 403 and "another site (http://evil.example)" in r.json()["error"]
+    other = client(config, hw)  # another browser's session has another token
+    assert other.post("/api/job", json=body, headers=h).status_code == 403
+    assert c.post("/api/job", json=body, headers={**h, "origin": BASE}).status_code == 200
+    cookie = c.get("/api/session").headers.get("set-cookie") or ""
+    fresh = client(config, hw).get("/api/session").headers["set-cookie"]
+    assert "HttpOnly" in fresh and "SameSite=Strict" in fresh and cookie == ""  # one cookie per session
+    r = TestClient(build_app(config, hardware=hw), base_url="http://rebound.example:8080").get("/")
+    assert r.status_code == 400 and "127.0.0.1 and localhost only" in r.json()["error"]  # DNS rebinding
+
+
+def test_password_hash_round_trip():
+    stored = hash_password(PASSWORD, iterations=1000)
+    assert stored.startswith("pbkdf2_sha256$1000$") and PASSWORD not in stored
+    assert verify_password(PASSWORD, stored) and not verify_password("tie-rod-43", stored)
+    assert hash_password(PASSWORD, iterations=1000) != stored  # salted
+
+
+def test_beyond_loopback_a_password_is_required(fake, tmp_path):
+    hw, _, _, config = fake
+    with pytest.raises(ConfigError, match="open to the network at 0.0.0.0 without a password"):
+        build_app(config, host="0.0.0.0", hardware=hw)
+    with pytest.raises(ConfigError, match="ui.password_hash: not a password hash"):
+        build_app(config, host="0.0.0.0", hardware=hw, password_hash="secret")
+    c = client(config, hw, host="0.0.0.0", password_hash=hash_password(PASSWORD, iterations=1000))
+    r = c.get("/", follow_redirects=False)
+    assert r.status_code == 303 and r.headers["location"] == "/login"
+    assert c.get("/login").status_code == 200
+    assert c.get("/api/job").status_code == 401 and c.get("/api/session").status_code == 401
+    t0 = time.monotonic()
+    r = c.post("/login", json={"password": "wrong"})
+    assert r.status_code == 401 and r.json()["error"] == "wrong password" and time.monotonic() - t0 >= 0.9
+    assert c.post("/login", json=["not", "a", "form"]).status_code == 401
+    r = c.post("/login", json={"password": PASSWORD})
+    assert r.status_code == 200 and "HttpOnly" in r.headers["set-cookie"]
+    assert c.get("/api/job").status_code == 200
+    assert c.post("/api/job", json={"job_id": "J", "vehicle": None}).status_code == 403  # still needs the token
+    assert c.post("/api/job", json={"job_id": "J", "vehicle": None}, headers=csrf(c)).status_code == 200
+    c.post("/logout", headers=csrf(c))
+    assert c.get("/api/job").status_code == 401
+
+
+def _wait_state(c, key, states=("done", "failed", "error"), timeout=20.0) -> dict:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        steps = {s["key"]: s for s in c.get("/api/steps").json()["steps"]}
+        last = steps[key]["last"]
+        if last and last["state"] in states:
+            return last
+        time.sleep(0.05)
+    raise TimeoutError(key)
+
+
+def test_one_step_at_a_time_and_a_closed_page_loses_nothing(fake):
+    hw, gate, _, config = fake
+    c = client(config, hw)
+    h = csrf(c)
+    r = c.post("/api/steps/measurement/start", headers=h)
+    assert r.status_code == 400 and "no job yet" in r.json()["error"]
+    c.post("/api/job", json={"job_id": "VIN7", "vehicle": "dodge-caravan-2007"}, headers=h)
+    r = c.post("/api/steps/nonsense/start", headers=h)
+    assert r.status_code == 404 and "there is no step 'nonsense'" in r.json()["error"]
+    r = c.post("/api/steps/measurement/start", headers=h)
+    assert r.status_code == 202 and r.json()["state"] == "running"
+    r = c.post("/api/steps/runout/start", headers=h)
+    assert r.status_code == 409 and "'Measurement' is running" in r.json()["error"]
+    r = c.post("/api/job", json={"job_id": "OTHER", "vehicle": None}, headers=h)
+    assert r.status_code == 409  # the job cannot change under a running step
+    c.close()  # the page is gone; the step goes on
+    gate.set()
+    runner = c.app.state.screen.runner
+    runner.wait(20)
+    last = runner.last["measurement"].view()
+    assert last["state"] == "done" and last["job_id"] == "VIN7"
+    assert last["summary"]["valid"] and last["summary"]["wheels"]["FL"]["toe"]["window"]["low"] == pytest.approx(-0.05)
+    assert "capturing 8 cameras" in last["lines"]
+    c2 = TestClient(c.app, base_url=BASE)  # a page opened later sees the outcome
+    assert _wait_state(c2, "measurement")["state"] == "done"
+
+
+def test_a_failing_step_shows_the_message_and_the_station_keeps_running(fake, tmp_path):
+    hw, gate, state, config = fake
+    c = client(config, hw, tmp=tmp_path)
+    h = csrf(c)
+    c.post("/api/job", json={"job_id": "VIN8", "vehicle": None}, headers=h)
+    gate.set()
+    state["outcome"] = RollNotReached("the car did not stand -15 cm from where it started within 300 s",
+                                      hint="roll the car as the bar shows")
+    c.app.state.screen.hardware.open_station = lambda cfg, seed, progress: FakeStation(progress, gate, state["outcome"])
+    c.post("/api/steps/measurement/start", headers=h)
+    last = _wait_state(c, "measurement")
+    assert last["state"] == "failed" and last["code"] == 425 and "did not stand" in last["message"]
+    assert last["hint"] == "roll the car as the bar shows"
+    state["outcome"] = ZeroDivisionError("a bug")
+    c.app.state.screen.hardware.open_station = lambda cfg, seed, progress: FakeStation(progress, gate, state["outcome"])
+    c.post("/api/steps/measurement/start", headers=h)
+    last = _wait_state(c, "measurement")
+    assert last["state"] == "error" and "ZeroDivisionError: a bug" in last["message"]
+    assert str(tmp_path) in last["hint"] and list(tmp_path.glob("crash-ui-*.log"))
+    state["outcome"] = make_result(2, cycle=2, valid=False)  # an invalid cycle: its failure and hint
+    c.app.state.screen.hardware.open_station = lambda cfg, seed, progress: FakeStation(progress, gate, state["outcome"])
+    assert c.post("/api/steps/measurement/start", headers=h).status_code == 202
+    last = _wait_state(c, "measurement")
+    assert last["state"] == "failed" and last["message"] == "RR cam7: no closed rim contour" and last["code"] == 401
+
+
+def test_history_of_a_job_that_does_not_exist(fake):
+    hw, _, _, config = fake
+    c = client(config, hw)
+    assert c.get("/api/history").json() == {"jobs": [], "cycles": []}
+    r = c.get("/history/report", params={"job": "NOPE"})
+    assert r.status_code == 404 and r.json()["error"] == "job 'NOPE': no cycles in the history"
+    assert c.get("/history/report").status_code == 400
+    r = c.get("/api/station").json()
+    assert r["plc"]["connected"] is False and r["plc"]["message"].startswith("not connected")
+    assert r["calibration"]["ok"] is False and r["calibration"]["message"]  # no calibration in this data dir
+    assert c.get("/api/cameras/cam1.png").status_code == 404
+    assert c.get("/api/live/stream", params={"axle": "middle"}).status_code == 400

@@ -1,0 +1,226 @@
+"""`station ui` in a real browser: headless Chromium (Debian's ``chromium``, driven through its
+DevTools protocol, tests/cdp.py) against a running `station ui` on the small simulated station.
+
+The job page finds a vehicle; a measurement runs from the procedure page and its values appear
+(the same as the history keeps); the adjust page's FL toe gauge turns from green to red as the
+simulated technician turns the tie rod out of the spec, at 10 updates a second or more; the
+cameras page shows every image with its rim; the report opens and its PDF downloads; a tab
+closed mid-step loses nothing. Screenshots of every page go to tests/artifacts/ui/ (ignored by
+git; $STATION_TEST_ARTIFACTS names another folder).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
+from pathlib import Path
+
+import pytest
+
+from tests.cdp import find_chromium
+from tests.station_fixtures import small_station_config, truth_calibration
+
+ROOT = Path(__file__).resolve().parents[1]
+ARTIFACTS = Path(os.environ.get("STATION_TEST_ARTIFACTS") or ROOT / "tests" / "artifacts") / "ui"
+SEED = 11          # vehicle 11: its FL toe (+0.05 deg) sits on the Dodge's nominal; the tie rod turns it +0.6
+JOB = "BROWSER-VIN-1"
+VEHICLE = "dodge-caravan-2007"
+
+pytestmark = [pytest.mark.slow,
+              pytest.mark.skipif(find_chromium() is None, reason="chromium is not installed (setup.sh installs it)")]
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory):
+    """(base URL, config) of a `station ui` subprocess on the small simulated station."""
+    tmp = tmp_path_factory.mktemp("ui")
+    config = small_station_config(tmp)
+    truth_calibration(config)
+    port = _free_port()
+    env = {**os.environ, "STATION_DATA_DIR": str(config.data_dir), "XDG_CACHE_HOME": str(tmp / "cache")}
+    log = open(tmp / "server.log", "w")
+    proc = subprocess.Popen([sys.executable, "-m", "station.cli", "--config", str(config.path), "ui", "--port",
+                             str(port), "--seed", str(SEED), "--adjust-steps", "3"],
+                            cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT)
+    base = f"http://127.0.0.1:{port}"
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        try:
+            urllib.request.urlopen(base + "/api/session", timeout=2)
+            break
+        except OSError:
+            if proc.poll() is not None:
+                raise RuntimeError((tmp / "server.log").read_text())
+            time.sleep(0.2)
+    yield base, config
+    proc.terminate()
+    try:
+        proc.wait(60)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait(10)
+    log.close()
+
+
+@pytest.fixture(scope="module")
+def browser():
+    from tests.cdp import Browser
+
+    b = Browser()
+    yield b
+    b.close()
+
+
+@pytest.fixture(scope="module")
+def page(browser):
+    return browser.page()
+
+
+def _shot(page, name: str) -> None:
+    page.screenshot(ARTIFACTS / f"{name}.png")
+
+
+def _api(base: str, path: str):
+    return json.loads(urllib.request.urlopen(base + path, timeout=10).read())
+
+
+def test_job_page_finds_a_vehicle(server, page):
+    base, _ = server
+    page.goto(base + "/")
+    page.wait("document.querySelectorAll('#vehicle-list div').length >= 3")
+    page.type("#vehicle-search", "caravan")
+    page.wait("document.querySelectorAll('#vehicle-list div').length === 1")
+    assert page.text("#vehicle-list div") == f"Dodge Caravan 2007  ({VEHICLE})"
+    page.type("#vehicle-search", "no such car")
+    page.wait("document.querySelector('#vehicle-list').textContent.includes('no vehicle matches')")
+    page.type("#vehicle-search", "dodge")
+    page.wait("document.querySelectorAll('#vehicle-list div').length === 1")
+    page.click("#vehicle-list div")
+    page.wait("document.querySelector('#vehicle-chosen').textContent === 'Dodge Caravan 2007'")
+    page.type("#job-id", JOB)
+    page.click("#save-job")
+    text = page.wait("document.querySelector('#message.good') && document.querySelector('#message').textContent")
+    assert text.startswith(f"Job {JOB} started for a Dodge Caravan 2007")
+    page.wait("document.querySelectorAll('#spec-table tbody tr').length >= 7")
+    _shot(page, "job")
+    assert page.console_errors() == []  # the CSP blocked nothing the page needs
+
+
+def test_a_measurement_runs_from_the_procedure_page_and_its_values_appear(server, page):
+    from station.records.history import History
+
+    base, config = server
+    page.goto(base + "/procedure")
+    page.wait("document.querySelector('#job-line').textContent.includes('BROWSER-VIN-1')")
+    page.wait("!document.querySelector('button[data-key=measurement]').disabled")
+    page.click("button[data-key=measurement]")
+    page.wait("!!document.querySelector('#result-table')", timeout=150)
+    assert page.text("#outcome") == "Measurement: done."
+    assert "capturing 8 cameras" in page.text("#log")
+    shown = page.js("[...document.querySelectorAll('#result-table tr[data-wheel]')].map(r => "
+                    "[r.dataset.wheel, Number(r.children[1].dataset.value), r.children[1].className])")
+    with History(config.data_path("history.sqlite"), read_only=True) as h:
+        stored = h.query(job=JOB)
+    assert len(stored) == 1 and stored[0]["valid"]
+    for wheel, value, cls in shown:
+        assert value == pytest.approx(stored[0]["angles"][f"{wheel}.toe"], abs=1e-12)
+        assert ("ok" in cls) == (abs(value - 0.05) <= 0.10 + 1e-9)  # green inside the Dodge's front/rear toe windows
+    page.wait("document.querySelector('#step-measurement .state').textContent === 'done'")
+    _shot(page, "procedure")
+    assert page.console_errors() == []
+
+
+def test_adjust_gauges_turn_red_when_the_wheel_is_turned_out_of_spec(server, page):
+    base, _ = server
+    page.goto(base + "/adjust")
+    page.wait("document.querySelector('#status').dataset.state === 'live'", timeout=150)  # pre-render + car frame
+    page.wait("document.querySelector('#g-FL-toe').className === 'gauge ok'", timeout=30)
+    _shot(page, "adjust-in-spec")
+    page.wait("document.querySelector('#g-FL-toe').className === 'gauge out'", timeout=30)
+    value = float(page.js("document.querySelector('#g-FL-toe').dataset.value"))
+    assert value > 0.15  # past the window's high end, +0.15 deg
+    colour = page.js("getComputedStyle(document.querySelector('#g-FL-toe .value')).color")
+    assert colour == "rgb(198, 40, 40)"  # red
+    _shot(page, "adjust-out-of-spec")
+    page.wait("document.querySelector('#g-FL-toe').className === 'gauge ok'", timeout=30)  # and back
+    assert page.js("getComputedStyle(document.querySelector('#g-FL-toe .value')).color") == "rgb(27, 138, 58)"
+    n0, t0 = int(page.js("document.querySelector('#rate').dataset.updates")), time.monotonic()
+    time.sleep(3.0)
+    n1, t1 = int(page.js("document.querySelector('#rate').dataset.updates")), time.monotonic()
+    rate = (n1 - n0) / (t1 - t0)
+    assert rate >= 10, f"{rate:.1f} updates/s reached the page"
+    assert page.js("document.querySelector('#wheel-RL .note').textContent").startswith("held from the full")
+
+
+def test_cameras_page_shows_every_image_with_its_rim(server, page):
+    base, config = server
+    page.goto(base + "/cameras")
+    page.click("#check")
+    page.wait(f"[...document.querySelectorAll('#cams img')].filter(i => i.complete && i.naturalWidth > 0).length === "
+              f"{len(config.cameras)}", timeout=120)
+    assert page.js("document.querySelectorAll('#cams .ok-text').length") == len(config.cameras)
+    assert page.js("document.querySelector('#cams img').naturalWidth") == 640
+    _shot(page, "cameras")
+
+
+def test_history_shows_the_job_and_its_report_downloads_as_pdf(server, browser, page, tmp_path):
+    base, _ = server
+    page.goto(base + "/history")
+    page.wait(f"[...document.querySelectorAll('#job-filter option')].some(o => o.value === '{JOB}')")
+    page.js(f"(() => {{ const s = document.querySelector('#job-filter'); s.value = '{JOB}'; "
+            "s.dispatchEvent(new Event('change')); })()")
+    page.wait("!document.querySelector('#pdf-link').classList.contains('hidden') && "
+              "document.querySelectorAll('#cycles tbody tr').length >= 1")
+    _shot(page, "history")
+    report = urllib.request.urlopen(base + page.js("document.querySelector('#report-link').getAttribute('href')"),
+                                    timeout=30).read().decode()
+    assert JOB in report and "Dodge Caravan 2007" in report
+    browser.allow_downloads(tmp_path)
+    page.click("#pdf-link")
+    deadline = time.monotonic() + 120
+    pdfs = []
+    while time.monotonic() < deadline and not pdfs:
+        pdfs = [p for p in tmp_path.glob("*.pdf") if p.stat().st_size > 0]
+        time.sleep(0.2)
+    assert pdfs, "no PDF downloaded"
+    assert pdfs[0].read_bytes()[:5] == b"%PDF-"
+    page.goto(base + "/station")
+    page.wait("document.querySelectorAll('#cameras tbody tr').length === 8")
+    page.wait("document.querySelector('#calibration').textContent.startsWith('calibration ')")
+    assert page.text("#plc").startswith("not connected")
+    _shot(page, "station")
+
+
+def test_a_tab_closed_mid_step_loses_nothing(server, browser):
+    from station.records.history import History
+
+    base, config = server
+    tab = browser.page()
+    tab.goto(base + "/procedure")
+    tab.wait("!document.querySelector('button[data-key=measurement]').disabled")
+    tab.click("button[data-key=measurement]")
+    tab.wait("document.querySelector('#log').textContent.includes('capturing 8 cameras')", timeout=60)
+    tab.js("fetch('/api/steps/runout/start', {method: 'POST', headers: {'X-CSRF-Token': Station.csrf}})"
+           ".then(r => r.json()).then(d => { window.refused = d.error; })")
+    assert tab.wait("window.refused").startswith("'Measurement' is running")  # a second step is refused
+    browser.close_target(tab.target_id)  # the technician closes the browser mid-step
+    deadline = time.monotonic() + 150
+    while time.monotonic() < deadline:
+        last = next(s["last"] for s in _api(base, "/api/steps")["steps"] if s["key"] == "measurement")
+        if last["state"] != "running":
+            break
+        time.sleep(0.5)
+    assert last["state"] == "done"
+    with History(config.data_path("history.sqlite"), read_only=True) as h:
+        assert len([r for r in h.query(job=JOB) if r["valid"]]) == 2  # the step finished and was kept
