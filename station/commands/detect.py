@@ -102,20 +102,31 @@ def draw(image: np.ndarray, det, path: str | Path) -> None:
         raise ImageError(f"{path}: cannot write the drawing (is the directory there, is the suffix .png/.jpg?)")
 
 
-def run(args) -> int:
-    from station.rim import detect_rim
+def default_gamma(path: str | Path) -> float:
+    """The response a file's grey levels are taken to have: a JPEG is a photograph's format,
+    sRGB-encoded (SRGB_GAMMA); any other file (a PNG may be a camera's raw grey) linear (1)."""
+    with open(path, "rb") as f:
+        return SRGB_GAMMA if f.read(len(JPEG_MAGIC)) == JPEG_MAGIC else 1.0
 
+
+def detect_photograph(image: np.ndarray, gamma: float, name: str = "", equalization: str = "clahe"):
+    """What ``station detect`` runs on an image as read (``read_image``) whose grey levels are
+    light^``gamma``: the RimDetection, or RimNotFound / ImageError with the reason."""
+    from station.rim import detect_rim
     from station.rim.camera_response import linear
 
+    return detect_rim(linear(image, gamma), camera_id=name, equalization=equalization)
+
+
+def run(args) -> int:
     gamma = args.response_gamma
     if gamma is not None and not 0.2 <= gamma <= 5:
         raise ImageError(f"--response-gamma {gamma}: expected a value in [0.2, 5]",
                          hint="1 for a linear camera, about 0.45 for an sRGB photograph")
     image = read_image(args.image)
-    if gamma is None:  # a JPEG is a photograph's format, sRGB-encoded; a PNG may be a camera's raw grey
-        with open(args.image, "rb") as f:  # read_image has read it whole: the magic is all we need
-            gamma = SRGB_GAMMA if f.read(len(JPEG_MAGIC)) == JPEG_MAGIC else 1.0
-    det = detect_rim(linear(image, gamma), camera_id=Path(args.image).name, equalization=args.equalization)
+    if gamma is None:
+        gamma = default_gamma(args.image)
+    det = detect_photograph(image, gamma, Path(args.image).name, args.equalization)
     e = det.ellipse
     std = np.sqrt(np.maximum(np.diag(det.ellipse_cov), 0))
     print(f"rim ellipse in {args.image} ({image.shape[1]}x{image.shape[0]} px)")

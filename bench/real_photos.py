@@ -1,0 +1,211 @@
+"""Rim detection on real street photographs with hand-marked rim points.
+
+    .venv/bin/python bench/real_photos.py                     # all photos, markdown table
+    .venv/bin/python bench/real_photos.py --split dev --per-photo
+    .venv/bin/python bench/real_photos.py --data DIR --json out.json
+
+The photographs are read from ``../shared/data/real-wheels`` (``--data``; never copied into the
+repository): ``images/NAME.jpg`` and ``annotations/NAME.json`` with, per marked wheel, its box
+and keypoints 0 (top of the rim), 1 (bottom of the rim), 2 (the rim's near side), all on the
+rim's outer edge where it meets the tyre (README there). Each photo goes through exactly what
+``station detect PHOTO`` runs (``station.commands.detect``: read, the JPEG's sRGB response
+undone, the detection), one photo at a time, on this process's one core.
+
+Definitions (per photo; ``station detect`` returns at most one rim):
+
+* a marked wheel's **rim height** h = |keypoint 1 - keypoint 0| (px);
+* a detection **matches** a marked wheel when every visible rim keypoint (0, 1, 2) lies within
+  ``MATCH_SHARE`` x h (but at least ``MATCH_MIN_PX``) of the detected ellipse (orthogonal
+  distance) and the ellipse's centre lies inside the wheel's box. A photo is **detected** when
+  its detection matches a marked wheel (the best matching one, by median keypoint distance);
+* a **wrong object** is a detection that matches no marked wheel: a lamp, a grille, the tyre's
+  outline, a hub, a wheel nobody marked. Those whose centre lies inside a marked wheel's box are
+  counted apart as "wrong contour on a marked wheel";
+* **keypoint distances**: over the detected photos, the distance of each visible rim keypoint
+  (0, 1, 2) of the matched wheel to the detected ellipse: median, 90th percentile, share under
+  5 px;
+* a **refusal** is a RimNotFound / ImageError; its reason is the message up to the first
+  parenthesis or colon after the photo's name, counted per kind;
+* **time**: wall seconds of the detection per photo (decoding excluded), median and max.
+
+The split: ``dev`` are the first ``DEV_COUNT`` photos by name, ``held`` the rest; the table has
+a row for each and one for all.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import sys
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):  # one core
+    os.environ.setdefault(_var, "1")
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from station.commands.detect import default_gamma, detect_photograph, read_image  # noqa: E402
+from station.errors import StationError  # noqa: E402
+from station.rim.ellipse import Ellipse  # noqa: E402
+
+DEFAULT_DATA = ROOT.parent / "shared" / "data" / "real-wheels"
+DEV_COUNT = 40
+MATCH_SHARE = 0.1   # of the rim height: a matching ellipse passes this near every marked rim point
+MATCH_MIN_PX = 10.0
+RIM_KEYPOINTS = (0, 1, 2)
+
+
+@dataclass
+class Wheel:
+    """One marked wheel: box (x1, y1, x2, y2) and its visible rim keypoints (K,2)."""
+
+    box: tuple[float, float, float, float]
+    rim_points: np.ndarray
+    height_px: float
+
+    def contains(self, p) -> bool:
+        x1, y1, x2, y2 = self.box
+        return bool(x1 <= p[0] <= x2 and y1 <= p[1] <= y2)
+
+
+@dataclass
+class Outcome:
+    name: str
+    status: str                      # "detected", "wrong object", "wrong contour", "refused"
+    seconds: float = 0.0
+    reason: str = ""
+    distances_px: list = field(default_factory=list)
+    ellipse: dict | None = None
+
+
+def load_wheels(path: Path) -> list[Wheel]:
+    doc = json.loads(path.read_text())
+    wheels = []
+    for box, kps in zip(doc["bboxes"], doc["keypoints"]):
+        k = np.asarray(kps, float)
+        vis = [i for i in RIM_KEYPOINTS if k[i, 2] > 0]
+        wheels.append(Wheel(tuple(box), k[vis, :2], float(np.hypot(*(k[1, :2] - k[0, :2])))))
+    return wheels
+
+
+def judge(ellipse: Ellipse, wheels: list[Wheel]) -> tuple[str, list[float]]:
+    """("detected", distances of the matched wheel's rim points) or a wrong-object kind."""
+    best = None
+    for w in wheels:
+        if len(w.rim_points) == 0:
+            continue
+        d = np.abs(ellipse.distance(w.rim_points)[0])
+        if w.contains(ellipse.center_px) and np.all(d <= max(MATCH_SHARE * w.height_px, MATCH_MIN_PX)):
+            if best is None or np.median(d) < np.median(best):
+                best = d
+    if best is not None:
+        return "detected", [float(x) for x in best]
+    on_wheel = any(w.contains(ellipse.center_px) for w in wheels)
+    return ("wrong contour" if on_wheel else "wrong object"), []
+
+
+def reason_of(message: str) -> str:
+    """The kind of a refusal: the sentence after the photo's name, without its figures."""
+    text = message.split(": ", 1)[-1]
+    return re.split(r"[(:]", text, 1)[0].strip()
+
+
+def run_photo(image_path: Path, wheels: list[Wheel], gamma: float | None = None) -> Outcome:
+    name = image_path.name
+    try:
+        image = read_image(image_path)
+    except StationError as e:
+        return Outcome(name, "refused", reason=reason_of(str(e)))
+    t0 = time.perf_counter()
+    try:
+        det = detect_photograph(image, default_gamma(image_path) if gamma is None else gamma, name)
+    except StationError as e:
+        return Outcome(name, "refused", time.perf_counter() - t0, reason_of(str(e)))
+    seconds = time.perf_counter() - t0
+    status, dist = judge(det.ellipse, wheels)
+    return Outcome(name, status, seconds, distances_px=dist, ellipse=det.ellipse.to_dict())
+
+
+def summary(rows: list[Outcome]) -> dict:
+    n = len(rows)
+    dist = np.array([d for r in rows for d in r.distances_px])
+    times = np.array([r.seconds for r in rows if r.seconds > 0])
+    reasons: dict[str, int] = {}
+    for r in rows:
+        if r.status == "refused":
+            reasons[r.reason] = reasons.get(r.reason, 0) + 1
+    count = {k: sum(r.status == k for r in rows) for k in ("detected", "wrong object", "wrong contour", "refused")}
+    return {"photos": n, **count,
+            "detected_share": count["detected"] / n if n else float("nan"),
+            "points": int(len(dist)),
+            "median_px": float(np.median(dist)) if len(dist) else float("nan"),
+            "p90_px": float(np.percentile(dist, 90)) if len(dist) else float("nan"),
+            "under_5px": float(np.mean(dist < 5)) if len(dist) else float("nan"),
+            "time_median_s": float(np.median(times)) if len(times) else float("nan"),
+            "time_max_s": float(times.max()) if len(times) else float("nan"),
+            "refusals": dict(sorted(reasons.items(), key=lambda kv: -kv[1]))}
+
+
+def table(parts: dict[str, dict]) -> str:
+    lines = ["| photos | detected | keypoint distance median / p90 (px) | under 5 px | wrong objects "
+             "(of them wrong contour on a marked wheel) | refused | time median / max (s) |",
+             "|---|---|---|---|---|---|---|"]
+    for label, s in parts.items():
+        lines.append(f"| {label} ({s['photos']}) | {s['detected']} ({s['detected_share']:.0%}) | "
+                     f"{s['median_px']:.1f} / {s['p90_px']:.1f} ({s['points']} points) | {s['under_5px']:.0%} | "
+                     f"{s['wrong object'] + s['wrong contour']} ({s['wrong contour']}) | {s['refused']} | "
+                     f"{s['time_median_s']:.2f} / {s['time_max_s']:.2f} |")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--data", type=Path, default=DEFAULT_DATA, help="folder with images/ and annotations/")
+    ap.add_argument("--split", choices=("all", "dev", "held"), default="all")
+    ap.add_argument("--only", nargs="*", help="photo names (without .jpg) to run")
+    ap.add_argument("--response-gamma", type=float, help="as station detect's (default: 0.45 for a JPEG)")
+    ap.add_argument("--per-photo", action="store_true", help="one line per photo")
+    ap.add_argument("--json", type=Path, help="write every outcome and the summaries here")
+    args = ap.parse_args(argv)
+    images = sorted((args.data / "images").glob("*.jpg"))
+    if not images:
+        print(f"no photographs in {args.data / 'images'}: give --data DIR", file=sys.stderr)
+        return 2
+    split = {p.stem: ("dev" if k < DEV_COUNT else "held") for k, p in enumerate(images)}
+    if args.split != "all":
+        images = [p for p in images if split[p.stem] == args.split]
+    if args.only:
+        images = [p for p in images if p.stem in set(args.only)]
+    outcomes = []
+    for p in images:
+        r = run_photo(p, load_wheels(args.data / "annotations" / f"{p.stem}.json"), args.response_gamma)
+        outcomes.append(r)
+        if args.per_photo:
+            extra = r.reason if r.status == "refused" else (
+                " ".join(f"{d:.1f}" for d in r.distances_px) if r.distances_px else str(r.ellipse))
+            print(f"{r.name:12s} {split[p.stem]:4s} {r.status:13s} {r.seconds:5.2f} s  {extra}", flush=True)
+    parts = {}
+    for label in ("dev", "held"):
+        rows = [r for r in outcomes if split[Path(r.name).stem] == label]
+        if rows:
+            parts[label] = summary(rows)
+    if len(parts) > 1:
+        parts["all"] = summary(outcomes)
+    print(table(parts))
+    for label, s in parts.items():
+        if s["refusals"]:
+            print(f"refusals ({label}): " + "; ".join(f"{k} x{v}" for k, v in s["refusals"].items()))
+    if args.json:
+        args.json.write_text(json.dumps({"summaries": parts, "photos": [r.__dict__ for r in outcomes]}, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
