@@ -161,5 +161,6 @@ def _check_sweep(sweep: dict[str, WheelSweep]) -> None:
         if s.axis.misfit_deg > ROLLED_MISFIT_DEG:
             raise WheelRolledWhileSteered(
                 f"{w}: its poses are {s.axis.misfit_deg:.2f} deg from one turn about one axis (at most "
-                f"{ROLLED_MISFIT_DEG}): it rolled or slipped while steered",
-                hint="hold the brake with a pedal depressor, steer slowly on the turn plates, and measure again")
+                f"{ROLLED_MISFIT_DEG}): it rolled or slipped while steered, or its face's turn was misread",
+                hint="hold the brake with a pedal depressor, steer slowly on the turn plates, steer less far if the "
+                     "rim was seen very obliquely, and measure again")
