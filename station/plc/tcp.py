@@ -180,13 +180,22 @@ class TcpListener:
                 self._loop.create_task(self._connect(conn, access, rule))
 
     async def _connect(self, conn: socket.socket, access: Access, rule: str) -> None:
+        """Sets up an accepted connection; it counts as starting until it is active (its
+        ``connection_made``, which moves it), so it is never counted twice against the limit."""
+        made: list[Connection] = []
+
+        def protocol() -> Connection:
+            made.append(Connection(self, access, rule))
+            return made[-1]
+
         try:
-            await self._loop.connect_accepted_socket(lambda: Connection(self, access, rule), conn)
+            await self._loop.connect_accepted_socket(protocol, conn)
         except OSError as e:  # the client went away, or no memory for the transport
             log.info("PLC connection not set up: %s", e)
             conn.close()
         finally:
-            self._starting -= 1
+            if not (made and made[-1].active):
+                self._starting -= 1
 
     def _out_of_files(self, error: OSError) -> None:
         """accept() failed for lack of file descriptors: stop listening for a moment."""
@@ -249,6 +258,7 @@ class Connection(asyncio.Protocol):
         self._reading = True
         self._closing = False  # no more requests are read; those queued are answered, then close
         self._closed = False
+        self.active = False  # connection_made has counted it among the listener's active connections
         self._last_activity = time.monotonic()  # a request read or an answer written
         self._idle_timer: asyncio.TimerHandle | None = None
 
@@ -259,6 +269,8 @@ class Connection(asyncio.Protocol):
         if isinstance(peer, tuple):
             self.host, self.peer = str(peer[0]), f"{peer[0]}:{peer[1]}"
         self.listener.active_connections[self.peer] = self
+        self.listener._starting -= 1  # no longer starting: active
+        self.active = True
         if self.listener.idle_timeout_s > 0:
             self._arm_idle(self.listener.idle_timeout_s)
         self.worker = asyncio.get_running_loop().create_task(self._serve(), name=f"plc {self.peer}")
