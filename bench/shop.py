@@ -3,6 +3,7 @@
     python bench/shop.py                       # all three, the figures of docs/shop.md
     python bench/shop.py --only stations       # or: migrate, opcua
     python bench/shop.py --cycles 100 --migrate-cycles 1000 --opcua-cycles 1000
+    python bench/shop.py --only stations --measure --cycles 30   # cycles the simulated station measures
 
 1. **Two stations, one history**: a PostgreSQL server (Debian's binaries, a temporary data folder,
    127.0.0.1, tests/pg_server.py) and two `station serve --dry-run --store` processes, each with
@@ -19,7 +20,10 @@
    checked against the dry run's synthetic result of its job; every 10th fails on purpose (401).
 
 The dry run makes synthetic results (station/plc/runner.py): the simulated station renders each
-camera image by ray casting (seconds per image here), too slow for hundreds of cycles.
+camera image by ray casting (seconds per image here), too slow for hundreds of cycles. With
+``--measure`` the two stations are `station serve` on the simulated station instead (half
+resolution, one frame per capture, its true cameras as the calibration, no recordings): every
+cycle is a real measurement, and ``--cycles`` is sized to the machine.
 """
 
 from __future__ import annotations
@@ -55,9 +59,16 @@ def _env(data_dir: Path | None = None) -> dict:
     return env
 
 
-def _config(folder: Path, name: str, url: str | None) -> Path:
+def _config(folder: Path, name: str, url: str | None, measure: bool = False) -> Path:
     from station.config import DEFAULT_CONFIG
     data = yaml.safe_load(DEFAULT_CONFIG.read_text())
+    if measure:  # the small simulated station: half resolution, single frames, no recordings
+        w, h = data["camera_defaults"]["resolution"]
+        data["camera_defaults"]["resolution"] = [w // 2, h // 2]
+        for cam in data["cameras"].values():
+            cam["nominal"]["focal_px"] = cam["nominal"]["focal_px"] / 2
+        data["capture"]["frames_averaged"] = 1
+        data.setdefault("recording", {})["enabled"] = False
     data["vehicle_specs"] = str(DEFAULT_CONFIG.parent / data.get("vehicle_specs", "vehicles.yaml"))
     data["calibration"]["box"] = str(DEFAULT_CONFIG.parent / data["calibration"].get("box", "box.yaml"))
     data["name"] = name
@@ -68,9 +79,21 @@ def _config(folder: Path, name: str, url: str | None) -> Path:
     return path
 
 
-def _serve(config: Path, data: Path, *extra: str) -> tuple[subprocess.Popen, str]:
+def _truth_calibration(config: Path, data: Path) -> None:
+    """The simulated station's true cameras saved as its calibration in ``data``."""
+    from station.config import load_config
+    from station_fixtures import truth_calibration
+    os.environ["STATION_DATA_DIR"] = str(data)
+    try:
+        truth_calibration(load_config(config))
+    finally:
+        os.environ.pop("STATION_DATA_DIR", None)
+
+
+def _serve(config: Path, data: Path, *extra: str, dry_run: bool = True) -> tuple[subprocess.Popen, str]:
     log = open(data.parent / f"{config.stem}-serve.log", "w")
-    proc = subprocess.Popen([PY, "-m", "station.cli", "--config", str(config), "serve", "--dry-run", *extra],
+    proc = subprocess.Popen([PY, "-m", "station.cli", "--config", str(config), "serve",
+                             *(["--dry-run"] if dry_run else []), *extra],
                             stdout=subprocess.PIPE, stderr=log, text=True, env=_env(data))
     line = proc.stdout.readline()
     if "station serving" not in line:
@@ -96,7 +119,8 @@ def _table(head: list[str], rows: list[list]) -> str:
 
 
 # --- 1. two stations, one history ------------------------------------------------------------------
-def stations(pg: TempPostgres, work: Path, cycles: int, outage_s: float, delay_s: float) -> None:
+def stations(pg: TempPostgres, work: Path, cycles: int, outage_s: float, delay_s: float,
+             measure: bool = False) -> None:
     import psycopg
     url = pg.create_db("shop")
     procs, masters, logs = [], [], {}
@@ -104,13 +128,20 @@ def stations(pg: TempPostgres, work: Path, cycles: int, outage_s: float, delay_s
         name, data = f"bay-{k}", work / f"bay-{k}-data"
         data.mkdir()
         port = free_port()
-        proc, log = _serve(_config(work, name, url), data, "--store", "--fail-every", "0", "--port", str(port),
-                           "--delay-s", str(delay_s))
+        config = _config(work, name, url, measure)
+        if measure:
+            _truth_calibration(config, data)
+            proc, log = _serve(config, data, "--port", str(port), dry_run=False)
+            check = ["--timeout", "10"]
+        else:
+            proc, log = _serve(config, data, "--store", "--fail-every", "0", "--port", str(port),
+                               "--delay-s", str(delay_s))
+            check = ["--fail-every", "0", "--dry-run-check"]
         procs.append(proc)
         logs[name] = log
         masters.append((name, subprocess.Popen(
-            [PY, "-m", "station.plc.master", "--port", str(port), "--cycles", str(cycles), "--fail-every", "0",
-             "--dry-run-check", "--quiet", "--job-prefix", f"BAY{k}-"], stdout=subprocess.PIPE,
+            [PY, "-m", "station.plc.master", "--port", str(port), "--cycles", str(cycles), *check,
+             "--quiet", "--job-prefix", f"BAY{k}-"], stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT, text=True, env=_env())))
     t0 = time.perf_counter()
     outage = {}
@@ -119,7 +150,7 @@ def stations(pg: TempPostgres, work: Path, cycles: int, outage_s: float, delay_s
         try:
             with psycopg.connect(url, connect_timeout=2) as c:
                 return c.execute("SELECT COUNT(*) FROM cycles").fetchone()[0]
-        except psycopg.OperationalError:
+        except psycopg.Error:  # the server away, or no cycle stored yet (the schema comes with the first)
             return -1
 
     def cut():  # stop the server once a third of the cycles are in, start it again after outage_s
@@ -172,7 +203,8 @@ def stations(pg: TempPostgres, work: Path, cycles: int, outage_s: float, delay_s
             rows[name] = [name, cycles, n, n - distinct, len(lost), angles, waited, after, left.get(name, "?"),
                           verdicts[name]]
         total = c.execute("SELECT COUNT(*) FROM cycles").fetchone()[0]
-    print(f"\n## Two stations, one PostgreSQL history ({cycles} cycles each, server stopped "
+    kind = "measured by the simulated station" if measure else "dry-run results"
+    print(f"\n## Two stations, one PostgreSQL history ({cycles} cycles each, {kind}, server stopped "
           f"{outage.get('at_s', 0):.1f}-{outage.get('back_s', 0):.1f} s into the run, "
           f"{outage.get('rows_before', '?')} rows in it then; wall {wall:.1f} s)\n")
     print(_table(["station", "PLC cycles", "rows", "duplicates", "lost", "angle rows", "waited in outbox",
@@ -299,6 +331,8 @@ def main() -> int:
     ap.add_argument("--delay-s", type=float, default=0.05,
                     help="each dry-run cycle's stand-in measurement time, so cycles run before, during and after "
                          "the outage")
+    ap.add_argument("--measure", action="store_true",
+                    help="the stations measure every cycle on the simulated station (slow: size --cycles)")
     ap.add_argument("--migrate-cycles", type=int, default=1000)
     ap.add_argument("--opcua-cycles", type=int, default=1000)
     args = ap.parse_args()
@@ -309,7 +343,7 @@ def main() -> int:
             pg = TempPostgres()
             pg.start()
         if args.only in (None, "stations"):
-            stations(pg, work, args.cycles, args.outage_s, args.delay_s)
+            stations(pg, work, args.cycles, args.outage_s, args.delay_s, args.measure)
         if args.only in (None, "migrate"):
             migrate(pg, work, args.migrate_cycles)
         if args.only in (None, "opcua"):
