@@ -233,3 +233,27 @@ def test_history_of_a_job_that_does_not_exist(fake):
     assert r["calibration"]["ok"] is False and r["calibration"]["message"]  # no calibration in this data dir
     assert c.get("/api/cameras/cam1.png").status_code == 404
     assert c.get("/api/live/stream", params={"axle": "middle"}).status_code == 400
+
+
+def test_the_angle_format_comes_from_the_configuration(fake, tmp_path):
+    import yaml
+
+    from station.config import DEFAULT_CONFIG
+
+    hw, _, _, config = fake
+    assert config.ui.angle_format == "decimal"
+    assert client(config, hw).get("/api/session").json()["angle_format"] == "decimal"
+    data = yaml.safe_load(DEFAULT_CONFIG.read_text())
+    for value, error in (("dms", None), ("minutes", "ui.angle_format: expected one of decimal, dms, got 'minutes'")):
+        data.setdefault("ui", {})["angle_format"] = value
+        path = tmp_path / "station.yaml"
+        path.write_text(yaml.safe_dump(data))
+        if error is None:
+            dms = load_config(path)
+            assert dms.ui.angle_format == "dms"
+            assert client(dms, Hardware(dms, seed=5)).get("/api/session").json()["angle_format"] == "dms"
+        else:
+            with pytest.raises(ConfigError, match=error.replace(".", r"\.")):
+                load_config(path)
+    page = client(config, hw).get("/static/adjust.js").text
+    assert "Station.mm(a.mm)" in page  # the toe's mm beside its degrees

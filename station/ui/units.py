@@ -1,7 +1,8 @@
 """Angles and toe as the shop reads them: decimal degrees or degrees and minutes, toe in mm at the rim.
 
 Pure functions, no state. The pages format with the same rules (station/ui/static/common.js,
-``Station.angle``); these are the reference the tests check by hand-computed values.
+``Station.angle``, with the typographic minus and prime "−0°15′"); these are the reference the
+tests check by hand-computed values.
 """
 
 from __future__ import annotations
