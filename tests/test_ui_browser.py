@@ -44,8 +44,13 @@ def _free_port() -> int:
 @pytest.fixture(scope="module")
 def server(tmp_path_factory):
     """(base URL, config) of a `station ui` subprocess on the small simulated station."""
+    from station.plc.background import BackgroundServer
+    from station.plc.device import PlcDevice
+    from station.plc.runner import dry_run_runner
+
     tmp = tmp_path_factory.mktemp("ui")
-    config = small_station_config(tmp)
+    plc = BackgroundServer(PlcDevice(dry_run_runner(10)))  # `station serve` as another process would run it
+    config = small_station_config(tmp, plc__port=plc.start_tcp())
     truth_calibration(config)
     port = _free_port()
     env = {**os.environ, "STATION_DATA_DIR": str(config.data_dir), "XDG_CACHE_HOME": str(tmp / "cache")}
@@ -71,6 +76,7 @@ def server(tmp_path_factory):
         proc.kill()
         proc.wait(10)
     log.close()
+    plc.stop()
 
 
 @pytest.fixture(scope="module")
@@ -198,7 +204,8 @@ def test_history_shows_the_job_and_its_report_downloads_as_pdf(server, browser, 
     page.goto(base + "/station")
     page.wait("document.querySelectorAll('#cameras tbody tr').length === 8")
     page.wait("document.querySelector('#calibration').textContent.startsWith('calibration ')")
-    assert page.text("#plc").startswith("not connected")
+    page.wait("document.querySelector('#plc').textContent.startsWith('PLC server at')")
+    assert page.text("#plc").startswith(f"PLC server at 127.0.0.1:{config.plc.port}: state idle, heartbeat advancing")
     _shot(page, "station")
 
 
