@@ -307,6 +307,7 @@ SCHEMA = {
         "host": Field(_string(), default="127.0.0.1"),
         "port": Field(_number(1, 65535, integer=True), default=8080),
         "password_hash": Field(_string(nullable=True), default=None),  # station/ui/auth.py; `station ui --hash-password`
+        "angle_format": Field(_string(choices=("decimal", "dms")), default="decimal"),  # the pages' default; each browser may switch
     }), default={}),
     "recording": Field(_section({
         "enabled": Field(_bool, default=True),

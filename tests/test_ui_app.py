@@ -229,7 +229,87 @@ def test_history_of_a_job_that_does_not_exist(fake):
     assert r.status_code == 404 and r.json()["error"] == "job 'NOPE': no cycles in the history"
     assert c.get("/history/report").status_code == 400
     r = c.get("/api/station").json()
-    assert r["plc"]["connected"] is False and r["plc"]["message"].startswith("not connected")
+    assert r["plc"]["configured"] == f"tcp {config.plc.host}:{config.plc.port}" and r["plc"]["message"]
     assert r["calibration"]["ok"] is False and r["calibration"]["message"]  # no calibration in this data dir
     assert c.get("/api/cameras/cam1.png").status_code == 404
     assert c.get("/api/live/stream", params={"axle": "middle"}).status_code == 400
+
+
+def test_the_angle_format_comes_from_the_configuration(fake, tmp_path):
+    import yaml
+
+    from station.config import DEFAULT_CONFIG
+
+    hw, _, _, config = fake
+    assert config.ui.angle_format == "decimal"
+    assert client(config, hw).get("/api/session").json()["angle_format"] == "decimal"
+    data = yaml.safe_load(DEFAULT_CONFIG.read_text())
+    for value, error in (("dms", None), ("minutes", "ui.angle_format: expected one of decimal, dms, got 'minutes'")):
+        data.setdefault("ui", {})["angle_format"] = value
+        path = tmp_path / "station.yaml"
+        path.write_text(yaml.safe_dump(data))
+        if error is None:
+            dms = load_config(path)
+            assert dms.ui.angle_format == "dms"
+            assert client(dms, Hardware(dms, seed=5)).get("/api/session").json()["angle_format"] == "dms"
+        else:
+            with pytest.raises(ConfigError, match=error.replace(".", r"\.")):
+                load_config(path)
+    page = client(config, hw).get("/static/adjust.js").text
+    assert "Station.mm(a.mm)" in page  # the toe's mm beside its degrees
+
+
+def _closed_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_the_station_page_looks_at_a_plc_server_from_outside(tmp_path, monkeypatch):
+    """`station serve` as another process: the page reads state, heartbeat and map version over
+    Modbus TCP (read-only), and says so plainly when nothing listens or something else does."""
+    import socket
+
+    from station.plc import register_map as rm
+    from station.plc.background import BackgroundServer
+    from station.plc.device import PlcDevice
+    from station.plc.runner import dry_run_runner
+    from station.ui.plc_probe import probe
+    from pymodbus.client import ModbusTcpClient
+
+    from tests.station_fixtures import small_station_config
+
+    def no_write(*a, **kw):
+        raise AssertionError("the screen wrote to the PLC server")
+
+    for name in ("write_register", "write_registers", "readwrite_registers", "write_coil", "write_coils"):
+        monkeypatch.setattr(ModbusTcpClient, name, no_write)
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    with BackgroundServer(PlcDevice(dry_run_runner(10))) as bg:
+        port = bg.start_tcp()
+        config = small_station_config(tmp_path / "a", plc__port=port)
+        plc = client(config, Hardware(config, seed=5)).get("/api/station").json()["plc"]
+        assert plc["message"] == f"PLC server at 127.0.0.1:{port}: state idle, heartbeat advancing"
+        assert plc["listening"] is True and plc["state"] == "idle" and plc["heartbeat_advancing"] is True
+        assert plc["map_version"] == rm.MAP_VERSION and plc["configured"] == f"tcp 127.0.0.1:{port}"
+        assert probe("0.0.0.0", port)["state"] == "idle"  # a server bound to every address, reached on loopback
+        stopped = probe("127.0.0.1", port, device_id=7)   # not this station's unit id: refused, said so
+        assert stopped["listening"] is True and stopped["state"] is None and "refused" in stopped["message"]
+
+    closed = _closed_port()
+    config = small_station_config(tmp_path / "b", plc__port=closed)
+    t0 = time.monotonic()
+    plc = client(config, Hardware(config, seed=5)).get("/api/station").json()["plc"]
+    assert plc["message"] == f"no PLC server listening at 127.0.0.1:{closed}" and plc["listening"] is False
+    assert time.monotonic() - t0 < 5
+
+    with socket.socket() as mute:  # something else listens there: accepts, never answers
+        mute.bind(("127.0.0.1", 0))
+        mute.listen()
+        t0 = time.monotonic()
+        other = probe("127.0.0.1", mute.getsockname()[1])
+        assert other["listening"] is True and other["state"] is None
+        assert "not answering as the station's PLC server" in other["message"] and time.monotonic() - t0 < 3

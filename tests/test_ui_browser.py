@@ -12,6 +12,7 @@ git; $STATION_TEST_ARTIFACTS names another folder).
 from __future__ import annotations
 
 import json
+import math
 import os
 import socket
 import subprocess
@@ -44,8 +45,13 @@ def _free_port() -> int:
 @pytest.fixture(scope="module")
 def server(tmp_path_factory):
     """(base URL, config) of a `station ui` subprocess on the small simulated station."""
+    from station.plc.background import BackgroundServer
+    from station.plc.device import PlcDevice
+    from station.plc.runner import dry_run_runner
+
     tmp = tmp_path_factory.mktemp("ui")
-    config = small_station_config(tmp)
+    plc = BackgroundServer(PlcDevice(dry_run_runner(10)))  # `station serve` as another process would run it
+    config = small_station_config(tmp, plc__port=plc.start_tcp())
     truth_calibration(config)
     port = _free_port()
     env = {**os.environ, "STATION_DATA_DIR": str(config.data_dir), "XDG_CACHE_HOME": str(tmp / "cache")}
@@ -71,6 +77,7 @@ def server(tmp_path_factory):
         proc.kill()
         proc.wait(10)
     log.close()
+    plc.stop()
 
 
 @pytest.fixture(scope="module")
@@ -161,6 +168,21 @@ def test_adjust_gauges_turn_red_when_the_wheel_is_turned_out_of_spec(server, pag
     rate = (n1 - n0) / (t1 - t0)
     assert rate >= 10, f"{rate:.1f} updates/s reached the page"
     assert page.js("document.querySelector('#wheel-RL .note').textContent").startswith("held from the full")
+    # toe also in mm at the measured rim, beside the degrees: diameter x sin(toe), one decimal
+    toe, mm = (float(page.js(f"document.querySelector('#g-FL-toe').dataset.{k}")) for k in ("value", "mm"))
+    note = page.text("#wheel-FL .note")
+    diameter = float(note.split("at the ")[1].split(" mm rim")[0])
+    assert 300 < diameter < 500 and abs(mm - diameter * math.sin(math.radians(toe))) <= 0.051, (toe, mm, note)
+    assert page.text("#g-FL-toe .mm").endswith(" mm") and page.text("#g-front-total .mm").endswith(" mm")
+    # degrees and minutes: the menu's choice, kept by the browser across a reload
+    page.js("(() => { const u = document.getElementById('units'); u.value = 'dms'; u.dispatchEvent(new Event('change')); })()")
+    page.wait("/^[+−]\\d+°\\d\\d′/.test(document.querySelector('#g-FL-toe .value').textContent)", timeout=10)
+    page.goto(base + "/adjust")
+    page.wait("document.getElementById('units').value === 'dms'", timeout=10)
+    page.wait("document.querySelector('#g-FL-toe').dataset.value !== '' && "
+              "document.querySelector('#g-FL-toe .value').textContent.includes('′')", timeout=150)
+    _shot(page, "adjust-dms")
+    page.js("localStorage.removeItem('station-angle-format')")  # the configuration's default again for the next tests
 
 
 def test_cameras_page_shows_every_image_with_its_rim(server, page):
@@ -175,7 +197,7 @@ def test_cameras_page_shows_every_image_with_its_rim(server, page):
 
 
 def test_history_shows_the_job_and_its_report_downloads_as_pdf(server, browser, page, tmp_path):
-    base, _ = server
+    base, config = server
     page.goto(base + "/history")
     page.wait(f"[...document.querySelectorAll('#job-filter option')].some(o => o.value === '{JOB}')")
     page.js(f"(() => {{ const s = document.querySelector('#job-filter'); s.value = '{JOB}'; "
@@ -198,7 +220,8 @@ def test_history_shows_the_job_and_its_report_downloads_as_pdf(server, browser, 
     page.goto(base + "/station")
     page.wait("document.querySelectorAll('#cameras tbody tr').length === 8")
     page.wait("document.querySelector('#calibration').textContent.startsWith('calibration ')")
-    assert page.text("#plc").startswith("not connected")
+    page.wait("document.querySelector('#plc').textContent.startsWith('PLC server at')")
+    assert page.text("#plc").startswith(f"PLC server at 127.0.0.1:{config.plc.port}: state idle, heartbeat advancing")
     _shot(page, "station")
 
 

@@ -90,6 +90,23 @@ def test_a_reading_shows_each_angle_against_the_spec(spec):
                         1.0)["wheels"]["FL"]["toe"]["ok"] is None  # no spec: no verdict
 
 
+def test_a_reading_gives_toe_in_mm_at_the_measured_rim(spec):
+    s = FakeLive("front", [0.1])
+    base = s.baseline()  # rims of 0.2159 m radius: 17 inches, 431.8 mm across
+    s.axes["FL"] = _axis("FL", 0.1, 0.0)
+    m = reading_view(Reading(1, wheels={"FL": {}, "FR": {}}), s.centers, s.axes, base, spec, s.live_wheels, 12.0)
+    fl = m["wheels"]["FL"]
+    assert fl["rim_diameter_mm"] == 431.8
+    assert fl["toe"]["mm"] == 0.8                      # 431.8 x sin(0.1 deg) = 0.754 mm
+    assert m["wheels"]["FR"]["toe"]["mm"] == 0.5       # 431.8 x sin(0.06 deg) = 0.452 mm
+    assert m["axles"]["front"]["mm"] == 1.2            # 431.8 x sin(0.16 deg) = 1.206 mm
+    assert "mm" not in m["wheels"]["FL"]["camber"] and "mm" not in m["thrust"]
+    base.wheels["FR"].rim_radius_m = None              # a synthetic result: no rim, no mm
+    m = reading_view(Reading(2, wheels={"FL": {}, "FR": {}}), s.centers, s.axes, base, spec, s.live_wheels, 12.0)
+    assert m["wheels"]["FR"]["toe"]["mm"] is None and m["wheels"]["FR"]["rim_diameter_mm"] is None
+    assert m["axles"]["front"]["mm"] is None and m["wheels"]["FL"]["toe"]["mm"] == 0.8
+
+
 def _wait(cond, timeout=10.0):
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:

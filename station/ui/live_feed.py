@@ -21,6 +21,7 @@ from calibration.station_frame import WHEELS
 from station import alignment
 from station.errors import CODED_ERRORS
 from station.live import AXLES
+from station.ui.units import rim_diameter_m, toe_mm_view
 from station.ui.views import spec_window, verdict
 
 LINGER_S = 4.0   # the loop goes on this long after the last page closed (a page reloaded keeps it)
@@ -31,6 +32,7 @@ def reading_view(reading, centers: dict, axes: dict, base, spec, live_wheels: tu
     full measurement at the start (its uncertainties, and the values of wheels not live)."""
     angles = alignment.compute_angles(centers, axes)
     wheels = {}
+    spec_rim = getattr(spec, "rim_diameter_m", None)  # config/vehicles.yaml gives none yet: the measured rims then
     for w in WHEELS:
         b = base.wheels[w]
         a = angles["wheels"][w]
@@ -42,6 +44,9 @@ def reading_view(reading, centers: dict, axes: dict, base, spec, live_wheels: tu
             window = spec_window(spec, f"{w}.{kind}")
             entry[kind] = {"value": value, "std": getattr(b, f"{kind}_std_deg"), "ok": verdict(window, value),
                            "window": window}
+        diameter = rim_diameter_m(b.rim_radius_m, spec_rim)
+        entry["rim_diameter_mm"] = None if diameter is None else round(diameter * 1e3, 1)
+        entry["toe"]["mm"] = toe_mm_view(entry["toe"]["value"], diameter)
         if "toe_thrust_deg" in a:
             entry["toe_thrust"] = float(a["toe_thrust_deg"]) if seen else None
         wheels[w] = entry
@@ -50,8 +55,10 @@ def reading_view(reading, centers: dict, axes: dict, base, spec, live_wheels: tu
         both = all(wheels[x]["toe"]["value"] is not None for x in (left, right))
         value = float(angles["axles"][axle]["total_toe_deg"]) if both else None
         window = spec_window(spec, f"{axle}.total_toe")
+        diameters = [rim_diameter_m(base.wheels[x].rim_radius_m, spec_rim) for x in (left, right)]
+        diameter = sum(diameters) / 2 if None not in diameters else None
         axles[axle] = {"value": value, "std": base.axles[axle].total_toe_std_deg, "ok": verdict(window, value),
-                       "window": window}
+                       "window": window, "mm": toe_mm_view(value, diameter)}
     rear_seen = all(wheels[x]["toe"]["value"] is not None for x in ("RL", "RR"))
     thrust = float(angles["thrust_deg"]) if rear_seen else None
     window = spec_window(spec, "thrust")

@@ -14,6 +14,7 @@ async def session(request: Request):
     screen = request.app.state.screen
     s = request.state.session
     return JSONResponse({"csrf": s.csrf, "login": screen.login, "station": screen.config.name,
+                         "angle_format": screen.config.ui.angle_format,
                          "simulated_seed": screen.hardware.seed if screen.simulated else None})
 
 

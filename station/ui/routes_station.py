@@ -10,6 +10,7 @@ from starlette.responses import JSONResponse
 from starlette.routing import Route
 
 from station.errors import CODED_ERRORS
+from station.ui.plc_probe import plc_view
 
 
 def _calibration(config) -> dict:
@@ -56,14 +57,12 @@ async def station(request: Request):
                for cid, c in config.cameras.items()]
     calib = await anyio.to_thread.run_sync(_calibration, config)
     drift = await anyio.to_thread.run_sync(_drift, screen)
+    plc = await anyio.to_thread.run_sync(plc_view, config.plc)  # `station serve` runs on its own: looked at from outside
     running = screen.runner.busy()
     return JSONResponse({
         "name": config.name, "config": str(config.path), "data_dir": str(config.data_path()),
         "cameras": cameras, "calibration": calib, "drift": drift,
-        "plc": {"connected": False,
-                "message": "not connected: no PLC server runs in this process (`station serve` runs it on its own; "
-                           "its cycles appear under History, which both share)",
-                "configured": f"{config.plc.transport} {config.plc.host}:{config.plc.port}"},
+        "plc": {**plc, "configured": f"{config.plc.transport} {config.plc.host}:{config.plc.port}"},
         "step": running.view(10 ** 9) if running else None,
         "live": screen.feed.status[1], "time_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         "simulated_seed": screen.hardware.seed if screen.simulated else None})

@@ -1,6 +1,7 @@
 // The Adjust page: live gauges of toe and camber per wheel against the specification (green
 // inside, red outside, the target marked), total toe, thrust and the front toe against the
-// thrust line, from the station's live stream (Server-Sent Events).
+// thrust line, from the station's live stream (Server-Sent Events). Toe also in mm at the rim
+// (the rim diameter x sin toe, computed by the station: station/ui/units.py).
 "use strict";
 let source = null, last = null;
 const SVG = "http://www.w3.org/2000/svg";
@@ -28,6 +29,8 @@ function setGauge(g, a) {
   const v = g.querySelector(".value");
   v.textContent = Station.angle(value, 3) + " ";
   if (a && a.std !== null && value !== null) v.appendChild(Station.el("span", { class: "pm" }, Station.pm(a.std)));
+  g.dataset.mm = a && a.mm !== null && a.mm !== undefined ? a.mm : "";
+  if (a && a.mm !== null && a.mm !== undefined && value !== null) v.appendChild(Station.el("span", { class: "mm" }, Station.mm(a.mm)));
   const w = a && a.window;
   const centre = w ? w.nominal : (value || 0), half = w ? Math.max(3 * (w.high - w.nominal), 0.1) : 1.0;
   const x = (d) => Math.min(400, Math.max(0, 200 + 200 * (d - centre) / half));
@@ -65,7 +68,8 @@ function show(m) {
     setGauge(document.getElementById(`g-${w}-toe`), v.toe);
     setGauge(document.getElementById(`g-${w}-camber`), v.camber);
     const note = document.querySelector(`#wheel-${w} .note`);
-    note.textContent = v.error ? `no reading: ${v.error}` : v.live ? "live" : "held from the full measurement (not on the live axle)";
+    const rim = v.rim_diameter_mm ? ` · toe in mm at the ${v.rim_diameter_mm.toFixed(1)} mm rim` : "";
+    note.textContent = (v.error ? `no reading: ${v.error}` : v.live ? "live" : "held from the full measurement (not on the live axle)") + rim;
     note.className = `note ${v.error ? "out-text" : ""}`;
     const tt = document.querySelector(`#wheel-${w} .thrust-toe`);
     if (tt) tt.textContent = `toe against the thrust line: ${Station.angle(v.toe_thrust, 3)}`;

@@ -5,7 +5,12 @@ const Station = {
   csrf: null,
   async session() {
     const r = await this.api("/api/session");
-    if (r.ok) { this.csrf = r.data.csrf; }
+    if (r.ok) {
+      this.csrf = r.data.csrf;
+      this.angleDefault = r.data.angle_format === "dms" ? "dms" : "decimal";
+      const units = document.getElementById("units");
+      if (units) units.value = this.units();
+    }
     return r;
   },
   async api(path, options = {}) {
@@ -30,19 +35,28 @@ const Station = {
     if (hint) { const h = document.createElement("span"); h.className = "hint"; h.textContent = `What to do: ${hint}`; el.appendChild(h); }
   },
   clear(el) { el.className = "message hidden"; el.textContent = ""; },
-  units() { return localStorage.getItem("station-units") || "deg"; },
+  angleDefault: "decimal",  // ui.angle_format of the configuration, until this browser chooses
+  units() {
+    const chosen = localStorage.getItem("station-angle-format");
+    return chosen === "decimal" || chosen === "dms" ? chosen : this.angleDefault;
+  },
+  // the same rules as station/ui/units.py: whole minutes, rounded; no sign on a value that rounds to zero
   angle(value, digits = 2) {
-    if (value === null || value === undefined) return "–";
-    const sign = value < 0 ? "−" : "+";
-    if (this.units() === "dm") {
+    if (value === null || value === undefined || !Number.isFinite(value)) return "–";
+    if (this.units() === "dms") {
       const total = Math.round(Math.abs(value) * 60);
-      return `${sign}${Math.floor(total / 60)}°${String(total % 60).padStart(2, "0")}′`;
+      return `${value < 0 && total ? "−" : "+"}${Math.floor(total / 60)}°${String(total % 60).padStart(2, "0")}′`;
     }
-    return `${sign}${Math.abs(value).toFixed(digits)}°`;
+    const text = Math.abs(value).toFixed(digits);
+    return `${value < 0 && Number(text) !== 0 ? "−" : "+"}${text}°`;
+  },
+  mm(value) {
+    if (value === null || value === undefined || !Number.isFinite(value)) return "";
+    return `${value < 0 && value !== 0 ? "−" : "+"}${Math.abs(value).toFixed(1)} mm`;
   },
   pm(std) {
     if (std === null || std === undefined) return "";
-    return this.units() === "dm" ? `± ${Math.max(1, Math.round(std * 60))}′` : `± ${std.toFixed(3)}°`;
+    return this.units() === "dms" ? `± ${Math.max(1, Math.round(std * 60))}′` : `± ${std.toFixed(3)}°`;
   },
   el(tag, attrs = {}, text) {
     const e = document.createElement(tag);
@@ -59,6 +73,6 @@ document.addEventListener("DOMContentLoaded", () => {
   const units = document.getElementById("units");
   if (units) {
     units.value = Station.units();
-    units.addEventListener("change", () => { localStorage.setItem("station-units", units.value); document.dispatchEvent(new Event("units")); });
+    units.addEventListener("change", () => { localStorage.setItem("station-angle-format", units.value); document.dispatchEvent(new Event("units")); });
   }
 });

@@ -15,7 +15,9 @@ async function load() {
       d.drift.warnings.length ? `drift in the newest cycle (${d.drift.cycle_id}):` : `no drift warning in the newest cycle (${d.drift.cycle_id}, ${d.drift.time_utc})`));
     for (const w of d.drift.warnings) drift.appendChild(Station.el("p", { class: "warn" }, w));
   } else drift.appendChild(Station.el("p", {}, d.drift.message));
-  document.getElementById("plc").textContent = `${d.plc.message} (configured: ${d.plc.configured})`;
+  const plc = document.getElementById("plc");
+  plc.textContent = `${d.plc.message} (configured: ${d.plc.configured}; its cycles appear under History)`;
+  plc.className = d.plc.heartbeat_advancing === true ? "ok-text" : d.plc.listening === false ? "" : "out-text";
   document.getElementById("now").textContent = (d.step ? `running: ${d.step.title}` : "no step running") + ` · live view: ${d.live.state}` + (d.simulated_seed !== null ? ` · simulated station, vehicle seed ${d.simulated_seed}` : "");
   const body = document.querySelector("#cameras tbody");
   body.textContent = "";
