@@ -30,7 +30,7 @@ from calibration.opencv_files import Keys
 
 METHOD = "imported from OpenCV files"
 PAIR_KEYS = ("M1", "D1", "M2", "D2")
-POSE_TODO = ("place it in the station frame: --anchor CAM (its pose in the current calibration), --pose CAM=FILE "
+POSE_HINT = ("place it in the station frame: --anchor CAM (its pose in the current calibration), --pose CAM=FILE "
              "(a file with R or rvec, and T, of x_cam = R x_station + T), or the camera's own file with R and T")
 
 
@@ -326,13 +326,13 @@ def _follow_links(links: list[_Link], placed: dict) -> None:
             link = todo[0]
             raise CalibrationError(f"{link.where}: R and T place {link.b} relative to {link.a}, but nothing places "
                                    "either in the station frame",
-                                   hint=f"for {link.a}: {POSE_TODO.replace('CAM', link.a)}")
+                                   hint=f"for {link.a}: {POSE_HINT.replace('CAM', link.a)}")
 
 
 def _model(intr: _Intrinsics, placed: dict) -> CameraModel:
     if intr.cam not in placed:
         raise CalibrationError(f"{intr.where}: camera {intr.cam} has no pose in the station frame (no R and T in its "
-                               "file)", hint=POSE_TODO.replace("CAM", intr.cam))
+                               "file)", hint=POSE_HINT.replace("CAM", intr.cam))
     R, t, _ = placed[intr.cam]
     try:
         return CameraModel(intr.cam, *intr.size, intr.K, intr.dist, R, t)

@@ -39,19 +39,22 @@ class ScriptedRims:
         return out
 
 
-def rolling(readings, **kw):
+# a station as far as the guides look at it before their first reading: the front pairs' cameras
+STATION = SimpleNamespace(config=SimpleNamespace(pairs={w: SimpleNamespace(precision=f"{w}p", reference=f"{w}r")
+                                                        for w in ("FL", "FR")}))
+
+
+def rolling(readings, timeout_s=5.0):
     shown = []
-    g = GuidedRolling.__new__(GuidedRolling)
-    g.mover, g.show, g.rims, g.start, g.position_m = None, shown.append, ScriptedRims(readings), None, 0.0
-    g.approach = Approach(kw.get("tolerance_m", 0.02), kw.get("still_m", 0.002), 3, kw.get("timeout_s", 5.0))
+    g = GuidedRolling(STATION, show=shown.append, timeout_s=timeout_s)
+    g.rims = ScriptedRims(readings)
     return g, shown
 
 
-def steering(readings, **kw):
+def steering(readings, timeout_s=5.0):
     shown = []
-    g = GuidedSteering.__new__(GuidedSteering)
-    g.mover, g.show, g.rims, g.reference, g.on_reading = None, shown.append, ScriptedRims(readings), None, None
-    g.approach = Approach(1.0, 0.1, 3, kw.get("timeout_s", 5.0))
+    g = GuidedSteering(STATION, show=shown.append, timeout_s=timeout_s)
+    g.rims = ScriptedRims(readings)
     return g, shown
 
 

@@ -314,21 +314,34 @@ class PlcDevice:
         self.stats["done" if event is Event.CYCLE_OK else "fault"] += 1
         self._enter(new)
 
+    # --- the operator's waits (rolls, steers) ---------------------------------------------------
+    def _wait_state(self, cycle: int, event: Event):
+        """(the state cycle ``cycle`` enters to wait for the operator on ``event``, None) or
+        (None, why it may not: a stopped server, a cycle abandoned after its timeout, a wait
+        already pending)."""
+        if self.stopped:
+            return None, "the station stopped"
+        if cycle != self.cycle_number or self._roll is not None or self._steer is not None:
+            return None, f"cycle {cycle} is not the running cycle, or it waits for a roll or a steer already"
+        try:
+            return next_state(self.state, event), None
+        except PlcError as e:  # a cycle abandoned after its timeout: the station is not busy
+            return None, str(e)
+
+    def _stop_waiting(self, pending, cleared_prompt: dict[int, list[int]]) -> None:
+        """A wait that ends: its timer stopped, its time counted (the operator's, not the
+        station's), its prompt registers cleared with ``cleared_prompt``."""
+        if pending.timer is not None:
+            pending.timer.cancel()
+        self._operator_s += time.perf_counter() - pending.t0
+        self._put(cleared_prompt)
+
     # --- rolls (runout compensation) -------------------------------------------------------------
     def _ask_roll(self, cycle: int, prompt: RollPrompt, done: concurrent.futures.Future) -> None:
         """On the loop: cycle ``cycle`` asks for ``prompt``. Publishes the prompt and enters roll,
         or answers ``done`` with the refusal (a cycle abandoned after its timeout, a stopped
         server: it must not wait)."""
-        why = None
-        if self.stopped:
-            why = "the station stopped"
-        elif cycle != self.cycle_number or self._roll is not None or self._steer is not None:
-            why = f"cycle {cycle} is not the running cycle, or it waits for a roll or a steer already"
-        else:
-            try:
-                new = next_state(self.state, Event.ROLL_REQUEST)
-            except PlcError as e:  # a cycle abandoned after its timeout: the station is not busy
-                why = str(e)
+        new, why = self._wait_state(cycle, Event.ROLL_REQUEST)
         if why is not None:
             log.warning("cycle %d: %s not asked of the PLC: %s", cycle, prompt.describe(), why)
             done.set_exception(RollNotConfirmed(f"roll {prompt.step}/{prompt.steps} not asked of the PLC: {why}"))
@@ -345,10 +358,7 @@ class PlcDevice:
         """The pending roll, no longer pending: its timer stopped, its time counted, the prompt
         cleared (the caller answers its thread and moves the state)."""
         pending, self._roll = self._roll, None
-        if pending.timer is not None:
-            pending.timer.cancel()
-        self._operator_s += time.perf_counter() - pending.t0
-        self._put(roll_prompt_registers())
+        self._stop_waiting(pending, roll_prompt_registers())
         return pending
 
     def _roll_timed_out(self, pending: _PendingRoll) -> None:
@@ -371,16 +381,7 @@ class PlcDevice:
         """On the loop: cycle ``cycle`` asks for ``prompt``. Publishes the prompt, no live reading
         yet, enters steer and answers ``done`` with the pending steer; or answers the refusal (a
         cycle abandoned after its timeout, a stopped server: it must not steer on)."""
-        why = None
-        if self.stopped:
-            why = "the station stopped"
-        elif cycle != self.cycle_number or self._roll is not None or self._steer is not None:
-            why = f"cycle {cycle} is not the running cycle, or it waits for a roll or a steer already"
-        else:
-            try:
-                new = next_state(self.state, Event.STEER_REQUEST)
-            except PlcError as e:  # a cycle abandoned after its timeout: the station is not busy
-                why = str(e)
+        new, why = self._wait_state(cycle, Event.STEER_REQUEST)
         if why is not None:
             log.warning("cycle %d: %s not asked of the PLC: %s", cycle, prompt.describe(), why)
             done.set_exception(SteerNotReached(f"steer {prompt.step}/{prompt.steps} not asked of the PLC: {why}"))
@@ -426,10 +427,7 @@ class PlcDevice:
         """The pending steer, no longer pending: its timer stopped, its time counted (the operator's),
         the prompt cleared (the caller moves the state)."""
         pending, self._steer = self._steer, None
-        if pending.timer is not None:
-            pending.timer.cancel()
-        self._operator_s += time.perf_counter() - pending.t0
-        self._put(steer_prompt_registers())
+        self._stop_waiting(pending, steer_prompt_registers())
         return pending
 
     def _steer_timed_out(self, pending: _PendingSteer) -> None:
