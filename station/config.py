@@ -251,10 +251,11 @@ SCHEMA = {
     })),
     "measurement": Field(_section({
         "epipolar_limit_px": Field(_number(0.01, 100), default=0.6),
-        "uncertainty_limit_deg": Field(_number(0.001, 10), default=0.15),
+        "uncertainty_limit_deg": Field(_number(0.001, 10), default=0.06),
         "uncertainty_floor_deg": Field(_number(0, 1), default=0.015),
         "uncertainty_noise_gain": Field(_number(0, 100), default=0.0),
         "uncertainty_toe_scale": Field(_number(0, 10), default=1.0),
+        "view_agreement_deg": Field(_number(0, 10), default=0.1),
         "edge_blur_limit_px": Field(_number(0.3, 10), default=1.3),
         "min_rim_axis_px": Field(_number(0, 10000), default=180.0),
         "white_edge_limit": Field(_number(0, 1), default=0.25),

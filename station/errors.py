@@ -70,6 +70,13 @@ class WorkerFailure(MeasurementError):
     code = 403
 
 
+class WheelUncertain(MeasurementError):
+    """A wheel's toe or camber is less certain than ``measurement.uncertainty_limit_deg``: the
+    cycle reports no angle; the message names the wheel and why, the hint what to do."""
+
+    code = 404
+
+
 class ProcedureError(MeasurementError):
     """A procedure of several captures (rolling the car, steering) cannot give its result.
 

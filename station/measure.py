@@ -18,7 +18,7 @@ from calibration.station_frame import AXLE_PARTNER, AXLES, WHEELS
 from station import alignment
 from station.compute.frame_handoff import FrameHandoff
 from station.config import StationConfig
-from station.errors import MeasurementError, StationError
+from station.errors import MeasurementError, StationError, WheelUncertain
 from station.result import (ANGLE_NAMES, AxleResult, CameraDetection, Failure, Measurement, WarningFlag, WheelQuality,
                             WheelResult)
 from station.rim.camera_response import linear_images
@@ -27,6 +27,7 @@ from station.wheel.fit import WheelFit
 from station.wheel.pair import (FULL_VIEW_COVERAGE, TANGENT_GAP_DEG, WheelObservation, kept_fractions, measure_wheel,
                                 unverifiable_epipolar)
 from station.wheel.rim_size import size_mismatches
+from station.wheel.view_agreement import disagreement_covariance
 
 METHODS = ("circle", "paper")
 
@@ -97,10 +98,11 @@ def measure_frames(images: dict[str, np.ndarray], cameras: dict[str, CameraModel
     _pair_warnings(result, observations, config)
     centreline_warnings(result)
     timing["angles"] = time.perf_counter() - t2
-    result.valid = True
     result.method = method
     result.observations = observations  # for recordings and station live; not in the JSON
-    return finish(None)
+    failure = refuse_uncertain_wheels(result, observations, config)
+    result.valid = failure is None
+    return finish(failure)
 
 
 def _measure_wheels(images: dict, cameras: dict, config: StationConfig, workers, calibration_cov: dict | None) -> list:
@@ -162,8 +164,11 @@ def unseen_axis_variance(o: WheelObservation, config: StationConfig) -> float:
 
 def unseen_axis_covariance(o: WheelObservation, axis_station: np.ndarray, config: StationConfig) -> np.ndarray:
     """(3,3) the unseen variance (:func:`unseen_axis_variance`) across the unit axis (3,), shaped
-    by :func:`unseen_axis_shape`."""
-    return unseen_axis_variance(o, config) * unseen_axis_shape(axis_station, config.measurement.uncertainty_toe_scale)
+    by :func:`unseen_axis_shape`, plus what the pair's two views' disagreement about the rim's
+    axis adds (station/wheel/view_agreement.py)."""
+    m = config.measurement
+    return (unseen_axis_variance(o, config) * unseen_axis_shape(axis_station, m.uncertainty_toe_scale)
+            + disagreement_covariance(o.views, m.view_agreement_deg))
 
 
 def unseen_axis_shape(axis_station: np.ndarray, toe_scale: float) -> np.ndarray:
@@ -219,7 +224,8 @@ def fill_angles(result: Measurement, fits: dict[str, WheelFit], observations: di
                                  arcs_left_out=bool(o.circle.arcs_left_out),
                                  faint_left_out=bool(o.circle.faint_left_out),
                                  other_contour_mm=(None if o.circle.other_contour_mm is None
-                                                   else round(float(o.circle.other_contour_mm), 2))))
+                                                   else round(float(o.circle.other_contour_mm), 2)),
+                                 view_disagreement_deg=(None if o.views is None else round(o.views.angle_deg, 4))))
     for axle in AXLES:
         a = {k: float(v) for k, v in angles["axles"][axle].items()}
         result.axles[axle] = AxleResult(**a, total_toe_std_deg=float(std[f"{axle}.total_toe"]))
@@ -232,22 +238,62 @@ def fill_angles(result: Measurement, fits: dict[str, WheelFit], observations: di
                               "R_station_align": angles["R_station_align"].tolist()}
 
 
+def refuse_uncertain_wheels(result: Measurement, observations: dict, config: StationConfig) -> Failure | None:
+    """The failure of a cycle with a wheel whose toe or camber is less certain than
+    ``measurement.uncertainty_limit_deg``: a value that uncertain is no use for aligning, and a
+    wrong value reported as valid is the worst outcome for a technician. The message names every
+    such wheel and why (its two cameras disagree about the rim's axis, or the 3-D rim rests on
+    a small share of a camera's edge), the hint what to do about it; each such wheel is flagged
+    ``uncertain`` (the PLC's warning_bits 0-3 say which)."""
+    limit = config.measurement.uncertainty_limit_deg
+    refused = []
+    for w in WHEELS:
+        r = result.wheels[w]
+        worst = max(("toe", r.toe_std_deg), ("camber", r.camber_std_deg), key=lambda kv: kv[1])
+        if worst[1] > limit:
+            refused.append((w, worst))
+    if not refused:
+        return None
+    texts, hints = [], []
+    for w, (name, std) in refused:
+        text, hint = _why_uncertain(observations[w], config)
+        result.warning_flags.append(WarningFlag("uncertain", w, text=f"{w}: {text}"))
+        texts.append(f"{w}: {name} +/-{std:.3f} deg, {text}")
+        hints.append(hint)
+    wheels = [w for w, _ in refused]
+    camera = "+".join(observations[wheels[0]].cams)
+    return Failure(WheelUncertain.code,
+                   f"{', '.join(wheels)} less certain than the {limit} deg uncertainty limit ({'; '.join(texts)}); "
+                   "no angle of this cycle is reported", " ".join(dict.fromkeys(hints)) + " Then measure again.",
+                   wheels[0] if len(wheels) == 1 else ",".join(wheels), camera)
+
+
+def _why_uncertain(o: WheelObservation, config: StationConfig) -> tuple[str, str]:
+    """(why the wheel is uncertain, what to do): the views' disagreement when it is beyond what
+    a clean rim gives (naming the camera whose edge is fainter), else the share of a camera's
+    edge points the 3-D rim rests on."""
+    views = o.views
+    if views is not None and views.angle_deg > 2 * config.measurement.view_agreement_deg:
+        steps = [float(np.median(d.points_contrast)) if d.points_contrast is not None and len(d.points_contrast)
+                 else float("nan") for d in o.detections]
+        faint = o.cams[int(np.nanargmin(steps))] if not np.all(np.isnan(steps)) else o.cams[0]
+        return (f"its cameras {o.cams[0]} and {o.cams[1]} each see the rim's axis differently, by "
+                f"{views.angle_deg:.2f} deg: one of them sees the rim's edge off on part of the rim "
+                f"(the fainter edge is {faint}'s)",
+                f"Look at {faint}'s image of the rim's lip: clean the lip (brake dust, dirt), shade it from direct "
+                f"sun, light it, or give {faint} a longer exposure if the rim is dark.")
+    kept = kept_fractions(o)
+    weak = o.cams[int(np.argmin(kept))]
+    return (f"the 3-D rim rests on {min(kept):.0%} of {weak}'s edge points",
+            f"Check that {weak} sees the whole rim (wheel position, tyre, arch) and that its lip is clean and lit.")
+
+
 def _pair_warnings(result: Measurement, observations: dict, config: StationConfig) -> None:
-    """Per wheel: a stated uncertainty above the limit (what the 3-D rim rests on), and whether
-    this cycle could check the pair's calibration (the epipolar residual: a moved camera, or
-    tangents extrapolated where a camera did not see the rim)."""
+    """Per wheel: whether this cycle could check the pair's calibration (the epipolar residual:
+    a moved camera, or tangents extrapolated where a camera did not see the rim)."""
     limit = config.measurement.epipolar_limit_px
     for w in WHEELS:
-        o, r = observations[w], result.wheels[w]
-        worst = max(("toe", r.toe_std_deg), ("camber", r.camber_std_deg), key=lambda kv: kv[1])
-        if worst[1] > config.measurement.uncertainty_limit_deg:
-            kept = kept_fractions(o)
-            weak = o.cams[int(np.argmin(kept))]
-            result.warn(
-                f"{w}: {worst[0]} +/-{worst[1]:.3f} deg exceeds the {config.measurement.uncertainty_limit_deg} deg "
-                f"uncertainty limit: the 3-D rim rests on {min(kept):.0%} of {weak}'s edge points; check that "
-                f"{weak} sees the whole rim (wheel position, tyre, arch) and measure again",
-                WarningFlag("uncertain", w))
+        o = observations[w]
         d = min(o.detections, key=lambda det: det.coverage)
         if unverifiable_epipolar(o, config) and d.coverage < FULL_VIEW_COVERAGE:
             result.warn(

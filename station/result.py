@@ -82,6 +82,7 @@ class WheelQuality:
     arcs_left_out: bool
     faint_left_out: bool
     other_contour_mm: float | None
+    view_disagreement_deg: float | None = None  # each camera's own rim axis against its partner's
 
     def to_json(self) -> dict:
         return dict(vars(self))
@@ -189,7 +190,9 @@ class Steering:
 class Measurement:
     """A cycle's result. ``valid`` False: no angle may be used, ``failure`` says why.
 
-    The angles (``wheels``, ``axles``, ``thrust_deg``, ...) are set on a valid result only. The
+    The angles (``wheels``, ``axles``, ``thrust_deg``, ...) are set on a valid result only, and
+    on a cycle refused for a wheel less certain than the limit (code 404), whose JSON leaves
+    them out: the recording and the benchmarks show what was refused. The
     cycle's fields (``cycle_id`` ... ``recording``) are None outside a cycle (a benchmark's
     measurement of images). ``truth`` and ``errors`` (measured - true, deg) come from a
     simulation; ``verdicts`` ("pass" in the JSON) from a vehicle specification.
@@ -245,7 +248,7 @@ class Measurement:
         the spin axes' alignment when runout is compensated, else against the rim planes' (the
         truth's ``rim_toe_deg``/``rim_camber_deg``, the same when the rims do not run out)."""
         self.truth = truth
-        if not self.valid:
+        if not self.valid and not (self.wheels and self.axles):
             return
         prefix = "" if self.runout_compensated else "rim_"
         true = {w: {k: t.get(prefix + k, t[k]) for k in ("toe_deg", "camber_deg")} for w, t in truth["wheels"].items()}
@@ -282,9 +285,9 @@ class Measurement:
                                "failure": None if self.failure is None else self.failure.to_json(),
                                "warnings": list(self.warnings),
                                "warning_flags": [f.to_json() for f in self.warning_flags],
-                               "wheels": {w: self._wheel_json(w, r) for w, r in self.wheels.items()},
-                               "axles": {a: _present(vars(r)) for a, r in self.axles.items()},
-                               "thrust_deg": self.thrust_deg}
+                               "wheels": {w: self._wheel_json(w, r) for w, r in self.wheels.items()} if self.valid else {},
+                               "axles": {a: _present(vars(r)) for a, r in self.axles.items()} if self.valid else {},
+                               "thrust_deg": self.thrust_deg if self.valid else None}
         out.update(_present({"thrust_std_deg": self.thrust_std_deg, "wheelbase_m": self.wheelbase_m,
                              "centreline_deg": self.centreline_deg,
                              "paper_front_angles_deg": self.paper_front_angles_deg,

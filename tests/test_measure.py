@@ -172,16 +172,23 @@ def test_a_pair_that_did_not_see_the_rim_where_the_epipolar_planes_touch_it_is_u
 
 
 @pytest.mark.slow
-def test_a_wheel_less_certain_than_the_limit_warns_and_names_a_camera(sim, monkeypatch):
+def test_a_wheel_less_certain_than_the_limit_is_refused_with_why_and_what_to_do(sim, monkeypatch):
     cfg, world, scene, images = sim
     result = measure_frames(images, world.cameras, cfg)
-    assert not any("uncertainty limit" in w for w in result.warnings), result.warnings
+    assert result.valid and not any(f.kind == "uncertain" for f in result.warning_flags)
     monkeypatch.setattr(cfg.measurement, "uncertainty_limit_deg", 0.001)  # every wheel is less certain
-    uncertain = measure_frames(images, world.cameras, cfg)
-    warned = [w for w in uncertain.warnings if "uncertainty limit" in w]
-    flags = sorted(f.wheel for f in uncertain.warning_flags if f.kind == "uncertain")
+    refused = measure_frames(images, world.cameras, cfg)
+    assert not refused.valid and refused.failure.code == 404
+    assert refused.failure.wheel == "FL,FR,RL,RR"
+    flags = sorted(f.wheel for f in refused.warning_flags if f.kind == "uncertain")
     assert flags == ["FL", "FR", "RL", "RR"]                     # the PLC's warning_bits 0-3
-    assert len(warned) == 4 and any(w.startswith("FR: ") and ("of cam1's" in w or "of cam2's" in w) for w in warned)
+    message = refused.failure.message
+    assert "0.001 deg uncertainty limit" in message and "no angle of this cycle is reported" in message
+    assert "FR: " in message and ("of cam1's" in message or "of cam2's" in message)
+    assert "measure again" in refused.failure.hint
+    doc = refused.to_json()  # the refused angles stay on the object (recording, benchmarks), not in the JSON
+    assert doc["valid"] is False and doc["wheels"] == {} and doc["thrust_deg"] is None
+    assert set(refused.wheels) == {"FL", "FR", "RL", "RR"}
 
 
 @pytest.mark.slow
@@ -326,7 +333,7 @@ def test_result_json_to_an_unwritable_place_is_a_storage_error_and_leaves_no_fil
     blocker.write_text("x")
     with pytest.raises(StorageError, match="cannot write the result JSON"):
         write_json(Measurement(station="s"), blocker / "r.json")
-    out = write_json(Measurement(station="s", thrust_deg=np.float64(0.5)), tmp_path / "ok" / "r.json")
+    out = write_json(Measurement(station="s", valid=True, thrust_deg=np.float64(0.5)), tmp_path / "ok" / "r.json")
     assert json.loads(out.read_text())["thrust_deg"] == 0.5
     assert [p.name for p in out.parent.iterdir()] == ["r.json"]
 
@@ -487,6 +494,7 @@ def test_the_unseen_error_grows_with_each_wheels_edge_noise(sim, monkeypatch):
     cfg, world, _, images = sim
     monkeypatch.setattr(cfg.measurement, "uncertainty_floor_deg", 0.0)
     monkeypatch.setattr(cfg.measurement, "uncertainty_toe_scale", 1.0)
+    monkeypatch.setattr(cfg.measurement, "view_agreement_deg", 100.0)  # the views' disagreement aside
 
     def without_and_with_gain(frames):
         monkeypatch.setattr(cfg.measurement, "uncertainty_noise_gain", 0.0)

@@ -66,7 +66,7 @@ def _carried_pair(wheel: str, cams: tuple[str, str], detection_sets: list[dict],
             try:
                 found = refine_candidate(images[dst], prior, camera=cameras[dst], camera_id=dst)
                 o = reconstruct_wheel(wheel, cams, {src: det, dst: found}, cameras, calibration_cov,
-                                      config.measurement.uncertainty_limit_deg)
+                                      other_contour_test=True)
                 check_same_rim(o, config, allow_unchecked=False)
             except StationError:
                 continue

@@ -45,6 +45,7 @@ MAX_OFFSET = 0.12         # the second contour lies within this fraction of the 
 REFITS = 2                # rounds of refitting a hypothesis to every point it explains
 MAX_RADIUS_CHANGE = 0.5   # a hypothesis this much larger or smaller than the circle is no concentric contour
 SEPARATION = 3.0          # and at least this many tolerances from the first (not its noise tail)
+TEST_ABOVE_DEG = 0.15      # a circle whose own axis uncertainty is above this is tested at all (deg)
 
 
 def radial_offsets_m(cam: CameraModel, xy: np.ndarray, c: np.ndarray, n: np.ndarray, radius_m: float) -> np.ndarray:
@@ -230,12 +231,13 @@ def fit_two_contours(views, labels, init, loss_scale_px: float = CircleFitSettin
 
 
 def refit_other_contour(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: CameraModel, cam_r: CameraModel,
-                        circle: WheelFit, above_deg: float, contrast: tuple | None = None) -> WheelFit | None:
+                        circle: WheelFit, above_deg: float = TEST_ABOVE_DEG,
+                        contrast: tuple | None = None) -> WheelFit | None:
     """The wheel fitted with its arcs on another concentric contour told apart, or None.
 
     Tried only when ``circle`` (the fit of all points, (N,2) and (M,2) pixels) states an axis
-    uncertainty above ``above_deg`` (the station's uncertainty limit: such a cycle would be
-    reported as uncertain), and kept only when it states a smaller one. ``contrast``: as for
+    uncertainty above ``above_deg`` (its own covariance's, before the unseen terms), and kept
+    only when it states a smaller one. ``contrast``: as for
     :func:`station.wheel.circle_fit.refine_circle`."""
     if not np.degrees(np.sqrt(max(np.trace(circle.cov_axis), 0.0))) > above_deg:  # (NaN: not above)
         return None

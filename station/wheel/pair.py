@@ -22,6 +22,7 @@ from station.wheel.rim_size import AXLE_RIM_TOLERANCE
 from station.wheel.circle_fit import circle_from_ellipses, refine_circle
 from station.wheel.fit import WheelFit
 from station.wheel.paper import reconstruct_paper
+from station.wheel.view_agreement import ViewAgreement, view_agreement
 
 
 @dataclass
@@ -31,6 +32,7 @@ class WheelObservation:
     detections: tuple                # RimDetection per camera
     paper: WheelFit
     circle: WheelFit
+    views: ViewAgreement | None = None  # each view's own rim axis against the pair's (view_agreement.py)
 
 
 def detect_one(image: np.ndarray, camera: CameraModel, cam_id: str):
@@ -70,7 +72,7 @@ def measure_wheel(wheel: str, cams: tuple[str, str], images: dict, cameras: dict
     if not any(isinstance(d, StationError) for d in detections.values()):
         try:
             out.observation = reconstruct_wheel(wheel, cams, detections, cameras, calibration_cov,
-                                                config.measurement.uncertainty_limit_deg)
+                                                other_contour_test=True)
             check_same_rim(out.observation, config)
         except StationError as e:
             # a runner-up pairing is a second guess: it must pass the full check, including
@@ -90,11 +92,11 @@ DIVERGED_PX = 1.0  # a circle fit whose median residual in a view exceeds this i
 
 def reconstruct_wheel(wheel: str, cams: tuple[str, str], detections: dict, cameras: dict,
                       calibration_cov: np.ndarray | None = None,
-                      uncertainty_limit_deg: float | None = None) -> WheelObservation:
+                      other_contour_test: bool = False) -> WheelObservation:
     """Both 3-D methods for one pair. calibration_cov: the pair's (30,30) joint camera-parameter
     covariance from the calibration (StationCalibration.pair_covariance); when given, its share
     of the circle's uncertainty is added to the circle's centre and axis covariance.
-    uncertainty_limit_deg: a circle less certain than this is tested for arcs on another
+    other_contour_test: a circle less certain than other_contour.TEST_ABOVE_DEG is tested for arcs on another
     concentric contour of the wheel (station/wheel/other_contour.py).
 
     The circle fit starts from the paper's circle, whose centre is the centroid of the
@@ -114,16 +116,18 @@ def reconstruct_wheel(wheel: str, cams: tuple[str, str], detections: dict, camer
         retry = refine_circle(det_l.points_px, det_r.points_px, cam_l, cam_r, start, contrast=contrast)
         if max(retry.view_median_px) <= DIVERGED_PX:
             circle = retry
-    if uncertainty_limit_deg is not None:
+    if other_contour_test:
         circle = refit_other_contour(det_l.points_px, det_r.points_px, cam_l, cam_r, circle,
-                                     uncertainty_limit_deg, contrast=contrast) or circle
+                                     contrast=contrast) or circle
     if calibration_cov is not None:
         cov_pair = pair_perturbation_covariance(cam_l, cam_r, calibration_cov)
         cc, ca = calibration_covariance(det_l.points_px, det_r.points_px, cam_l, cam_r, circle, cov_pair=cov_pair)
         circle.cov_center = circle.cov_center + cc
         circle.cov_axis = circle.cov_axis + ca
         circle.calibration_share = (float(np.trace(cc)), float(np.trace(ca)))
-    return WheelObservation(wheel, cams, (det_l, det_r), paper, circle)
+    views = view_agreement((det_l.points_px, det_r.points_px), (cam_l, cam_r), circle.center_station,
+                           circle.axis_station, circle.radius_m)
+    return WheelObservation(wheel, cams, (det_l, det_r), paper, circle, views)
 
 
 UNCHECKED_MIN_KEPT = 1 / 3  # of each view's edge points the circle must rest on to be taken unchecked
@@ -225,7 +229,7 @@ def resolve_pair(wheel: str, cams: tuple[str, str], detections: dict, images: di
                 continue
             try:
                 o = reconstruct_wheel(wheel, cams, {cams[0]: dl, cams[1]: dr}, cameras, calibration_cov,
-                                      config.measurement.uncertainty_limit_deg)
+                                      other_contour_test=True)
                 check_same_rim(o, config, allow_unchecked=False)
             except StationError:
                 continue
