@@ -8,7 +8,9 @@ A `station ui` subprocess serves the simulated station (vehicle --seed, its true
 calibration, in a temporary data folder; the simulated technician turns the FL tie rod through
 --adjust-steps steps, rendered once before the loop starts). The station's CPU use is the
 user + system time of the server and all its child processes (the measurement workers), from
-/proc, over each window, as a share of one core (the machine has --cores). Windows:
+/proc, over each window, as a share of one core; beside it the rest of the machine's busy time
+(/proc/stat: this client, Chromium, and whatever else runs on the shared cores), which the
+station's rate depends on. Windows:
 
 1. no page open (the server idle);
 2. one client on ``/api/live/stream?axle=all``: an SSE client in this process counting the
@@ -63,10 +65,19 @@ def tree_cpu_s(pid: int) -> float:
     return total
 
 
-def cpu_share(pid: int, seconds: float) -> float:
-    c0, t0 = tree_cpu_s(pid), time.monotonic()
+def machine_busy_s() -> float:
+    """CPU seconds all cores spent busy since boot (/proc/stat: everything but idle and iowait)."""
+    fields = [int(x) for x in Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]]
+    return (sum(fields[:8]) - fields[3] - fields[4]) / TICK
+
+
+def cpu_share(pid: int, seconds: float) -> tuple[float, float]:
+    """(the station's, everything else's) CPU over ``seconds``, each as a share of one core."""
+    c0, m0, t0 = tree_cpu_s(pid), machine_busy_s(), time.monotonic()
     time.sleep(seconds)
-    return (tree_cpu_s(pid) - c0) / (time.monotonic() - t0)
+    dt = time.monotonic() - t0
+    station = (tree_cpu_s(pid) - c0) / dt
+    return station, max(0.0, (machine_busy_s() - m0) / dt - station)
 
 
 def _free_port() -> int:
@@ -189,10 +200,10 @@ def main() -> int:
     w, h = config.cameras["cam1"].width, config.cameras["cam1"].height
     print(f"station ui on the simulated station at {w}x{h}, vehicle seed {args.seed}, {args.seconds:g} s per window, "
           f"{os.cpu_count()} cores; CPU = the server and its workers, share of one core\n")
-    print("| window | updates/s received | station CPU |")
-    print("|---|---|---|")
-    for name, rate, share in rows:
-        print(f"| {name} | {'-' if rate is None else f'{rate:.1f}'} | {share * 100:.0f} % |")
+    print("| window | updates/s received | station CPU | rest of the machine |")
+    print("|---|---|---|---|")
+    for name, rate, (share, rest) in rows:
+        print(f"| {name} | {'-' if rate is None else f'{rate:.1f}'} | {share * 100:.0f} % | {rest * 100:.0f} % |")
     return 0
 
 

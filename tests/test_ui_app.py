@@ -313,3 +313,36 @@ def test_the_station_page_looks_at_a_plc_server_from_outside(tmp_path, monkeypat
         other = probe("127.0.0.1", mute.getsockname()[1])
         assert other["listening"] is True and other["state"] is None
         assert "not answering as the station's PLC server" in other["message"] and time.monotonic() - t0 < 3
+
+
+def test_the_adjust_page_gets_the_newest_valid_steering_sweep_of_the_job(fake):
+    """Caster is not followed live: the Adjust page shows the job's newest valid sweep from the
+    history, with its time and each front wheel's camber at the sweep (to see it move since)."""
+    from station.records.history import History
+    from tests.result_builder import with_steering
+
+    hw, _, _, config = fake
+    c = client(config, hw)
+    h = csrf(c)
+    assert c.get("/api/adjust/steering").json()["message"] == "no job yet: enter it on the Job page"
+    c.post("/api/job", json={"job_id": "VIN-C", "vehicle": "dodge-caravan-2007"}, headers=h)
+    r = c.get("/api/adjust/steering").json()  # no history at all yet
+    assert r["sweep"] is None and r["message"].startswith("no steering sweep in job VIN-C yet")
+    older = with_steering(make_result(1, cycle=1, job_id="VIN-C"), {"FL": 3.1, "FR": 3.3}, {"FL": 12.0, "FR": 12.2})
+    newer = with_steering(make_result(2, cycle=2, job_id="VIN-C"), {"FL": 4.4, "FR": 3.5}, {"FL": 12.9, "FR": 12.1})
+    failed = make_result(3, cycle=3, job_id="VIN-C", valid=False)  # an invalid cycle's sweep is not shown
+    failed.steering = with_steering(make_result(3, cycle=3), {"FL": 9.0, "FR": 9.0}, {"FL": 9.0, "FR": 9.0}).steering
+    other_job = with_steering(make_result(4, cycle=4, job_id="OTHER"), {"FL": 8.0, "FR": 8.0}, {"FL": 8.0, "FR": 8.0})
+    plain = make_result(5, cycle=5, job_id="VIN-C")  # a later measurement without a sweep
+    with History(config.data_path("history.sqlite")) as hist:
+        for result in (older, newer, failed, other_job, plain):
+            hist.store(result)
+    r = c.get("/api/adjust/steering").json()
+    sweep = r["sweep"]
+    assert r["message"] is None and sweep["cycle_id"] == newer.cycle_id and sweep["time_utc"] == newer.time_utc
+    fl = sweep["wheels"]["FL"]
+    assert fl["caster"]["value"] == pytest.approx(4.4) and fl["sai"]["value"] == pytest.approx(12.9)
+    assert fl["caster"]["std"] == pytest.approx(0.02) and fl["caster"]["window"] is not None
+    assert fl["caster"]["ok"] == (fl["caster"]["window"]["low"] <= 4.4 <= fl["caster"]["window"]["high"])
+    assert fl["camber_at_sweep"]["value"] == pytest.approx(newer.wheels["FL"].camber_deg)
+    assert set(sweep["wheels"]) == {"FL", "FR"}

@@ -14,10 +14,8 @@ from __future__ import annotations
 import json
 import math
 import os
-import socket
-import subprocess
-import sys
 import time
+import urllib.error
 import urllib.request
 from pathlib import Path
 
@@ -25,6 +23,7 @@ import pytest
 
 from tests.cdp import find_chromium
 from tests.station_fixtures import small_station_config, truth_calibration
+from tests.ui_server import UiServer
 
 ROOT = Path(__file__).resolve().parents[1]
 ARTIFACTS = Path(os.environ.get("STATION_TEST_ARTIFACTS") or ROOT / "tests" / "artifacts") / "ui"
@@ -34,12 +33,6 @@ VEHICLE = "dodge-caravan-2007"
 
 pytestmark = [pytest.mark.slow,
               pytest.mark.skipif(find_chromium() is None, reason="chromium is not installed (setup.sh installs it)")]
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @pytest.fixture(scope="module")
@@ -53,30 +46,9 @@ def server(tmp_path_factory):
     plc = BackgroundServer(PlcDevice(dry_run_runner(10)))  # `station serve` as another process would run it
     config = small_station_config(tmp, plc__port=plc.start_tcp())
     truth_calibration(config)
-    port = _free_port()
-    env = {**os.environ, "STATION_DATA_DIR": str(config.data_dir), "XDG_CACHE_HOME": str(tmp / "cache")}
-    log = open(tmp / "server.log", "w")
-    proc = subprocess.Popen([sys.executable, "-m", "station.cli", "--config", str(config.path), "ui", "--port",
-                             str(port), "--seed", str(SEED), "--adjust-steps", "3"],
-                            cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT)
-    base = f"http://127.0.0.1:{port}"
-    deadline = time.monotonic() + 60
-    while time.monotonic() < deadline:
-        try:
-            urllib.request.urlopen(base + "/api/session", timeout=2)
-            break
-        except OSError:
-            if proc.poll() is not None:
-                raise RuntimeError((tmp / "server.log").read_text())
-            time.sleep(0.2)
-    yield base, config
-    proc.terminate()
-    try:
-        proc.wait(60)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait(10)
-    log.close()
+    ui = UiServer(config, tmp, SEED, adjust_steps=3)
+    yield ui.base, config
+    ui.close()
     plc.stop()
 
 
@@ -247,3 +219,34 @@ def test_a_tab_closed_mid_step_loses_nothing(server, browser):
     assert last["state"] == "done"
     with History(config.data_path("history.sqlite"), read_only=True) as h:
         assert len([r for r in h.query(job=JOB) if r["valid"]]) == 2  # the step finished and was kept
+
+
+def test_a_wrong_password_is_refused_on_the_login_page_and_the_right_one_opens_the_job_page(tmp_path, browser):
+    """With ui.password_hash set, every page asks for the login first (here on loopback, as on a
+    shop network); a wrong password says so after the 1 s wait, the right one opens the Job page."""
+    from station.ui.auth import hash_password
+
+    config = small_station_config(tmp_path, ui__password_hash=hash_password("tie-rod-42", iterations=1000))
+    ui = UiServer(config, tmp_path, SEED)
+    try:
+        with pytest.raises(urllib.error.HTTPError) as refused:
+            _api(ui.base, "/api/job")
+        assert refused.value.code == 401
+        tab = browser.page()
+        tab.goto(ui.base + "/")
+        tab.wait("location.pathname === '/login' && !!document.querySelector('#password')")
+        tab.js("document.querySelector('#password').value = 'tie-rod-24'")
+        t0 = time.monotonic()
+        tab.click("#login button")
+        text = tab.wait("document.querySelector('#message.error') && document.querySelector('#message').textContent")
+        assert time.monotonic() - t0 >= 0.9
+        assert text.startswith("wrong password") and "the workshop manager has it" in text
+        _shot(tab, "login-wrong-password")
+        tab.js("document.querySelector('#password').value = 'tie-rod-42'")
+        tab.click("#login button")
+        tab.wait("location.pathname === '/' && document.querySelectorAll('#vehicle-list div').length >= 3")
+        errors = tab.console_errors()
+        assert errors and all("status of 401" in e for e in errors), errors  # the wrong password's answer only
+        browser.close_target(tab.target_id)
+    finally:
+        ui.close()

@@ -2,7 +2,8 @@
 
 A step (station/ui/steps.py) started from the page runs in its own thread with the cameras held
 (station/ui/hardware.py); its progress lines (the station's ``progress`` and the guides'
-``show``) are kept here for any page to read, with the outcome: the result's summary, or the
+``show``) are kept here for any page to read (the Procedure page's stream,
+station/ui/routes_procedure.py), with the outcome: the result's summary, or the
 station's message and what to do. A second step while one runs is refused with a sentence
 naming the one that runs. The step does not depend on the browser: a page closed mid-step
 changes nothing (the cycle is kept in the history as from the command line), and a page opened
@@ -42,19 +43,23 @@ class StepRun:
     code: int | None = None
     finished_utc: str | None = None
     output: Any = None                # the step's own output (a camera check's images)
+    _lines_lock: threading.Lock = field(default_factory=threading.Lock, repr=False, compare=False)
 
     def add(self, line: str) -> None:
-        self.lines.append(line)
-        if len(self.lines) > MAX_LINES:
-            drop = len(self.lines) - MAX_LINES
-            del self.lines[:drop]
-            self.first_line += drop
+        with self._lines_lock:
+            self.lines.append(line)
+            if len(self.lines) > MAX_LINES:
+                drop = len(self.lines) - MAX_LINES
+                del self.lines[:drop]
+                self.first_line += drop
 
     def view(self, since: int = 0) -> dict:
-        start = max(since - self.first_line, 0)
+        with self._lines_lock:  # the lines and their numbers of one moment (the step adds more meanwhile)
+            first, lines = self.first_line, self.lines[max(since - self.first_line, 0):]
+            next_line = first + len(self.lines)
         return {"key": self.key, "title": self.title, "job_id": self.job_id, "state": self.state,
                 "started_utc": self.started_utc, "finished_utc": self.finished_utc,
-                "lines": self.lines[start:], "next_line": self.first_line + len(self.lines),
+                "lines": lines, "next_line": next_line,
                 "summary": self.summary, "message": self.message, "hint": self.hint, "code": self.code}
 
 

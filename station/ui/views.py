@@ -70,12 +70,18 @@ def measurement_view(result: Measurement, spec: VehicleSpec | None = None) -> di
                     for a, x in result.axles.items()}
     out["thrust"] = _angle(result.thrust_deg, result.thrust_std_deg, spec_window(spec, "thrust"))
     if result.steering is not None:
-        out["steering"] = {w: {k: _angle(getattr(s, f"{k}_deg"), getattr(s, f"{k}_std_deg"),
-                                         spec_window(spec, f"{w}.{k}")) for k in ("caster", "sai", "included_angle")}
-                           for w, s in result.steering.wheels.items()}
+        out["steering"] = steering_view(result, spec)
     if result.verdicts:
         out["overall"] = result.verdicts.get("overall")
     return out
+
+
+def steering_view(result: Measurement, spec: VehicleSpec | None = None) -> dict:
+    """{front wheel: {caster, sai, included_angle}} of a sweep's result, each angle with its
+    uncertainty and verdict."""
+    return {w: {k: _angle(getattr(s, f"{k}_deg"), getattr(s, f"{k}_std_deg"), spec_window(spec, f"{w}.{k}"))
+                for k in ("caster", "sai", "included_angle")}
+            for w, s in result.steering.wheels.items()}
 
 
 def finite(obj):

@@ -1,9 +1,11 @@
 // The Adjust page: live gauges of toe and camber per wheel against the specification (green
 // inside, red outside, the target marked), total toe, thrust and the front toe against the
 // thrust line, from the station's live stream (Server-Sent Events). Toe also in mm at the rim
-// (the rim diameter x sin toe, computed by the station: station/ui/units.py).
+// (the rim diameter x sin toe, computed by the station: station/ui/units.py). Caster, SAI and
+// included angle of the front wheels from the job's newest steering sweep, with its age: they
+// are not followed live (docs/ui.md); the card says when a wheel's live camber has moved since.
 "use strict";
-let source = null, last = null;
+let source = null, last = null, sweep = null;
 const SVG = "http://www.w3.org/2000/svg";
 function svgEl(tag, attrs) { const e = document.createElementNS(SVG, tag); for (const [k, v] of Object.entries(attrs)) e.setAttribute(k, v); return e; }
 function gauge(id, label) {
@@ -62,8 +64,71 @@ function build() {
     const card = Station.el("div", { class: "card" }); card.appendChild(gauge(id, label)); totals.appendChild(card);
   }
 }
+function sweepAge(timeUtc) {
+  const t = new Date(timeUtc), minutes = Math.max(0, Math.round((Date.now() - t.getTime()) / 60000));
+  const hhmm = `${String(t.getHours()).padStart(2, "0")}:${String(t.getMinutes()).padStart(2, "0")}`;
+  return `${hhmm} (${minutes < 1 ? "just now" : minutes < 120 ? `${minutes} min ago` : `${Math.round(minutes / 60)} h ago`})`;
+}
+function buildCaster() {
+  const box = document.getElementById("caster");
+  box.textContent = "";
+  if (!sweep || !sweep.sweep) return;
+  for (const [w, v] of Object.entries(sweep.sweep.wheels)) {
+    const card = Station.el("div", { class: "card wheel-card", id: `caster-${w}` });
+    card.appendChild(Station.el("h2", {}, `${w === "FL" ? "front left" : "front right"} (${w})`));
+    card.appendChild(Station.el("div", { class: "note" }, ""));
+    card.appendChild(gauge(`g-${w}-caster`, "caster (+ top rearward)"));
+    card.appendChild(gauge(`g-${w}-sai`, "SAI (+ top inward)"));
+    card.appendChild(Station.el("div", { class: "included" }));
+    box.appendChild(card);
+    setGauge(card.querySelector(`#g-${w}-caster`), v.caster);
+    setGauge(card.querySelector(`#g-${w}-sai`), v.sai);
+    card.querySelector(".included").textContent = `included angle: ${Station.angle(v.included_angle.value, 2)} ${Station.pm(v.included_angle.std)}`;
+  }
+}
+// Whether a front wheel's live camber has left its camber at the sweep (then the suspension was
+// adjusted and caster may have moved with it): beyond 3 sigma of the two, at least 0.05 deg.
+function casterNotes(m) {
+  const notes = {};
+  if (!sweep || !sweep.sweep) return notes;
+  for (const [w, v] of Object.entries(sweep.sweep.wheels)) {
+    const live = m && m.wheels[w] ? m.wheels[w].camber : null, then = v.camber_at_sweep;
+    let note = "as at the sweep; caster does not follow live";
+    if (live && live.value !== null && m.wheels[w].live && Boolean(m.runout_compensated) === Boolean(sweep.sweep.runout_compensated)) {
+      const moved = live.value - then.value, limit = Math.max(0.05, 3 * Math.hypot(live.std || 0, then.std || 0));
+      if (Math.abs(moved) > limit) note = `camber has moved ${Station.angle(moved, 2)} since the sweep: the suspension was adjusted, caster may have moved too; run the sweep again`;
+      else note = `camber as at the sweep (${Station.angle(moved, 2)}); caster does not follow live: after turning the caster adjuster run the sweep again`;
+    }
+    notes[w] = note;
+    const el = document.querySelector(`#caster-${w} .note`);
+    if (el) { el.textContent = note; el.className = `note ${note.startsWith("camber has moved") ? "out-text" : ""}`; }
+  }
+  return notes;
+}
+async function loadSweep() {
+  const r = await Station.api("/api/adjust/steering");
+  if (!r.ok) return;
+  const changed = JSON.stringify(r.data) !== JSON.stringify(sweep);
+  sweep = r.data;
+  const line = document.getElementById("sweep-line");
+  if (sweep.sweep) {
+    line.textContent = `From the steering sweep at ${sweepAge(sweep.sweep.time_utc)} (±${sweep.sweep.sweep_deg} deg, cycle ${sweep.sweep.cycle_id}). Re-run the sweep after adjusting caster.`;
+    line.dataset.cycle = sweep.sweep.cycle_id;
+  } else { line.textContent = sweep.message; line.dataset.cycle = ""; }
+  document.getElementById("rerun-sweep").textContent = sweep.sweep ? "Run the steering sweep again" : "Run the steering sweep";
+  if (changed) buildCaster();
+  casterNotes(last);
+}
+async function rerunSweep() {
+  const msg = document.getElementById("sweep-message");
+  const r = await Station.api("/api/steps/steering/start", { method: "POST" });
+  if (!r.ok) { Station.message(msg, "error", r.data.error, r.data.hint); return; }
+  Station.message(msg, "info", "The steering sweep runs: steer as the Procedure page shows (the live values pause meanwhile).");
+  const a = Station.el("a", { href: "/procedure" }, " Open the Procedure page"); msg.appendChild(a);
+}
 function show(m) {
   last = m;
+  casterNotes(m);
   for (const [w, v] of Object.entries(m.wheels)) {
     setGauge(document.getElementById(`g-${w}-toe`), v.toe);
     setGauge(document.getElementById(`g-${w}-camber`), v.camber);
@@ -90,6 +155,7 @@ function connect() {
     const s = JSON.parse(e.data);
     Station.message(status, s.state === "error" ? "error" : s.state === "live" ? "good" : "info", `${s.state}: ${s.message}`, s.hint);
     status.dataset.state = s.state;
+    if (s.state === "live") loadSweep();  // after a step (a new sweep) the live view comes back
     const warnings = document.getElementById("warnings");
     warnings.textContent = "";
     if (s.state === "live") warnings.appendChild(warningList(s.warnings || []));
@@ -103,6 +169,9 @@ document.addEventListener("DOMContentLoaded", async () => {
   const r = await Station.api("/api/job");
   if (r.ok && r.data.spec) document.getElementById("vehicle").textContent = `spec: ${r.data.spec.name}`;
   document.getElementById("axle").addEventListener("change", () => { build(); connect(); });
-  document.addEventListener("units", () => { if (last) show(last); });
+  document.addEventListener("units", () => { if (last) show(last); buildCaster(); casterNotes(last); });
+  document.getElementById("rerun-sweep").addEventListener("click", rerunSweep);
+  await loadSweep();
+  setInterval(loadSweep, 10000);  // the sweep's age; a sweep run elsewhere (the command line, a PLC)
   connect();
 });

@@ -1,6 +1,8 @@
 // The Procedure page: the steps in order, start one, follow its progress and see its result.
+// The station streams the steps (Server-Sent Events, /api/steps/stream): each message has the new
+// progress lines of the running step only; on a reconnect the browser's Last-Event-ID resumes them.
 "use strict";
-let nextLine = 0, shownRun = null, built = false;
+let shownRun = null, built = false, source = null;
 function buildSteps(steps) {
   const box = document.getElementById("steps");
   box.textContent = "";
@@ -27,21 +29,17 @@ async function start(key) {
   const r = await Station.api(`/api/steps/${key}/start`, { method: "POST" });
   if (!r.ok) { Station.message(msg, "error", r.data.error, r.data.hint); return; }
   Station.clear(msg);
-  poll();
 }
 function showRun(run) {
   const log = document.getElementById("log");
   if (!run) return;
   const id = `${run.key}@${run.started_utc}`;
-  if (shownRun !== id) {  // another run: show it from its first line (asked for again on the next poll)
-    const fromStart = nextLine === 0;
-    shownRun = id; log.textContent = ""; nextLine = 0; document.getElementById("result").textContent = "";
-    if (!fromStart) return;
+  if (shownRun !== id) {  // another run: the stream sends it from its first line
+    shownRun = id; log.textContent = ""; document.getElementById("result").textContent = "";
   }
   document.getElementById("running-title").textContent = `— ${run.title} (${run.state})`;
-  for (const line of run.lines) log.appendChild(document.createTextNode(line + "\n"));
+  for (const line of run.lines) log.appendChild(Station.el("div", { class: "line" }, line));
   if (run.lines.length) log.scrollTop = log.scrollHeight;
-  nextLine = run.next_line;
   const outcome = document.getElementById("outcome");
   if (run.state === "running") { Station.clear(outcome); return; }
   if (run.state === "done") Station.message(outcome, "good", `${run.title}: done.`);
@@ -49,24 +47,27 @@ function showRun(run) {
   const result = document.getElementById("result");
   if (!result.firstChild && run.summary && run.summary.valid) result.appendChild(resultTable(run.summary));
 }
-async function poll() {
-  const r = await Station.api(`/api/steps?since=${nextLine}`);
-  if (!r.ok) return;
-  if (!built) buildSteps(r.data.steps);
-  const job = r.data.job;
+function update(data) {
+  if (!built) buildSteps(data.steps);
+  const job = data.job;
   document.getElementById("job-line").textContent = job ? `Job: ${job.job_id}   vehicle: ${job.vehicle || "no spec"}` : "No job yet: enter it on the Job page first.";
-  const running = r.data.current && r.data.current.state === "running";
-  for (const s of r.data.steps) {
+  const running = data.current && data.current.state === "running";
+  for (const s of data.steps) {
     const card = document.getElementById(`step-${s.key}`);
     const badge = card.querySelector(".state");
     const state = s.last ? s.last.state : (s.available ? "not run" : "not available");
     badge.textContent = state; badge.className = `badge state ${state}`;
     card.querySelector("button").disabled = !s.available || running || !job;
   }
-  showRun(r.data.current);
+  showRun(data.current);
+}
+function connect() {
+  const msg = document.getElementById("message");
+  source = new EventSource("/api/steps/stream");
+  source.onmessage = (e) => { if (msg.dataset.lost) { Station.clear(msg); delete msg.dataset.lost; } update(JSON.parse(e.data)); };
+  source.onerror = () => { Station.message(msg, "error", "the connection to the station was lost; reconnecting…", "a running step goes on without this page"); msg.dataset.lost = "1"; };
 }
 document.addEventListener("DOMContentLoaded", async () => {
   await Station.session();
-  await poll();
-  setInterval(poll, 500);
+  connect();
 });

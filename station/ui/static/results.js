@@ -14,27 +14,31 @@ function resultTable(summary) {
   if (!summary.valid) return wrap;
   wrap.appendChild(Station.el("p", {}, summary.runout_compensated ? "Toe and camber of the wheels' spin axes (runout compensated)." : "Toe and camber of the rim planes (runout not compensated)."));
   const table = Station.el("table", { id: "result-table" });
+  const runout = Boolean(summary.runout_compensated);  // then each rim's runout (its tilt against the spin axis) too
   const head = Station.el("tr");
-  for (const h of ["wheel", "toe", "camber"]) head.appendChild(Station.el("th", {}, h));
+  for (const h of ["wheel", "toe", "camber"].concat(runout ? ["rim runout"] : [])) head.appendChild(Station.el("th", {}, h));
   table.appendChild(head);
   const cell = (a) => Station.el("td", { class: `num ${Station.verdictClass(a.ok)}`, "data-value": a.value }, `${Station.angle(a.value, 3)} ${Station.pm(a.std)}`);
   for (const [w, v] of Object.entries(summary.wheels)) {
     const tr = Station.el("tr", { "data-wheel": w });
     tr.appendChild(Station.el("td", {}, w)); tr.appendChild(cell(v.toe)); tr.appendChild(cell(v.camber));
+    if (runout) tr.appendChild(Station.el("td", { class: "num runout", "data-value": v.runout_deg }, Station.angle(v.runout_deg, 3).replace("+", "")));
     table.appendChild(tr);
   }
   for (const [axle, a] of Object.entries(summary.axles)) {
     const tr = Station.el("tr"); tr.appendChild(Station.el("td", {}, `${axle} total toe`)); tr.appendChild(cell(a)); tr.appendChild(Station.el("td"));
+    if (runout) tr.appendChild(Station.el("td"));
     table.appendChild(tr);
   }
   const tr = Station.el("tr"); tr.appendChild(Station.el("td", {}, "thrust angle")); tr.appendChild(cell(summary.thrust)); tr.appendChild(Station.el("td"));
+  if (runout) tr.appendChild(Station.el("td"));
   table.appendChild(tr);
   wrap.appendChild(table);
   if (summary.steering) {
-    const st = Station.el("table");
+    const st = Station.el("table", { id: "steering-table" });
     const h = Station.el("tr"); for (const x of ["front wheel", "caster", "SAI", "included angle"]) h.appendChild(Station.el("th", {}, x)); st.appendChild(h);
     for (const [w, s] of Object.entries(summary.steering)) {
-      const r = Station.el("tr"); r.appendChild(Station.el("td", {}, w));
+      const r = Station.el("tr", { "data-wheel": w }); r.appendChild(Station.el("td", {}, w));
       for (const k of ["caster", "sai", "included_angle"]) r.appendChild(cell(s[k]));
       st.appendChild(r);
     }
