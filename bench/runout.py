@@ -112,7 +112,7 @@ def main() -> int:
             scene = replace(base, vehicle=replace(vehicle, roll_m=position * args.distance))
             images = images_at(world, scene, seed, k, position * args.distance, frames, args.cache)
             t0 = time.perf_counter()
-            results.append(measure_frames(images, cams, config, calibration_cov=cov))
+            results.append(measure_frames(images, cams, config, calibration_cov=cov, refuse_uncertain=False))
             seconds.append(time.perf_counter() - t0)
             captures.append(images)
         truth = world.truth(scene)
@@ -130,6 +130,10 @@ def main() -> int:
             continue
         result = compensated(results[-1], rolls, config)
         seconds[-1] += time.perf_counter() - t0
+        if not result.valid:
+            failed.append(f"seed {seed}: {result.failure.message}")
+            print(f"  seed {seed}: REFUSED {failed[-1]}", file=sys.stderr)
+            continue
         comp_err.append(errors(result, truth))
         comp_std.append(stated(result))
         rim_err.append(errors(results[-1], truth))

@@ -74,7 +74,8 @@ def main() -> int:
             tag = f"steer{position * args.sweep:+.0f}"
             images = images_at(world, scene, seed, k, 0.0, frames, args.cache / tag if args.cache else None)
             t0 = time.perf_counter()
-            results.append(measure_frames(images, cams, config, calibration_cov=cov))
+            results.append(measure_frames(images, cams, config, calibration_cov=cov,
+                                          refuse_uncertain=k == len(STEER_PLAN) - 1))
             t_measure += time.perf_counter() - t0
             captures.append(images)
         truth = world.truth(scene)

@@ -204,7 +204,7 @@ class Station:
         results = []
         for frames, truth in zip(captures, cycle.truths):
             cycle.truth = truth  # each position's result against the car as it stood then
-            results.append(self._measure(cycle, frames, method, apply_kept_runout=False))
+            results.append(self._measure(cycle, frames, method, apply_kept_runout=False, refuse_uncertain=False))
         cycle.positions = results
         result = results[-1]
         bad = next((k for k, r in enumerate(results) if not r.valid), None)
@@ -225,6 +225,10 @@ class Station:
         result.timing_s["runout"] = time.perf_counter() - t0
         result.timing_s["capture"] = results[-1].timing_s["capture"]
         cycle.rolls = rolls
+        if not result.valid:  # a spin axis less certain than the limit: nothing to keep for the job
+            if cycle.truth is not None:
+                result.add_truth(cycle.truth)
+            return result
         try:
             keep_runout(self.config, result, rolls, images[-1], self.models)
         except StorageError as e:
@@ -240,7 +244,8 @@ class Station:
         results = []
         for k, (frames, truth) in enumerate(zip(captures, cycle.truths)):
             cycle.truth = truth
-            results.append(self._measure(cycle, frames, method, apply_kept_runout=k == len(captures) - 1))
+            last = k == len(captures) - 1  # the straight-ahead capture, whose toe and camber are reported
+            results.append(self._measure(cycle, frames, method, apply_kept_runout=last, refuse_uncertain=last))
         cycle.positions = results
         bad = next((k for k, r in enumerate(results) if not r.valid), None)
         if bad is not None:
@@ -271,12 +276,13 @@ class Station:
         failed.captures_dir = cycle.captures_dir
         return failed
 
-    def _measure(self, cycle: _Cycle, frames: dict, method: str, apply_kept_runout: bool = True) -> Measurement:
+    def _measure(self, cycle: _Cycle, frames: dict, method: str, apply_kept_runout: bool = True,
+                 refuse_uncertain: bool = True) -> Measurement:
         t_capture = time.perf_counter() - cycle.t0
         self.progress(f"cycle {cycle.cycle_id}: detecting rims and rebuilding the wheels")
         cycle.images = {cid: f.image for cid, f in frames.items()}
         result = measure_frames(cycle.images, self.models, self.config, method=method, workers=self.workers,
-                                calibration_cov=self.calibration.pair_covariance)
+                                calibration_cov=self.calibration.pair_covariance, refuse_uncertain=refuse_uncertain)
         self._stamp(result, cycle)
         result.timing_s["capture"] = t_capture
         result.captures_dir = cycle.captures_dir

@@ -28,7 +28,7 @@ from station.capture.cameras import close_cameras
 from station.capture.sync import capture_cycle
 from calibration.station_frame import WHEELS
 from station.config import StationConfig
-from station.errors import MeasurementError, StationError, WheelUncertain
+from station.errors import MeasurementError, StationError
 from station.cycle import open_capture
 from station.compute.workers import WorkerPool, default_workers
 from station.rim.camera_response import linear_images
@@ -40,7 +40,6 @@ from station.wheel.circle_fit import CircleFitSettings, not_faint, refine_circle
 from station.wheel.fit import WheelFit
 from station.wheel.paper import reconstruct_paper
 from station.wheel.arcs import not_grazing
-from station.wheel.view_agreement import disagreement_covariance, view_agreement
 
 AXLES = {"front": ("FL", "FR"), "rear": ("RL", "RR"), "all": WHEELS}
 
@@ -290,28 +289,11 @@ def live_wheel(wheel: str, cams: tuple[str, str], images: dict, models: dict, pr
             circle = replace(circle, grazing_left_out=grazing_out, arcs_left_out=other_out,
                              faint_left_out=faint_out or circle.faint_left_out,
                              other_contour_mm=previous_circle.other_contour_mm if other_out else None)
-            views = view_agreement((pl, pr), (cam_l, cam_r), circle.center_station, circle.axis_station,
-                                   circle.radius_m)  # 4-18 ms a wheel
-            _refuse_disagreeing_views(views, cams, config)
-            obs = WheelObservation(wheel, cams, (det_l, det_r), paper, circle, views)
+            obs = WheelObservation(wheel, cams, (det_l, det_r), paper, circle)
             check_same_rim(obs, config)
         except StationError as e:
             obs, error = None, str(e)
     return LiveWheel(wheel, detections, obs, error, {"detect": t1 - t0, "reconstruct": time.perf_counter() - t1})
-
-
-def _refuse_disagreeing_views(views, cams: tuple[str, str], config: StationConfig) -> None:
-    """No live value for a wheel whose two cameras see the rim's axis so differently that it is
-    less certain than ``measurement.uncertainty_limit_deg`` on that account alone
-    (station/wheel/view_agreement.py; a cycle states it in full and refuses the same way)."""
-    m = config.measurement
-    extra = disagreement_covariance(views, m.view_agreement_deg)
-    std_deg = float(np.degrees(np.sqrt(max(np.linalg.eigvalsh(extra)[-1], 0.0))))
-    if std_deg > m.uncertainty_limit_deg:
-        raise WheelUncertain(f"its cameras {cams[0]} and {cams[1]} see the rim's axis differently, by "
-                             f"{views.angle_deg:.2f} deg (+/-{std_deg:.2f} deg, limit {m.uncertainty_limit_deg})",
-                             hint="look at both cameras' images of the rim's lip: clean it, shade it from direct "
-                                  "sun, light it, or lengthen the exposure of a dark rim")
 
 
 def rate_summary(times: list[dict], elapsed_s: float, interrupted: bool = False) -> dict:

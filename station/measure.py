@@ -34,7 +34,7 @@ METHODS = ("circle", "paper")
 
 def measure_frames(images: dict[str, np.ndarray], cameras: dict[str, CameraModel],
                    config: StationConfig, method: str = "circle", workers=None,
-                   calibration_cov: dict | None = None) -> Measurement:
+                   calibration_cov: dict | None = None, refuse_uncertain: bool = True) -> Measurement:
     """The measurement of one set of eight images.
 
     images, cameras: keyed by camera id. method: "circle" (default, the refined fit) or
@@ -45,6 +45,10 @@ def measure_frames(images: dict[str, np.ndarray], cameras: dict[str, CameraModel
     "detect" and "reconstruct" their stages summed over the wheels (work, not wall time).
     calibration_cov: wheel -> the pair's (30,30) camera-parameter covariance from the
     calibration file (``StationCalibration.pair_covariance``), added to the stated uncertainty.
+    refuse_uncertain: refuse a wheel less certain than ``measurement.uncertainty_limit_deg``
+    (:func:`refuse_uncertain_wheels`); False for a capture of a procedure whose reported values
+    rest on several captures (runout compensation, a steering sweep's steered positions): the
+    procedure judges what it reports.
     """
     if method not in METHODS:
         raise MeasurementError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
@@ -100,7 +104,7 @@ def measure_frames(images: dict[str, np.ndarray], cameras: dict[str, CameraModel
     timing["angles"] = time.perf_counter() - t2
     result.method = method
     result.observations = observations  # for recordings and station live; not in the JSON
-    failure = refuse_uncertain_wheels(result, observations, config)
+    failure = refuse_uncertain_wheels(result, observations, config) if refuse_uncertain else None
     result.valid = failure is None
     return finish(failure)
 
@@ -164,11 +168,16 @@ def unseen_axis_variance(o: WheelObservation, config: StationConfig) -> float:
 
 def unseen_axis_covariance(o: WheelObservation, axis_station: np.ndarray, config: StationConfig) -> np.ndarray:
     """(3,3) the unseen variance (:func:`unseen_axis_variance`) across the unit axis (3,), shaped
-    by :func:`unseen_axis_shape`, plus what the pair's two views' disagreement about the rim's
-    axis adds (station/wheel/view_agreement.py)."""
-    m = config.measurement
-    return (unseen_axis_variance(o, config) * unseen_axis_shape(axis_station, m.uncertainty_toe_scale)
-            + disagreement_covariance(o.views, m.view_agreement_deg))
+    by :func:`unseen_axis_shape`."""
+    return unseen_axis_variance(o, config) * unseen_axis_shape(axis_station, config.measurement.uncertainty_toe_scale)
+
+
+def views_covariance(o: WheelObservation, config: StationConfig) -> np.ndarray:
+    """(3,3) what the pair's two views' disagreement about the rim's axis adds to it
+    (station/wheel/view_agreement.py). A procedure of several captures adds it to what it
+    reports, not to each capture: the arc a view sees off the edge stays where the light puts
+    it while the wheel rolls or steers, so it weighs every capture alike."""
+    return disagreement_covariance(o.views, config.measurement.view_edge_bias_px)
 
 
 def unseen_axis_shape(axis_station: np.ndarray, toe_scale: float) -> np.ndarray:
@@ -194,7 +203,8 @@ def fill_angles(result: Measurement, fits: dict[str, WheelFit], observations: di
     """The angles of the wheels ``fits`` (one WheelFit per wheel), their standard uncertainty
     and each wheel's 3-D rim, into ``result``. ``unseen``: add each wheel's unseen variance
     (:func:`unseen_axis_variance`) to its fit's axis covariance (False: the fits' covariances
-    hold it already, as a spin axis fitted to several captures does)."""
+    hold it already, as a spin axis fitted to several captures does). The views' disagreement
+    (:func:`views_covariance`, of ``observations``) is added either way."""
     centers = {w: f.center_station for w, f in fits.items()}
     axes = {w: f.axis_station for w, f in fits.items()}
     angles = alignment.compute_angles(centers, axes)
@@ -202,8 +212,9 @@ def fill_angles(result: Measurement, fits: dict[str, WheelFit], observations: di
     # the floor: an error no single cycle's residuals show (a decision between arcs that a
     # new capture may take the other way, an edge bias the circle absorbs completely), in
     # quadrature across each axis, less in toe's direction than camber's (docs/measurement.md)
-    cov_a = {w: _finite_cov(f.cov_axis, 1e-8) + (unseen_axis_covariance(observations[w], f.axis_station, config)
-                                                 if unseen else 0.0) for w, f in fits.items()}
+    cov_a = {w: _finite_cov(f.cov_axis, 1e-8) + views_covariance(observations[w], config)
+             + (unseen_axis_covariance(observations[w], f.axis_station, config) if unseen else 0.0)
+             for w, f in fits.items()}
     cov = alignment.angle_covariance(centers, axes, cov_c, cov_a)
     std = dict(zip(ANGLE_NAMES, np.sqrt(np.clip(np.diag(cov), 0, None))))
     for w in WHEELS:
@@ -256,7 +267,7 @@ def refuse_uncertain_wheels(result: Measurement, observations: dict, config: Sta
         return None
     texts, hints = [], []
     for w, (name, std) in refused:
-        text, hint = _why_uncertain(observations[w], config)
+        text, hint = _why_uncertain(observations[w], std, config)
         result.warning_flags.append(WarningFlag("uncertain", w, text=f"{w}: {text}"))
         texts.append(f"{w}: {name} +/-{std:.3f} deg, {text}")
         hints.append(hint)
@@ -268,12 +279,13 @@ def refuse_uncertain_wheels(result: Measurement, observations: dict, config: Sta
                    wheels[0] if len(wheels) == 1 else ",".join(wheels), camera)
 
 
-def _why_uncertain(o: WheelObservation, config: StationConfig) -> tuple[str, str]:
-    """(why the wheel is uncertain, what to do): the views' disagreement when it is beyond what
-    a clean rim gives (naming the camera whose edge is fainter), else the share of a camera's
-    edge points the 3-D rim rests on."""
+def _why_uncertain(o: WheelObservation, std_deg: float, config: StationConfig) -> tuple[str, str]:
+    """(why the wheel is uncertain, what to do): the views' disagreement when it makes up most
+    of the stated ``std_deg`` (naming the camera whose edge is fainter), else the share of a
+    camera's edge points the 3-D rim rests on."""
     views = o.views
-    if views is not None and views.angle_deg > 2 * config.measurement.view_agreement_deg:
+    extra = disagreement_covariance(views, config.measurement.view_edge_bias_px)
+    if np.degrees(np.sqrt(max(np.linalg.eigvalsh(extra)[-1], 0.0))) ** 2 > std_deg ** 2 / 2:
         steps = [float(np.median(d.points_contrast)) if d.points_contrast is not None and len(d.points_contrast)
                  else float("nan") for d in o.detections]
         faint = o.cams[int(np.nanargmin(steps))] if not np.all(np.isnan(steps)) else o.cams[0]

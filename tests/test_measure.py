@@ -494,7 +494,7 @@ def test_the_unseen_error_grows_with_each_wheels_edge_noise(sim, monkeypatch):
     cfg, world, _, images = sim
     monkeypatch.setattr(cfg.measurement, "uncertainty_floor_deg", 0.0)
     monkeypatch.setattr(cfg.measurement, "uncertainty_toe_scale", 1.0)
-    monkeypatch.setattr(cfg.measurement, "view_agreement_deg", 100.0)  # the views' disagreement aside
+    monkeypatch.setattr(cfg.measurement, "view_edge_bias_px", 100.0)  # the views' disagreement aside
 
     def without_and_with_gain(frames):
         monkeypatch.setattr(cfg.measurement, "uncertainty_noise_gain", 0.0)

@@ -652,7 +652,7 @@ def test_a_real_steering_sweep_on_the_simulated_station_driven_by_the_plc(tmp_pa
     from station.plc.runner import measurement_runner
     from tests.station_fixtures import small_station_config, truth_calibration
 
-    config = small_station_config(tmp_path, capture__frames_averaged=1, recording__enabled=False, measurement__view_agreement_deg=10)
+    config = small_station_config(tmp_path, capture__frames_averaged=1, recording__enabled=False)
     truth_calibration(config)
     run = measurement_runner(config, seed=5)
     try:

@@ -24,7 +24,7 @@ from calibration.camera_model import CameraModel
 from calibration.station_frame import SIDE, WHEELS
 from station.config import StationConfig
 from station.errors import CarMovedSideways, RimPatternLost, RollTooShort, WheelSlipped
-from station.measure import fill_angles
+from station.measure import fill_angles, refuse_uncertain_wheels
 from station.procedures.poses import face_pose, normal_covariance
 from station.result import Measurement, WarningFlag
 from station.rim.camera_response import linear_images
@@ -158,7 +158,9 @@ def compensated(reference: Measurement, rolls: dict[str, WheelRoll], config: Sta
 def with_spin_axes(reference: Measurement, spins: dict[str, SpinAxis], config: StationConfig) -> Measurement:
     """A copy of the valid ``reference`` whose angles are of the spin axes ``spins`` (one per
     wheel, with their covariance: it holds the normals' unseen share already), each wheel's runout
-    beside; ``runout_compensated`` set; a warning per rim that runs out beyond the limit."""
+    beside; ``runout_compensated`` set; a warning per rim that runs out beyond the limit. A spin
+    axis less certain than ``measurement.uncertainty_limit_deg`` makes it invalid, as a single
+    capture's rim plane would (station.measure.refuse_uncertain_wheels)."""
     result = replace(reference, wheels={}, axles={}, warnings=list(reference.warnings),
                      warning_flags=list(reference.warning_flags), timing_s=dict(reference.timing_s))
     fits = {w: replace(o.circle, axis_station=spins[w].axis_station, cov_axis=spins[w].cov_axis)
@@ -174,6 +176,8 @@ def with_spin_axes(reference: Measurement, spins: dict[str, SpinAxis], config: S
                         "and camber are of the spin axis, but check the rim and its mounting",
                         WarningFlag("runout", w))
     result.runout_compensated = True
+    result.failure = refuse_uncertain_wheels(result, reference.observations, config)
+    result.valid = result.failure is None
     return result
 
 

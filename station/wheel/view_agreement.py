@@ -6,8 +6,9 @@ the pair's fit tilts toward that view's error, and nothing in its residuals show
 other view does not see the arc's disparity, and the ellipse absorbs the bias. Each view alone
 also determines the rim's axis: the circle of the pair's radius whose projection fits that
 view's edge points best (its centre and axis free, five parameters). On a clean rim the two
-views' axes agree to a few hundredths of a degree; a biased arc in one view turns its axis by
-tenths. The pair's axis lies between them, and which view is right the pair cannot tell: the
+views' axes agree within what a slowly varying edge bias of a few hundredths of a pixel turns
+them by (a hundredth of a degree to a tenth: the nearer a view looks along the axis, the more);
+a biased arc in one view turns its axis by tenths. The pair's axis lies between them, and which view is right the pair cannot tell: the
 axis is uncertain by half their disagreement (:func:`disagreement_covariance`).
 """
 
@@ -29,11 +30,13 @@ ON_CIRCLE_PX = 1.5  # a view's points farther than this from the pair's circle a
 class ViewAgreement:
     """Each view's own rim axis (station frame, unit, outward like the pair's), their angle and
     direction. ``axes_station``: (2,3), (precision, reference); ``std_deg``: (2,) each own axis's
-    standard deviation from its points' noise; ``disagreement_station``: (3,) the precision view's
+    standard deviation from its points' noise, ``bias_deg_per_px`` (2,) per pixel of a slowly
+    varying edge bias; ``disagreement_station``: (3,) the precision view's
     axis minus the reference view's (radians, across the pair's axis)."""
 
     axes_station: np.ndarray
     std_deg: np.ndarray
+    bias_deg_per_px: np.ndarray
     disagreement_station: np.ndarray
 
     @property
@@ -50,11 +53,13 @@ def _tangent_basis(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def view_axis(points_px: np.ndarray, camera: CameraModel, center_station: np.ndarray, axis_station: np.ndarray,
-              radius_m: float) -> tuple[np.ndarray, float] | None:
+              radius_m: float) -> tuple[np.ndarray, float, float] | None:
     """One view's own rim axis: the circle of radius ``radius_m`` whose image fits the view's
     edge points (N,2) (distorted px) best, started from the pair's circle (centre (3,), unit axis
     (3,), station frame). Returns (unit axis (3,), its standard deviation in degrees from the
-    points' scatter), or None for a view with too few points."""
+    points' scatter, and per pixel of a slowly varying edge bias (modes 1 and 2 of the rim angle
+    at random phases: the bias no clean edge is free of, which a view seeing its rim nearly
+    face-on turns into a large tilt), or None for a view with too few points."""
     xy = camera.pixels_to_normalized(np.asarray(points_px, float))
     xy = xy[np.all(np.isfinite(xy), axis=1)]
     if len(xy) < MIN_VIEW_POINTS:
@@ -76,15 +81,22 @@ def view_axis(points_px: np.ndarray, camera: CameraModel, center_station: np.nda
     if len(X) < MIN_VIEW_POINTS:
         return None
     sol = least_squares(residuals, np.zeros(5), x_scale=np.full(5, 1e-3), method="lm")
-    n, _ = pose(sol.x)
-    JtJ = sol.jac.T @ sol.jac
-    dof = max(len(X) - 5, 1)
+    n, c = pose(sol.x)
+    J = sol.jac
     try:
-        cov = np.linalg.inv(JtJ) * float(sol.fun @ sol.fun) / dof
+        JtJ_inv = np.linalg.inv(J.T @ J)
     except np.linalg.LinAlgError:
         return None
+    cov = JtJ_inv * float(sol.fun @ sol.fun) / max(len(X) - 5, 1)
     std = float(np.degrees(np.sqrt(max(cov[0, 0] + cov[1, 1], 0.0) / 2)))
-    return n, std
+    # a slowly varying edge bias of 1 px: modes 1 and 2 of the angle about the rim's image
+    # centre, each at a random phase (cos and sin halves), through the solution dp = -(J'J)^-1 J' r
+    cc = R @ c + t
+    phi = np.arctan2(X[:, 1] - cc[1] / cc[2], X[:, 0] - cc[0] / cc[2])
+    modes = np.column_stack([np.cos(phi), np.sin(phi), np.cos(2 * phi), np.sin(2 * phi)])  # (N,4)
+    tilts = (JtJ_inv @ (J.T @ modes))[:2]                                                    # (2,4)
+    per_px = float(np.degrees(np.sqrt(np.sum(tilts ** 2) / 2 / 2)))  # per direction across the axis
+    return n, std, per_px
 
 
 def view_agreement(points_px: tuple[np.ndarray, np.ndarray], cameras: tuple[CameraModel, CameraModel],
@@ -98,21 +110,22 @@ def view_agreement(points_px: tuple[np.ndarray, np.ndarray], cameras: tuple[Came
     axes = np.array([o[0] for o in own])
     d = axes[0] - axes[1]
     d -= axis * (d @ axis)  # across the pair's axis
-    return ViewAgreement(axes_station=axes, std_deg=np.array([o[1] for o in own]), disagreement_station=d)
+    return ViewAgreement(axes_station=axes, std_deg=np.array([o[1] for o in own]),
+                         bias_deg_per_px=np.array([o[2] for o in own]), disagreement_station=d)
 
 
-def disagreement_covariance(agreement: ViewAgreement | None, expected_deg: float) -> np.ndarray:
+def disagreement_covariance(agreement: ViewAgreement | None, edge_bias_px: float) -> np.ndarray:
     """(3,3) the axis covariance (rad^2) that two disagreeing views add: half the part of their
-    disagreement beyond ``expected_deg`` (what two views of a clean rim differ by,
-    ``measurement.view_agreement_deg``) and beyond their own noise, as a standard deviation in
-    every direction across the axis. The pair's fit errs toward the wrong view's arc, whose
-    bias tilts it in a direction of its own (on the simulated station's dark rims mostly in
-    camber where the views disagreed in toe): the disagreement says how much, not which way.
-    Zero when they agree."""
+    disagreement beyond what their own noise and a slowly varying edge bias of ``edge_bias_px``
+    (``measurement.view_edge_bias_px``) explain, as a standard deviation in every direction
+    across the axis. The pair's fit errs toward the wrong view's arc, whose bias tilts it in a
+    direction of its own (on the simulated station's dark rims mostly in camber where the views
+    disagreed in toe): the disagreement says how much, not which way. Zero when they agree."""
     if agreement is None:
         return np.zeros((3, 3))
     size = float(np.linalg.norm(agreement.disagreement_station))
-    expected2 = np.radians(expected_deg) ** 2 + float(np.sum(np.radians(agreement.std_deg) ** 2))
+    expected2 = float(np.sum(np.radians(agreement.std_deg) ** 2)
+                      + np.sum(np.radians(edge_bias_px * agreement.bias_deg_per_px) ** 2))
     excess2 = size * size - expected2
     if excess2 <= 0:
         return np.zeros((3, 3))
