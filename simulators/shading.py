@@ -87,17 +87,18 @@ def shade(albedo, normals: np.ndarray, dirs: np.ndarray, lighting: Lighting,
 def workshop_environment(rx: np.ndarray, ry: np.ndarray, rz: np.ndarray) -> np.ndarray:
     """Radiance (N,) float32 of the workshop seen from the car along unit directions (rx, ry, rz)
     (station frame, (N,) each), as a mirror-like surface reflects it: a dark floor (0.06), walls
-    (0.25) with a band of windows and doors at eye height (up to 1.1), a ceiling (0.4) with rows
-    of light tubes along y every 1.2 m (up to 2.4). Smooth in the direction, so that a curved
-    mirror shows bands, not aliased slivers."""
+    (0.25) with a band of windows and doors at eye height, one every 0.5 rad (up to 1.55), a ceiling (0.4) with rows
+    of light tubes along y, one every 0.7 rad across (up to 2.4). Broad and smooth in the
+    direction: a rounded lip turns its reflected ray by ~0.2 rad per pixel, so finer features
+    would alias into slivers the renderer does not supersample."""
     rx, ry, rz = (np.asarray(c, np.float32) for c in (rx, ry, rz))
-    up = np.clip((rz + 0.05) / 0.1, 0.0, 1.0)                 # floor -> walls
-    ceiling = np.clip((rz - 0.3) / 0.15, 0.0, 1.0)            # walls -> ceiling
-    azimuth = np.arctan2(ry, rx)
-    windows = np.clip(1.0 - np.abs(rz - 0.16) / 0.08, 0.0, 1.0) * np.maximum(0.0, np.sin(3.0 * azimuth)) ** 2
-    walls = 0.25 + 0.85 * windows
-    x_ceiling = 3.0 * rx / np.maximum(rz, 0.05)                # where the ray meets a ceiling 3 m up
-    tubes = np.maximum(0.0, np.cos(2 * np.pi * x_ceiling / 1.2)) ** 8
+    up = np.clip((rz + 0.1) / 0.2, 0.0, 1.0)                  # floor -> walls
+    ceiling = np.clip((rz - 0.3) / 0.25, 0.0, 1.0)            # walls -> ceiling
+    along = np.arctan2(ry, np.abs(rx))                         # angle along the side walls
+    windows = np.clip(1.0 - np.abs(rz - 0.16) / 0.15, 0.0, 1.0) * (0.5 + 0.5 * np.cos(2 * np.pi * along / 0.5)) ** 2
+    walls = 0.25 + 1.3 * windows
+    across = np.arctan2(rx, np.maximum(rz, 0.0))               # angle across the tube rows
+    tubes = (0.5 + 0.5 * np.cos(2 * np.pi * across / 0.7)) ** 3
     top = 0.4 + 2.0 * tubes
     value = 0.06 + up * (walls - 0.06) + ceiling * (top - walls)
     return value.astype(np.float32)
