@@ -12,7 +12,12 @@ rim-flange circle centre, w = outward spin axis, r = distance from the axis.
 - hub: a disc standing a little proud of the spoke face, with lug-nut holes.
 - tyre: a closed profile of cone frusta (outer sidewall bulging ``sidewall_bulge_m`` beyond
   the flange plane, so oblique views lose part of the flange behind it, tread, inner sidewall)
-  and the dark inner face. Normals are interpolated along the profile (smooth shading).
+  and the dark inner face. Normals are interpolated along the profile (smooth shading); a
+  protector rib (``Appearance.ridge_height_m``) is three more segments, flat-shaded.
+
+The scene's Appearance (simulators/scene.py) adds the rim's finish (Phong, a Fresnel mirror of
+the workshop), brake dust and dirt on the lip, the lettering's band and the arch's shadow
+(simulators/wheel_looks.py); its defaults leave the random vehicles' images as they are.
 
 Every part is a plane annulus or a cone frustum ``r = A + B t`` along the ray: one linear or
 quadratic equation per ray, solved in float64.
