@@ -96,19 +96,30 @@ def _wheel_errors(result: Measurement, truth: dict) -> dict[str, tuple[float, fl
     return out
 
 
+def _reason(code: int | None, cycle: bool) -> str:
+    """A refusal's reason as the tables group it: the code and its error's name (the sentence,
+    which names cameras and millimetres, goes to stderr per cycle), "cycle" when the whole
+    cycle was refused."""
+    from station.errors import all_error_classes
+
+    names = {WHEEL_UNCERTAIN: "WheelUncertain"}
+    for cls in reversed(all_error_classes()):
+        names[cls.code] = cls.__name__
+    return f"{code} {names.get(code, 'error')}" + (", cycle" if cycle else "")
+
+
 def _refused_and_silent(result: Measurement, truth: dict) -> tuple[dict[str, str], list[str], int]:
     """({refused wheel: reason}, [silently wrong wheels], wheels judged) of one cycle. A failure
-    404 refuses the wheels it names; any other failure the whole cycle (its four wheels, the
-    reason its code and sentence). A wheel not refused is silently wrong when its toe or camber
-    error exceeds 3 times its stated std and no warning flag names it."""
+    404 refuses the wheels it names; any other failure the whole cycle (its four wheels). A
+    wheel not refused is silently wrong when its toe or camber error exceeds 3 times its stated
+    std and no warning flag names it."""
     refused: dict[str, str] = {}
     if not result.valid:
         f = result.failure
-        reason = f"{f.code} {f.message}" if f is not None else "invalid"
         if f is not None and f.code == WHEEL_UNCERTAIN and f.wheel:
-            refused = {w.strip(): f"{f.code} wheel uncertain" for w in f.wheel.split(",")}
+            refused = {w.strip(): _reason(f.code, False) for w in f.wheel.split(",")}
         else:
-            return {w: reason for w in WHEELS}, [], 0
+            return {w: _reason(f.code if f is not None else None, True) for w in WHEELS}, [], 0
     errs = _wheel_errors(result, truth)
     silent = []
     for w, (e_toe, e_camber) in errs.items():

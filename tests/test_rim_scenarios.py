@@ -252,6 +252,6 @@ def test_refused_and_silently_wrong_wheels_are_told_apart():
     assert set(refused) == {"FL", "RR"} and silent == ["RL"] and judged == 2     # RL: 0.1 off, 10 stated
     res.warning_flags.append(WarningFlag("uncertain", "RL"))
     assert _refused_and_silent(res, truth)[1] == []
-    other = Measurement("s", valid=False, failure=Failure(301, "no calibration"))
+    other = Measurement("s", valid=False, failure=Failure(401, "cam1: no closed rim contour"))
     refused, silent, judged = _refused_and_silent(other, truth)
-    assert refused == {w: "301 no calibration" for w in ("FL", "FR", "RL", "RR")} and judged == 0
+    assert refused == {w: "401 RimNotFound, cycle" for w in ("FL", "FR", "RL", "RR")} and judged == 0
