@@ -9,8 +9,9 @@ Pipeline for one camera (shapes: H, W image; N rays):
    they are re-rendered with ``supersample`` samples on a rank-1 lattice inside the pixel
    (distinct u and v offsets, so an edge of any direction is resolved to ~1/(2*samples) px),
    each through its own exact ray, and the pixel becomes their mean (box-filter coverage).
-3. The optics and the sensor: vignetting, exposure gain, a Gaussian PSF (``blur_sigma`` px),
-   Gaussian read noise (``noise_sigma`` grey levels), clipping and quantisation to uint8.
+3. The optics and the sensor: vignetting, exposure gain, veiling glare and auto exposure if the
+   scene's Appearance asks for them, a Gaussian PSF (``blur_sigma`` px), Gaussian read noise
+   (``noise_sigma`` grey levels), clipping and quantisation to uint8.
 
 Wheels are traced only inside the bounding box of their projection.
 """
@@ -152,7 +153,7 @@ def trace(o: np.ndarray, d: np.ndarray, scene: Scene, lighting: Lighting,
         trace_quads(o, d, hits, lighting, scene.quads, quad_candidates)
     vehicle = scene.vehicle
     if vehicle is not None and body:
-        trace_body(o, d, np.arange(len(d)), hits, lighting, vehicle)
+        trace_body(o, d, np.arange(len(d)), hits, lighting, vehicle, scene.appearance)
     if vehicle is not None:
         frames = {name: vehicle.wheel_frame_station(name) for name in WHEELS}
         # nearest wheel first: its hits cull the rays of the wheels behind it
@@ -163,7 +164,7 @@ def trace(o: np.ndarray, d: np.ndarray, scene: Scene, lighting: Lighting,
                 continue
             center, R = frames[WHEELS[i]]
             trace_wheel(o, d, idx, hits, lighting, center, R, vehicle.wheel, i,
-                        _caliper_angle(vehicle, WHEELS[i], R))
+                        _caliper_angle(vehicle, WHEELS[i], R), scene.appearance)
     # objects stand on the floor inside the room: the floor and the walls are seen only by
     # the rays that hit nothing else
     rest = np.nonzero(np.isinf(hits.t))[0]
@@ -289,13 +290,31 @@ def render_clean(camera: CameraModel, scene: Scene, lighting: Lighting | None = 
                  blur_sigma: float = 0.75, supersample: int = 34, body: bool = True) -> np.ndarray:
     """The (H,W) float32 grey levels ``camera`` receives of ``scene`` before the sensor's read
     noise and quantisation: radiance x exposure x vignetting, blurred by the lens's PSF.
-    A still scene gives the same clean image to every frame (:func:`sensor_frame`)."""
+    A still scene gives the same clean image to every frame (:func:`sensor_frame`).
+    The scene's ``appearance.veiling_glare`` adds that share of the image's light spread over
+    about a tenth of the frame (light scattered in the lens); ``appearance.auto_exposure``
+    replaces the lighting's gain by the one that puts the image's bright percentile there."""
     lighting = lighting or Lighting()
+    look = scene.appearance
     radiance, _ = render_radiance(camera, scene, lighting, supersample, body)
     image = radiance * (255.0 * lighting.gain) * vignetting(camera, lighting.vignetting)
+    if look.veiling_glare > 0:
+        image = image + np.float32(look.veiling_glare) * veiling_glare(image)
     if blur_sigma > 0:
         image = cv2.GaussianBlur(image, (0, 0), blur_sigma, borderType=cv2.BORDER_REFLECT)
+    if look.auto_exposure > 0:
+        bright = float(np.percentile(image, look.auto_exposure_percentile))
+        image = image * np.float32(look.auto_exposure / max(bright, 1e-3))
     return image
+
+
+def veiling_glare(image: np.ndarray) -> np.ndarray:
+    """(H,W) float32: the image's light spread by a Gaussian of sigma ~1/10 of its width (on a
+    16x smaller copy, then interpolated back)."""
+    H, W = image.shape
+    small = cv2.resize(image, (max(W // 16, 1), max(H // 16, 1)), interpolation=cv2.INTER_AREA)
+    small = cv2.GaussianBlur(small, (0, 0), max(W, H) / 160.0, borderType=cv2.BORDER_REFLECT)
+    return cv2.resize(small, (W, H), interpolation=cv2.INTER_LINEAR)
 
 
 def sensor_frame(clean: np.ndarray, rng: np.random.Generator | None = None, noise_sigma: float = 2.0) -> np.ndarray:

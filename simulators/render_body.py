@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 
 from calibration.station_frame import WHEELS
-from simulators.scene import Lighting
-from simulators.shading import LABEL_BODY, Hits, rowmat, shade
+from simulators.scene import Appearance, Lighting
+from simulators.shading import LABEL_BODY, Hits, mirror_reflection, rowmat, shade
 from simulators.vehicle import Vehicle
 
 SILL_Z_M = 0.20          # lowest edge of the body panel (ground clearance)
@@ -40,8 +40,9 @@ def paint_albedo(vehicle: Vehicle) -> float:
 
 
 def trace_body(o: np.ndarray, d: np.ndarray, idx: np.ndarray, hits: Hits, lighting: Lighting,
-               vehicle: Vehicle) -> None:
-    """Intersect rays d[idx] (N,3) with the body box minus the wheel arches (camera outside)."""
+               vehicle: Vehicle, look: Appearance = Appearance()) -> None:
+    """Intersect rays d[idx] (N,3) with the body box minus the wheel arches (camera outside).
+    look.body_mirror: the gloss paint mirrors the workshop (bright bands of its lights)."""
     if idx.size == 0:
         return
     Rv = vehicle.R_station_vehicle
@@ -90,6 +91,12 @@ def trace_body(o: np.ndarray, d: np.ndarray, idx: np.ndarray, hits: Hits, lighti
             spec = np.where((part == PANEL) | (part == END), 0.35, 0.0)
             normal = sign * Rv[:, k]
             value = shade(albedo, normal, dirs[sel], lighting, specular=spec, shininess=40.0)
+            if look.body_mirror > 0:
+                gloss = np.flatnonzero(spec > 0)
+                n = gloss.size
+                value[gloss] += mirror_reflection((np.full(n, normal[0]), np.full(n, normal[1]), np.full(n, normal[2])),
+                                                  tuple(dirs[sel[gloss], k] for k in range(3)), np.eye(3),
+                                                  look.body_mirror)
             hits.store(idx[sel], t, LABEL_BODY + part, value)
 
 

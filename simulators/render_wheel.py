@@ -12,7 +12,12 @@ rim-flange circle centre, w = outward spin axis, r = distance from the axis.
 - hub: a disc standing a little proud of the spoke face, with lug-nut holes.
 - tyre: a closed profile of cone frusta (outer sidewall bulging ``sidewall_bulge_m`` beyond
   the flange plane, so oblique views lose part of the flange behind it, tread, inner sidewall)
-  and the dark inner face. Normals are interpolated along the profile (smooth shading).
+  and the dark inner face. Normals are interpolated along the profile (smooth shading); a
+  protector rib (``Appearance.ridge_height_m``) is three more segments, flat-shaded.
+
+The scene's Appearance (simulators/scene.py) adds the rim's finish (Phong, a Fresnel mirror of
+the workshop), brake dust and dirt on the lip, the lettering's band and the arch's shadow
+(simulators/wheel_looks.py); its defaults leave the random vehicles' images as they are.
 
 Every part is a plane annulus or a cone frustum ``r = A + B t`` along the ray: one linear or
 quadratic equation per ray, solved in float64.
@@ -24,14 +29,16 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from simulators.scene import Lighting
-from simulators.shading import LABEL_WHEEL, Hits, shade
+from simulators.scene import Appearance, Lighting
+from simulators.shading import LABEL_WHEEL, Hits, mirror_reflection, shade
 from simulators.vehicle import WheelGeometry
+from simulators.wheel_looks import arch_shadow, dirt_blotches, dust_weight, ridge_points
 
 # part numbers (label = LABEL_WHEEL + 40 * wheel index + part)
 FLANGE, BARREL, SPOKE, RING, HUB, HUB_SIDE, LUG, CALIPER, DISC, CAVITY, INNER = range(11)
 TYRE_TEXT = 13
-N_OUTER = 4  # segments of the tyre's outer sidewall profile
+RIDGE = 14   # a protector rib on the tyre (Appearance.ridge_height_m)
+N_OUTER = 4  # segments of the tyre's outer sidewall profile (without a rib)
 TYRE = 12  # one label for the whole tyre (its shading is smooth across profile segments)
 
 
@@ -55,18 +62,23 @@ def wheel_finish(g: WheelGeometry) -> Finish:
                   caliper_albedo=float(0.12 + 0.35 * h[3]))
 
 
-def tyre_profile(g: WheelGeometry) -> np.ndarray:
-    """(P,2) closed tyre outline (r, w) from the outer bead (rim_radius, 0) round to the inner bead."""
+def tyre_profile(g: WheelGeometry, look: Appearance | None = None) -> tuple[np.ndarray, int, list[int]]:
+    """(P,2) closed tyre outline (r, w) from the outer bead (rim_radius, 0) round to the inner
+    bead; the number of its outer sidewall's segments; the indices of the protector rib's
+    segments (none unless ``look.ridge_height_m``)."""
     rr, tr, b, W = g.rim_radius_m, g.tyre_radius_m, g.sidewall_bulge_m, g.tyre_width_m
     S = tr - rr
     shoulder = min(0.035, 0.2 * W)
     outer = np.array([  # N_OUTER segments
         [rr, 0.0], [rr + 0.03 * S, 0.6 * b], [rr + 0.3 * S, b], [tr - 0.1 * S, 0.6 * b - 0.3 * shoulder],
         [tr, b - shoulder]])
+    rib = []
+    if look is not None and look.ridge_height_m > 0:
+        outer, rib = ridge_points(outer, look)
     w_mid = b - W / 2
     inner = outer[::-1].copy()
     inner[:, 1] = 2 * w_mid - inner[:, 1]
-    return np.vstack([outer, inner])
+    return np.vstack([outer, inner]), len(outer) - 1, rib
 
 
 def _profile_normals(profile: np.ndarray) -> np.ndarray:
@@ -167,11 +179,11 @@ class _Rays:
 
 def trace_wheel(o: np.ndarray, d: np.ndarray, idx: np.ndarray, hits: Hits, lighting: Lighting,
                 center: np.ndarray, R_station_wheel: np.ndarray, g: WheelGeometry, wheel_index: int,
-                caliper_angle: float) -> None:
+                caliper_angle: float, look: Appearance = Appearance()) -> None:
     """Intersect rays d[idx] (M,3) from o with one wheel and store the nearer hits in ``hits``.
 
     caliper_angle: angle (rad, in the wheel's u-v plane) of the brake caliper, which does not
-    turn with the wheel.
+    turn with the wheel. look: the scenario's finish, dust, dirt, tyre and shadow.
     """
     if idx.size == 0:
         return
@@ -186,7 +198,7 @@ def trace_wheel(o: np.ndarray, d: np.ndarray, idx: np.ndarray, hits: Hits, light
     r_in = g.rim_radius_m - g.flange_width_m
     D = g.rim_face_depth_m
     hub_h = min(0.015, 0.5 * D)
-    profile = tyre_profile(g)
+    profile, n_outer, rib = tyre_profile(g, look)
     best_t = hits.t[idx].copy()
     part = np.full(n, -1, np.int32)
     aux = np.zeros(n)  # profile parameter for the tyre, r^2 or a flag for planes
@@ -281,17 +293,30 @@ def trace_wheel(o: np.ndarray, d: np.ndarray, idx: np.ndarray, hits: Hits, light
     spec = np.zeros(len(sel))
     label_part = p.copy()
     fin = wheel_finish(g)
+    flange_spec = fin.flange_specular if look.rim_specular is None else look.rim_specular
+    spoke_spec = fin.spoke_specular if look.rim_specular is None else look.rim_specular
+    spoke_albedo = fin.spoke_albedo if look.spoke_albedo is None else look.spoke_albedo
+    clean = None  # the lip's share left clean of dust and dirt (None: all of it)
 
     m = p == FLANGE  # rounded lip: the shading normal turns outward toward the edge
     phi = (1.3 * (r[m] - r_in) / g.flange_width_m - 0.25)
     n_r[m], n_w[m] = np.sin(phi), np.cos(phi)
-    albedo[m], spec[m] = g.rim_albedo, fin.flange_specular
+    albedo[m], spec[m] = g.rim_albedo, flange_spec
+    if look.dust > 0 or look.dirt > 0:
+        lip = np.flatnonzero(m)
+        theta = np.arctan2(pv[lip], pu[lip])
+        dust = dust_weight(theta, look) if look.dust > 0 else np.zeros(lip.size, np.float32)
+        dirt = dirt_blotches(theta, r[lip], look) if look.dirt > 0 else np.zeros(lip.size, np.float32)
+        albedo[lip] = (g.rim_albedo * (1 - dust) + look.dust_albedo * dust) * (1 - look.dirt * dirt)
+        clean = np.ones(len(sel), np.float32)
+        clean[lip] = (1 - dust) * (1 - dirt)
+        spec[lip] *= clean[lip]
     m = p == BARREL
     n_r[m], n_w[m] = -1.0, 0.0
-    albedo[m], spec[m] = 0.8 * g.rim_albedo, 0.3 * fin.flange_specular
+    albedo[m], spec[m] = 0.8 * g.rim_albedo, 0.3 * flange_spec
     m = p == SPOKE
     ringm = m & (a < 0)
-    albedo[m], spec[m] = fin.spoke_albedo, fin.spoke_specular
+    albedo[m], spec[m] = spoke_albedo, spoke_spec
     albedo[ringm] = 0.9 * g.rim_albedo
     label_part[ringm] = RING
     m = (p == HUB) | (p == HUB_SIDE)
@@ -326,23 +351,42 @@ def trace_wheel(o: np.ndarray, d: np.ndarray, idx: np.ndarray, hits: Hits, light
         n_r[tyre], n_w[tyre] = nr / norm, nw / norm
         albedo[tyre] = g.tyre_albedo
         spec[tyre] = 0.04
+        if rib:  # the protector rib: flat-shaded faces and a label of its own (its edges supersampled)
+            on_rib = np.isin(k, rib)
+            seg = np.diff(profile, axis=0)[k[on_rib]]
+            face = np.stack([-seg[:, 1], seg[:, 0]], axis=1) / np.hypot(seg[:, 0], seg[:, 1])[:, None]
+            n_r[tyre[on_rib]], n_w[tyre[on_rib]] = face[:, 0], face[:, 1]
+            label_part[tyre[on_rib]] = RIDGE
         # raised lettering on the outer sidewall: lighter rubber blocks in two arcs
-        text = tyre[_lettering(np.arctan2(pv[tyre], pu[tyre]), r[tyre], at, g)]
-        albedo[text] = np.minimum(2.4 * g.tyre_albedo, 0.45)
+        text = tyre[_lettering(np.arctan2(pv[tyre], pu[tyre]), r[tyre], at, g, n_outer, look.letter_band)]
+        albedo[text] = np.minimum(2.4 * g.tyre_albedo, 0.45) if look.letter_albedo <= 0 else look.letter_albedo
         label_part[text] = TYRE_TEXT
     # shade in the wheel frame: normals, rays and the key light all expressed in (u, v, w)
     nr_over_r = n_r * inv_r
     normals = (nr_over_r * pu, nr_over_r * pv, n_w)
     key_w = R.T @ np.asarray(lighting.key_direction_station, float)
+    metal = (p == FLANGE) | (p == BARREL) | (p == SPOKE)
+    shininess = 24.0 if look.rim_shininess == 24.0 else np.where(metal, look.rim_shininess, 24.0)
+    key_scale = None
+    if look.shadow_height is not None:
+        up = R.T @ np.array([0.0, 0.0, 1.0])
+        key_scale = arch_shadow(pu, pv, up[:2] / np.hypot(up[0], up[1]), g.rim_radius_m, look)
     value = shade(albedo, normals, (du, dv, dw), replace(lighting, key_direction_station=tuple(key_w)),
-                  specular=spec)
+                  specular=spec, shininess=shininess, key_scale=key_scale)
+    if look.rim_mirror > 0:  # the workshop mirrored in the metal, less where dust and dirt cover it
+        mm = np.flatnonzero(metal)
+        mirror = mirror_reflection(tuple(c[mm] for c in normals), (du[mm], dv[mm], dw[mm]), R, look.rim_mirror)
+        value[mm] += mirror if clean is None else mirror * clean[mm]
     hits.store(idx[sel], t, LABEL_WHEEL + 40 * wheel_index + label_part, value)
 
 
-def _lettering(theta: np.ndarray, r: np.ndarray, seg: np.ndarray, g: WheelGeometry) -> np.ndarray:
-    """(N,) bool: the tyre point at angle theta, radius r (outer sidewall: seg < N_OUTER) is a letter."""
+def _lettering(theta: np.ndarray, r: np.ndarray, seg: np.ndarray, g: WheelGeometry, n_outer: int = N_OUTER,
+               band: tuple[float, float] = (0.4, 0.62)) -> np.ndarray:
+    """(N,) bool: the tyre point at angle theta, radius r (outer sidewall: seg < n_outer) is a
+    letter; the letters fill the radial ``band`` (fractions of the sidewall height S above the
+    flange edge)."""
     S = g.tyre_radius_m - g.rim_radius_m
-    r_a, r_b = g.rim_radius_m + 0.4 * S, g.rim_radius_m + 0.62 * S
+    r_a, r_b = g.rim_radius_m + band[0] * S, g.rim_radius_m + band[1] * S
     cell = 0.022 / ((r_a + r_b) / 2)                  # ~22 mm per character
     j = np.floor(theta / cell)
     frac = theta / cell - j
@@ -351,7 +395,7 @@ def _lettering(theta: np.ndarray, r: np.ndarray, seg: np.ndarray, g: WheelGeomet
     h = np.abs(np.modf(np.sin(j * 12.9898 + 78.233) * 43758.5453)[0])
     rr = (r - r_a) / (r_b - r_a)
     glyph = (frac > 0.12) & (frac < 0.82) & ((h > 0.55) | (np.abs(rr - 0.5) < 0.12) | (rr < 0.18 + 0.3 * h))
-    return (seg < N_OUTER) & (r > r_a) & (r < r_b) & in_arc & (h > 0.12) & glyph
+    return (seg < n_outer) & (r > r_a) & (r < r_b) & in_arc & (h > 0.12) & glyph
 
 
 def wheel_outline_points(center: np.ndarray, R_station_wheel: np.ndarray, g: WheelGeometry,

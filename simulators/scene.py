@@ -40,8 +40,54 @@ class Lighting:
 
 
 @dataclass(frozen=True)
+class Appearance:
+    """How a scenario's wheels, body and cameras look beyond the random vehicle; the defaults
+    render the random vehicles exactly (bench/rim_scenarios.py sets the others).
+
+    Albedos and reflectances 0..1, lengths in metres, angles in radians in the wheel frame
+    (docs/conventions.md: from the wheel's u axis, spoke 0, about its outward axis w).
+    """
+
+    # rim finish of the lip, barrel and spokes (None: the vehicle's own, render_wheel.wheel_finish)
+    rim_specular: float | None = None   # Phong strength
+    rim_shininess: float = 24.0         # Phong exponent
+    rim_mirror: float = 0.0             # reflectance of the workshop at normal incidence (Schlick
+                                        # Fresnel: more at grazing angles); chrome ~0.9, clear coat ~0.05
+    spoke_albedo: float | None = None   # None: the vehicle's own
+    # brake dust (a span of the lip's arc) and dirt (blotches) on the lip
+    dust: float = 0.0                   # weight of dust_albedo at the span's middle (0: no dust)
+    dust_albedo: float = 0.25
+    dust_center_rad: float = 0.0
+    dust_span_rad: float = 2.0          # full angular width of the dusted span
+    dirt: float = 0.0                   # darkening of the lip inside the blotches (0: clean)
+    dirt_seed: int = 0
+    # tyre: lettering (letter_albedo 0: the tyre's own rule) in a radial band given as fractions
+    # of the sidewall height above the flange edge; a protector rib standing off the sidewall
+    letter_albedo: float = 0.0
+    letter_band: tuple[float, float] = (0.4, 0.62)
+    ridge_height_m: float = 0.0         # 0: no rib
+    ridge_offset_m: float = 0.008       # its inner foot this far beyond the flange edge (radially)
+    ridge_width_m: float = 0.008
+    # light on the wheel and the body: the arch's shadow over the wheel (None: none), its
+    # boundary a line across the wheel plane ``shadow_height`` x rim radius above the centre,
+    # turned by ``shadow_tilt_rad``, soft over ``shadow_soft_m``: the key light fades to nothing
+    # above it; the gloss paint's reflection of the workshop
+    shadow_height: float | None = None
+    shadow_tilt_rad: float = 0.0
+    shadow_soft_m: float = 0.01
+    body_mirror: float = 0.0
+    # the camera: veiling glare (this share of the image's widely blurred light added) and
+    # auto exposure (0: the lighting's fixed gain; else the gain that puts the image's
+    # ``auto_exposure_percentile`` at this grey level)
+    veiling_glare: float = 0.0
+    auto_exposure: float = 0.0
+    auto_exposure_percentile: float = 99.5
+
+
+@dataclass(frozen=True)
 class Scene:
     vehicle: Vehicle | None = None
     quads: tuple[TexturedQuad, ...] = ()
     floor_z_m: float = 0.0
     lighting: dict = field(default_factory=dict)  # camera id -> Lighting (missing: Lighting())
+    appearance: Appearance = field(default_factory=Appearance)

@@ -51,14 +51,16 @@ def key_direction(lighting: Lighting) -> np.ndarray:
 
 
 def shade(albedo, normals: np.ndarray, dirs: np.ndarray, lighting: Lighting,
-          specular=0.0, shininess: float = 24.0) -> np.ndarray:
+          specular=0.0, shininess=24.0, key_scale=None) -> np.ndarray:
     """Radiance (N,) float32 of surfaces with unit normals seen along unit rays, any one frame.
 
     normals: (N,3), (3,) or a tuple of three (N,) components; dirs: (N,3) or three (N,).
 
     Lambert ``albedo * (ambient + key * max(0, -n.L))`` plus a Phong lobe for metal,
     ``specular * key * max(0, R.(-d))^shininess`` with R the key direction mirrored at the
-    surface. albedo, specular: scalars or (N,). Normals are flipped to face the camera.
+    surface. albedo, specular, shininess: scalars or (N,). key_scale: None, or a scalar or (N,)
+    share of the key light reaching each point (0: in shadow, ambient only). Normals are
+    flipped to face the camera.
     """
     L = key_direction(lighting)
     if isinstance(normals, tuple):         # components (nx, ny, nz), (N,) each
@@ -71,13 +73,51 @@ def shade(albedo, normals: np.ndarray, dirs: np.ndarray, lighting: Lighting,
     # camera-facing normal: n.L flips sign with n (no BLAS calls: see rowmat)
     ndotl = np.copysign(1.0, -ndotd) * (nx * L[0] + ny * L[1] + nz * L[2])
     alb = np.asarray(albedo, np.float32)
-    value = alb * np.float32(lighting.ambient) + alb * np.float32(lighting.key_strength) * np.maximum(
-        0.0, -ndotl).astype(np.float32)
+    key = np.float32(lighting.key_strength)
+    if key_scale is not None:
+        key = key * np.asarray(key_scale, np.float32)
+    value = alb * np.float32(lighting.ambient) + alb * key * np.maximum(0.0, -ndotl).astype(np.float32)
     if np.any(specular):
         # R.(-d) = -(L.d) + 2 (L.n)(n.d) with the camera-facing normal (n.d = -|n.d|)
         cos_r = np.maximum(0.0, -(dx * L[0] + dy * L[1] + dz * L[2]) - 2.0 * ndotl * np.abs(ndotd)).astype(np.float32)
-        value = value + np.asarray(specular, np.float32) * np.float32(lighting.key_strength) * cos_r ** np.float32(shininess)
+        value = value + np.asarray(specular, np.float32) * key * cos_r ** np.asarray(shininess, np.float32)
     return value.astype(np.float32, copy=False)
+
+
+def workshop_environment(rx: np.ndarray, ry: np.ndarray, rz: np.ndarray) -> np.ndarray:
+    """Radiance (N,) float32 of the workshop seen from the car along unit directions (rx, ry, rz)
+    (station frame, (N,) each), as a mirror-like surface reflects it: a dark floor (0.06), walls
+    (0.25) with a band of windows and doors at eye height, one every 0.5 rad (up to 1.55), a ceiling (0.4) with rows
+    of light tubes along y, one every 0.7 rad across (up to 2.4). Broad and smooth in the
+    direction: a rounded lip turns its reflected ray by ~0.2 rad per pixel, so finer features
+    would alias into slivers the renderer does not supersample."""
+    rx, ry, rz = (np.asarray(c, np.float32) for c in (rx, ry, rz))
+    up = np.clip((rz + 0.1) / 0.2, 0.0, 1.0)                  # floor -> walls
+    ceiling = np.clip((rz - 0.3) / 0.25, 0.0, 1.0)            # walls -> ceiling
+    along = np.arctan2(ry, np.abs(rx))                         # angle along the side walls
+    windows = np.clip(1.0 - np.abs(rz - 0.16) / 0.15, 0.0, 1.0) * (0.5 + 0.5 * np.cos(2 * np.pi * along / 0.5)) ** 2
+    walls = 0.25 + 1.3 * windows
+    across = np.arctan2(rx, np.maximum(rz, 0.0))               # angle across the tube rows
+    tubes = (0.5 + 0.5 * np.cos(2 * np.pi * across / 0.7)) ** 3
+    top = 0.4 + 2.0 * tubes
+    value = 0.06 + up * (walls - 0.06) + ceiling * (top - walls)
+    return value.astype(np.float32)
+
+
+def mirror_reflection(normals: tuple, dirs: tuple, R_station_frame: np.ndarray, reflectance) -> np.ndarray:
+    """(N,) float32 radiance the surfaces reflect of the workshop (:func:`workshop_environment`),
+    Schlick's Fresnel weight ``F = m + (1 - m) (1 - |n.d|)^5`` with m = ``reflectance``
+    (scalar or (N,)). normals, dirs: three (N,) components each, unit, in a frame that
+    R_station_frame (3,3) turns into the station frame."""
+    nx, ny, nz = normals
+    dx, dy, dz = dirs
+    ndotd = nx * dx + ny * dy + nz * dz
+    r = [d - 2.0 * ndotd * n for d, n in ((dx, nx), (dy, ny), (dz, nz))]
+    R = R_station_frame
+    rs = [R[k, 0] * r[0] + R[k, 1] * r[1] + R[k, 2] * r[2] for k in range(3)]
+    m = np.asarray(reflectance, np.float32)
+    fresnel = m + (1.0 - m) * (1.0 - np.minimum(np.abs(ndotd), 1.0)).astype(np.float32) ** 5
+    return (fresnel * workshop_environment(*rs)).astype(np.float32)
 
 
 def bilinear(texture: np.ndarray, s: np.ndarray, t: np.ndarray, wrap: bool = False) -> np.ndarray:

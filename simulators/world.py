@@ -17,7 +17,7 @@ import numpy as np
 
 from calibration.camera_model import CameraModel, look_at, rodrigues_to_matrix
 from simulators.render import render_clean, sensor_frame
-from simulators.scene import Lighting, Scene
+from simulators.scene import Appearance, Lighting, Scene
 from simulators.vehicle import Vehicle, WheelGeometry, random_kingpins, random_runout, random_vehicle
 
 _VEHICLE_FIELDS = {f.name for f in fields(Vehicle)}
@@ -133,7 +133,7 @@ class SimWorld:
         each rim's runout up to ``simulation.runout_max_deg`` (0: square rims), each from a
         stream of its own, so that the rest of the vehicle stays that of the seed.
         overrides: Vehicle fields (toe_deg=..., yaw_deg=..., runout=...), WheelGeometry fields
-        (rim_radius_m=...), or ``lighting`` / ``quads`` / ``floor_z_m`` for the Scene.
+        (rim_radius_m=...), or ``lighting`` / ``quads`` / ``floor_z_m`` / ``appearance`` for the Scene.
         """
         rng = np.random.default_rng(seed)
         nominal = self.config.nominal_vehicle
@@ -146,11 +146,11 @@ class SimWorld:
             vehicle = replace(vehicle, runout=random_runout(np.random.default_rng([seed, 32]), runout_max))
         v_over = {k: v for k, v in overrides.items() if k in _VEHICLE_FIELDS}
         w_over = {k: v for k, v in overrides.items() if k in _WHEEL_FIELDS}
-        s_over = {k: v for k, v in overrides.items() if k in ("lighting", "quads", "floor_z_m")}
+        s_over = {k: v for k, v in overrides.items() if k in ("lighting", "quads", "floor_z_m", "appearance")}
         unknown = set(overrides) - set(v_over) - set(w_over) - set(s_over)
         if unknown:
             raise ValueError(f"vehicle_scene: unknown override(s) {', '.join(sorted(unknown))}; "
-                             "expected Vehicle or WheelGeometry fields, lighting, quads or floor_z_m")
+                             "expected Vehicle or WheelGeometry fields, lighting, quads, floor_z_m or appearance")
         if w_over:
             v_over["wheel"] = replace(vehicle.wheel, **w_over)
         for key in ("toe_deg", "camber_deg", "spin_phase_deg"):
@@ -158,7 +158,7 @@ class SimWorld:
                 v_over[key] = {w: float(v_over[key]) for w in ("FL", "FR", "RL", "RR")}
         vehicle = replace(vehicle, **v_over)
         return Scene(vehicle=vehicle, quads=s_over.get("quads", ()), floor_z_m=s_over.get("floor_z_m", 0.0),
-                     lighting=s_over.get("lighting", lighting))
+                     lighting=s_over.get("lighting", lighting), appearance=s_over.get("appearance", Appearance()))
 
     # --- images -----------------------------------------------------------------------------
     def render(self, cam_id: str, rng: np.random.Generator | None = None, scene: Scene | None = None) -> np.ndarray:
@@ -204,4 +204,6 @@ class SimWorld:
             "blur_sigma_px": dict(self.blur_sigma),
             "lighting": {cam_id: asdict(self.lighting_for(cam_id, scene)) for cam_id in self.cameras},
         }
+        if scene.appearance != Appearance():
+            out["simulation"]["appearance"] = asdict(scene.appearance)
         return out
