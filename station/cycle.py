@@ -225,14 +225,11 @@ class Station:
         result.timing_s["runout"] = time.perf_counter() - t0
         result.timing_s["capture"] = results[-1].timing_s["capture"]
         cycle.rolls = rolls
-        if not result.valid:  # a spin axis less certain than the limit: nothing to keep for the job
-            if cycle.truth is not None:
-                result.add_truth(cycle.truth)
-            return result
-        try:
-            keep_runout(self.config, result, rolls, images[-1], self.models)
-        except StorageError as e:
-            _not_kept(result, f"{e}; later measurements of this job cannot apply the runout")
+        if result.valid:  # a spin axis less certain than the limit leaves nothing to keep for the job
+            try:
+                keep_runout(self.config, result, rolls, images[-1], self.models)
+            except StorageError as e:
+                _not_kept(result, f"{e}; later measurements of this job cannot apply the runout")
         if cycle.truth is not None:
             result.add_truth(cycle.truth)
         return result

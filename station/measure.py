@@ -255,7 +255,7 @@ def refuse_uncertain_wheels(result: Measurement, observations: dict, config: Sta
     wrong value reported as valid is the worst outcome for a technician. The message names every
     such wheel and why (its two cameras disagree about the rim's axis, or the 3-D rim rests on
     a small share of a camera's edge), the hint what to do about it; each such wheel is flagged
-    ``uncertain`` (the PLC's warning_bits 0-3 say which)."""
+    ``uncertain``."""
     limit = config.measurement.uncertainty_limit_deg
     refused = []
     for w in WHEELS:
@@ -284,8 +284,8 @@ def _why_uncertain(o: WheelObservation, std_deg: float, config: StationConfig) -
     of the stated ``std_deg`` (naming the camera whose edge is fainter), else the share of a
     camera's edge points the 3-D rim rests on."""
     views = o.views
-    extra = disagreement_covariance(views, config.measurement.view_edge_bias_px)
-    if np.degrees(np.sqrt(max(np.linalg.eigvalsh(extra)[-1], 0.0))) ** 2 > std_deg ** 2 / 2:
+    # the views' share is the same in every direction across the axis: half the trace each
+    if np.degrees(np.sqrt(np.trace(views_covariance(o, config)) / 2)) ** 2 > std_deg ** 2 / 2:
         steps = [float(np.median(d.points_contrast)) if d.points_contrast is not None and len(d.points_contrast)
                  else float("nan") for d in o.detections]
         faint = o.cams[int(np.nanargmin(steps))] if not np.all(np.isnan(steps)) else o.cams[0]
