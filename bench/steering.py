@@ -8,7 +8,8 @@ rims: the included angle takes the measured camber). Each capture is measured wi
 calibration; the procedure then fits each front wheel's steering axis. Prints, against the
 kingpin truth, the error of caster, SAI and included angle from the full pose (the rim's normal
 and its face's turn), from the rim normals alone, and the shops' classic caster; the stated
-uncertainty against the observed error; the kingpin offset's error; refused procedures; the
+uncertainty against the observed error; the kingpin offset's error; the faces' measured turns
+against the truth; refused procedures; the
 computing time (the captures' measurements and the fit).
 
     .venv/bin/python bench/steering.py --n 50 --cache /tmp/steering-cache
@@ -32,6 +33,7 @@ from simulators.vehicle import Runout  # noqa: E402
 from station.config import load_config  # noqa: E402
 from station.errors import ProcedureError  # noqa: E402
 from station.measure import measure_frames  # noqa: E402
+from station.wheel.rim_pattern import ring_basis  # noqa: E402
 from station.procedures.steering import DEFAULT_SWEEP_DEG, FRONT, STEER_PLAN, steering_geometry, sweep_poses  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -63,11 +65,11 @@ def main() -> int:
         calib = load_calibration(config.calibration_file, config)
         cams, cov = {c: calib.model(c) for c in config.cameras}, calib.pair_covariance
     frames = config.capture.frames_averaged if args.frames is None else args.frames
-    rows, failed, seconds = [], [], []
+    rows, failed, seconds, turn_errors = [], [], [], []
     for i in range(args.n):
         seed = args.seed + i
         base = world.vehicle_scene(seed, runout={w: Runout() for w in WHEELS})
-        results, captures = [], []
+        results, captures, scenes = [], [], []
         t_measure = 0.0
         for k, position in enumerate(STEER_PLAN):
             scene = replace(base, vehicle=replace(base.vehicle, steer_deg=position * args.sweep))
@@ -78,6 +80,7 @@ def main() -> int:
                                           refuse_uncertain=k == len(STEER_PLAN) - 1))
             t_measure += time.perf_counter() - t0
             captures.append(images)
+            scenes.append(scene)
         truth = world.truth(scene)
         bad = next((k for k, r in enumerate(results) if not r.valid), None)
         if bad is not None:
@@ -95,6 +98,7 @@ def main() -> int:
         steering = steering_geometry(results[-1], sweep, results, args.sweep)
         seconds.append(t_measure + time.perf_counter() - t0)
         for w in FRONT:
+            turn_errors.extend(sweep[w].psi_deg[:-1] - _true_turns_deg(scenes, w)[:-1])
             t, r = truth["wheels"][w], steering.wheels[w]
             kingpin = np.asarray(t["kingpin_point_station_m"])
             center = np.asarray(results[-1].wheels[w].center_station_m)
@@ -129,11 +133,28 @@ def main() -> int:
             print(f"| {name} | " + " | ".join(cells) + " |")
         print(f"\nkingpin offset (scrub radius) error: RMS {rms(col['offset_mm']):.1f} mm, max "
               f"{np.max(np.abs(col['offset_mm'])):.1f} mm ({len(rows)} wheels)")
+    if turn_errors:
+        e = np.abs(turn_errors)
+        print(f"the faces' turns against the truth: RMS {np.sqrt(np.mean(e ** 2)):.4f} deg, median {np.median(e):.4f}, "
+              f"max {e.max():.4f} ({len(e)} captures of front wheels)")
     print(f"refused or failed procedures: {len(failed)} of {args.n}" + "".join(f"\n  - {f}" for f in failed))
     if seconds:
         print(f"procedure's computing time (its {len(STEER_PLAN)} measurements and the fit; capture and operator "
               f"excluded): median {np.median(seconds):.2f} s")
     return 0
+
+
+def _true_turns_deg(scenes, wheel: str) -> np.ndarray:
+    """(K,) how far the wheel's face truly turned about its own axis at each scene since the last
+    (deg), measured as the procedure does: from e1 of rim_pattern.ring_basis toward e2."""
+    frames = [s.vehicle.wheel_frame_station(wheel)[1] for s in scenes]
+    e1_ref = ring_basis(frames[-1][:, 2])[0]
+    out = []
+    for R in frames:
+        f = R @ frames[-1].T @ e1_ref
+        e1, e2 = ring_basis(R[:, 2])
+        out.append(np.degrees(np.arctan2(f @ e2, f @ e1)))
+    return np.array(out)
 
 
 if __name__ == "__main__":

@@ -3,8 +3,9 @@
 With the brake held (a pedal depressor), the technician steers the front wheels left by the
 sweep, right by the sweep, and back to straight ahead (``STEER_PLAN``); the cameras take the car
 at each position. Every front wheel's pose at each capture is its rim's 3-D circle and how far
-its face turned about its own axis since the last capture (station/wheel/rim_pattern.py); the
-steering axis is the axis that carries the wheel from one pose to the next
+its face turned about its own axis since the last capture (roughly from the face's profile,
+station/wheel/rim_pattern.py, then on the face's surface as both cameras see it,
+station/wheel/face_surface.py); the steering axis is the axis that carries the wheel from one pose to the next
 (station/wheel/steering_axis.py). In the car frame of the last capture (straight ahead):
 
 - caster: the axis' tilt in side view, + its top rearward; SAI: its tilt in front view, + its
@@ -33,6 +34,7 @@ from station.errors import RimPatternLost, SweepTooSmall, SweepUneven, WheelRoll
 from station.procedures.poses import face_pose, normal_covariance
 from station.result import Measurement, Steering, SteeringWheel
 from station.rim.camera_response import linear_images
+from station.wheel.face_surface import MIN_CELLS, face_surface, turn_on_surface
 from station.wheel.rim_pattern import angular_profile, face_depth, rotation_between
 from station.wheel.steering_axis import SteeringAxis, fit_steering_axis
 
@@ -44,7 +46,7 @@ MIN_SWEEP_DEG = 4.0             # each way, at least
 UNEVEN_SHARE = 0.5              # the shorter side at least this share of the longer
 ROLLED_MISFIT_DEG = 0.25        # poses further than this from one turn about one axis: the wheel rolled
 MIN_PATTERN_PEAK = 0.6          # the face followed from one capture to another correlates at least this well
-PSI_FLOOR_DEG = 0.02            # the face's turn is known to this at best (both cameras agreeing)
+PSI_FLOOR_DEG = 0.006           # the face's turn is known to this at best (both cameras agreeing)
 
 
 @dataclass(frozen=True)
@@ -70,15 +72,23 @@ def sweep_poses(results: list[Measurement], images: list[dict], models: dict[str
         poses = [face_pose(r, w) for r in results]
         depth, _ = face_depth({c: linear[-1][c] for c in cams}, models, poses[-1])
         reference = {c: angular_profile(linear[-1][c], models[c], poses[-1], depth) for c in cams}
+        surface = face_surface({c: linear[-1][c] for c in cams}, models, poses[-1])
+        if surface.usable_cells < MIN_CELLS:
+            raise RimPatternLost(f"{w}: its rim's face shows too little the two cameras agree on ({surface.usable_cells} "
+                                 f"usable points of its surface, at least {MIN_CELLS})",
+                                 hint="clean the rim's face, add light on it, and measure again")
         psi, var_psi = [], []
         for k, (im, pose) in enumerate(zip(linear, poses)):
             found = [rotation_between(reference[c], angular_profile(im[c], models[c], pose, depth)) for c in cams]
-            followed = [a for a, peak in found if peak >= MIN_PATTERN_PEAK]
+            followed = [(c, a) for c, (a, peak) in zip(cams, found) if peak >= MIN_PATTERN_PEAK]
             if not followed:
                 raise RimPatternLost(f"{w}: its rim's face does not match between the straight-ahead capture and "
                                      f"capture {k + 1} in either camera (correlation {found[0][1]:.2f}, "
                                      f"{found[1][1]:.2f})",
                                      hint="clean the rim's face, steer less far, and measure again")
+            prior = float(np.mean([a for _, a in followed]))
+            followed = [0.0] if k == len(poses) - 1 else \
+                [turn_on_surface(surface, linear[-1][c], im[c], models[c], pose, prior) for c, _ in followed]
             psi.append(float(np.mean(followed)))
             spread = np.radians(0.0) if len(followed) < 2 else abs(followed[0] - followed[1]) / 2
             var_psi.append(np.radians(PSI_FLOOR_DEG) ** 2 + spread ** 2)
