@@ -141,8 +141,8 @@ def main() -> int:
         truths = [world.truth(replace(base, vehicle=replace(vehicle, roll_m=p * args.distance))) for p in ROLL_PLAN]
         turn_err += [rolls[w].roll_deg[k] - (truths[k]["wheels"][w]["roll_deg"] - truth["wheels"][w]["roll_deg"])
                      for w in WHEELS for k in range(len(ROLL_PLAN) - 1)]
-        up = np.asarray(result.alignment_frame["R_station_align"])[:, 2]
-        frame_tilt.append(np.degrees(np.arcsin(np.hypot(up[0], up[1]))))
+        frame_tilt.append([np.degrees(np.arcsin(np.hypot(*np.asarray(r.alignment_frame["R_station_align"])[:2, 2])))
+                           for r in (result, results[-1])])
         print(f"  vehicle {i + 1}/{args.n} done", file=sys.stderr, flush=True)
     print(f"# Runout compensation: {args.n} vehicles from seed {args.seed}, runout U(0, {args.runout}) deg, "
           f"rolled {args.distance * 100:.0f} cm each way ({len(ROLL_PLAN)} captures, {frames} frame(s) each), "
@@ -166,8 +166,9 @@ def main() -> int:
         te = np.abs(turn_err)
         print(f"wheel turns from the face: error median {np.median(te):.4f} deg, RMS {np.sqrt(np.mean(te ** 2)):.4f}, "
               f"max {te.max():.3f} ({len(te)} turns)")
-        print(f"the car frame's up (through the four lip centres) against the true up: {np.sqrt(np.mean(np.square(frame_tilt))):.4f} "
-              "deg RMS")
+        hub_tilt, lip_tilt = np.sqrt(np.mean(np.square(frame_tilt), axis=0))
+        print(f"the car frame's up against the true up: {hub_tilt:.4f} deg RMS through the four hubs found "
+              f"(compensated), {lip_tilt:.4f} through the lip centres (rim plane)")
     print(f"refused or failed procedures: {len(failed)} of {args.n}" + "".join(f"\n  - {f}" for f in failed))
     per_vehicle = np.sum(np.array(seconds).reshape(-1, len(ROLL_PLAN)), axis=1) if len(seconds) % len(ROLL_PLAN) == 0 else []
     if len(per_vehicle):

@@ -148,3 +148,26 @@ def test_a_roll_too_short_a_slipped_wheel_and_a_car_moved_across_are_refused(tmp
     across = swapped(2, lambda v: replace(v, position_m=(v.position_m[0] + 0.04, v.position_m[1])))
     with pytest.raises(CarMovedSideways, match="across the line of the car's travel"):
         wheel_rolls(*across, world.cameras, config)
+
+
+def test_the_hubs_are_found_from_the_lip_centres_of_a_rolled_car():
+    from station.wheel.hub_center import hub_centers
+
+    rng = np.random.default_rng(7)
+    forward = np.array([0.02, 1.0, 0.0]) / np.hypot(0.02, 1.0)
+    hubs = np.array([[-0.8, 1.4, 0.33], [0.8, 1.4, 0.33], [-0.8, -1.3, 0.34], [0.8, -1.3, 0.34]])
+    axes = np.array([[-1.0, 0.003, -0.01], [1.0, 0.002, -0.012], [-1.0, -0.001, -0.008], [1.0, 0.0, -0.009]])
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    travel = np.array([0.0, -0.15, 0.15, 0.0]) + np.array([0.004, -0.002, 0.003, 0.0])
+    radii = np.array([0.31, 0.312, 0.309, 0.311])
+    offsets = rng.normal(0, 3e-4, (4, 3))
+    offsets -= axes * np.sum(offsets * axes, axis=1, keepdims=True)       # across each axis
+    centers, turns = [], []
+    for h, a, e, r, side in zip(hubs, axes, offsets, radii, (-1, 1, -1, 1)):
+        theta = -side * travel / r
+        centers.append(h + np.outer(travel, forward) + rotate(a, theta, e))
+        turns.append(theta)
+    found = hub_centers(np.array(centers), np.array(turns), axes, forward)
+    assert np.allclose(found.center_station, hubs, atol=1e-9)
+    assert np.allclose(found.offset_station, offsets, atol=1e-9)
+    assert np.allclose(found.travel_m, travel[:3], atol=1e-9)

@@ -4,8 +4,10 @@ The car is rolled back and forward along the runways while the cameras take it a
 positions (``ROLL_PLAN``, the last where it started). At each capture every wheel's rim gives its
 3-D circle (the normal of its lip plane) and its face's angular profile; the profiles tell how far
 each wheel turned between the captures (station/wheel/rim_pattern.py), and the normals turned by
-those angles fix each wheel's spin axis (station/wheel/runout.py). The result is the last
-capture's measurement with the spin axes in place of the rim normals, each wheel's runout beside.
+those angles fix each wheel's spin axis (station/wheel/runout.py); the lip centres turning about
+the hubs fix where each hub is (station/wheel/hub_center.py). The result is the last capture's
+measurement with the spin axes in place of the rim normals and the car frame on the hubs, each
+wheel's runout beside.
 
 Refused, with a code (station/errors.py 411-414): a roll too short to turn the wheels
 ``MIN_ROLL_DEG``; a wheel whose turn does not match the car's travel (it slipped, or was turned
@@ -16,7 +18,7 @@ bent rim).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -29,6 +31,7 @@ from station.procedures.poses import face_pose, normal_covariance
 from station.result import Measurement, WarningFlag
 from station.rim.camera_response import linear_images
 from station.wheel.rim_pattern import FacePose, angular_profile, face_depth, rotation_between
+from station.wheel.hub_center import hub_centers
 from station.wheel.runout import SpinAxis, fit_spin_axis
 
 ROLL_DISTANCE_M = 0.15         # how far the car is rolled each way: about 25 deg of a wheel's turn
@@ -45,12 +48,16 @@ SIDEWAYS_M = 0.015             # a wheel centre off the line of the car's travel
 @dataclass(frozen=True)
 class WheelRoll:
     """One wheel over the captures: its spin axis fit, the turn at each capture (deg, relative to
-    the last), its rolling radius (m, NaN when it hardly turned), its face's depth behind the lip."""
+    the last), its rolling radius (m, NaN when it hardly turned), its face's depth behind the lip,
+    its lip centre's offset from its hub at the last capture (3,) m and that offset's (3,3)
+    covariance (station/wheel/hub_center.py)."""
 
     spin: SpinAxis
     roll_deg: np.ndarray
     rolling_radius_m: float
     face_depth_m: float
+    hub_offset_station: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    cov_hub_offset: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
 
 
 def wheel_rolls(results: list[Measurement], images: list[dict], models: dict[str, CameraModel],
@@ -76,7 +83,11 @@ def wheel_rolls(results: list[Measurement], images: list[dict], models: dict[str
         own = float(np.median(-SIDE[w] * f.travel[turned] / theta[turned])) if turned.any() else float("nan")
         rolls[w] = WheelRoll(spin, np.degrees(theta), own, f.depth)
     _check_slip(rolls)
-    return rolls
+    hubs = hub_centers(np.array([[p.center_station for p in seen[w].poses] for w in WHEELS]),
+                       np.radians([rolls[w].roll_deg for w in WHEELS]),
+                       np.array([rolls[w].spin.axis_station for w in WHEELS]), forward)
+    return {w: replace(rolls[w], hub_offset_station=hubs.offset_station[i], cov_hub_offset=hubs.cov_offset[i])
+            for i, w in enumerate(WHEELS)}
 
 
 @dataclass(frozen=True)
@@ -152,19 +163,27 @@ def compensated(reference: Measurement, rolls: dict[str, WheelRoll], config: Sta
     """``reference`` (the last capture's valid measurement) with each wheel's toe and camber of
     its spin axis, their uncertainty from the fit, and its runout; a warning per rim whose runout
     exceeds ``measurement.runout_limit_deg``."""
-    return with_spin_axes(reference, {w: r.spin for w, r in rolls.items()}, config)
+    return with_spin_axes(reference, {w: r.spin for w, r in rolls.items()}, config,
+                          {w: (r.hub_offset_station, r.cov_hub_offset) for w, r in rolls.items()})
 
 
-def with_spin_axes(reference: Measurement, spins: dict[str, SpinAxis], config: StationConfig) -> Measurement:
+def with_spin_axes(reference: Measurement, spins: dict[str, SpinAxis], config: StationConfig,
+                   hub_offsets: dict[str, tuple[np.ndarray, np.ndarray]] | None = None) -> Measurement:
     """A copy of the valid ``reference`` whose angles are of the spin axes ``spins`` (one per
     wheel, with their covariance: it holds the normals' unseen share already), each wheel's runout
-    beside; ``runout_compensated`` set; a warning per rim that runs out beyond the limit. A spin
+    beside; ``runout_compensated`` set; a warning per rim that runs out beyond the limit. With
+    ``hub_offsets`` (per wheel: its lip centre's offset from its hub (3,) m and its (3,3)
+    covariance), the car frame rests on the hubs instead of the lip centres. A spin
     axis less certain than ``measurement.uncertainty_limit_deg`` makes it invalid, as a single
     capture's rim plane would (station.measure.refuse_uncertain_wheels)."""
     result = replace(reference, wheels={}, axles={}, warnings=list(reference.warnings),
                      warning_flags=list(reference.warning_flags), timing_s=dict(reference.timing_s))
     fits = {w: replace(o.circle, axis_station=spins[w].axis_station, cov_axis=spins[w].cov_axis)
             for w, o in reference.observations.items()}
+    for w, (offset, cov) in (hub_offsets or {}).items():
+        c = fits[w]
+        fits[w] = replace(c, center_station=np.asarray(c.center_station, float) - offset,
+                          cov_center=np.asarray(c.cov_center, float) + cov)
     fill_angles(result, fits, reference.observations, config, unseen=False)
     limit = config.measurement.runout_limit_deg
     for w, s in spins.items():

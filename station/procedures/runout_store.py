@@ -33,7 +33,7 @@ from station.records.atomic_file import write_text_atomic
 from station.result import Measurement, WarningFlag
 from station.rim.camera_response import linear_images
 from station.wheel.rim_pattern import FacePose, angular_profile, ring_basis, rotation_between
-from station.wheel.runout import SpinAxis
+from station.wheel.runout import SpinAxis, rotate
 
 FORMAT = 1
 MAX_TRAVEL_M = 2 * ROLL_DISTANCE_M  # a car rolled farther since is measured with --compensate again
@@ -44,7 +44,9 @@ MAX_ACROSS_M = 0.03                  # a wheel centre this far across the car's 
 class KeptWheel:
     """One wheel's runout as kept: tilt (deg) and phase (deg, in the ring basis of the rim
     normal ``normal_station`` at the kept capture), lip wobble (mm), the spin axis' covariance,
-    the wheel's centre then, the face's depth behind the lip, each camera's profile."""
+    the wheel's centre then, the face's depth behind the lip, each camera's profile, the lip
+    centre's offset from the hub then (3,) m and its (3,3) covariance (zero in files kept before
+    hubs were found)."""
 
     runout_deg: float
     runout_phase_deg: float
@@ -54,6 +56,8 @@ class KeptWheel:
     normal_station: np.ndarray
     face_depth_m: float
     profiles: dict[str, np.ndarray]
+    hub_offset_station_m: np.ndarray
+    cov_hub_offset: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -88,7 +92,9 @@ def keep_runout(config: StationConfig, result: Measurement, rolls: dict[str, Whe
                      "cov_axis": np.asarray(s.cov_axis).tolist(), "center_station_m": pose.center_station.tolist(),
                      "normal_station": pose.axis_station.tolist(), "face_depth_m": rolls[w].face_depth_m,
                      "profiles": {cam: np.round(angular_profile(linear[cam], models[cam], pose, rolls[w].face_depth_m),
-                                                4).tolist() for cam in cams}}
+                                                4).tolist() for cam in cams},
+                     "hub_offset_station_m": np.asarray(rolls[w].hub_offset_station).tolist(),
+                     "cov_hub_offset": np.asarray(rolls[w].cov_hub_offset).tolist()}
     doc = {"format": FORMAT, "job_id": result.job_id, "cycle_id": result.cycle_id,
            "calibration_id": result.calibration_id, "time_utc": result.time_utc,
            "forward_station": np.asarray(result.alignment_frame["R_station_align"])[:, 1].tolist(), "wheels": wheels}
@@ -112,7 +118,9 @@ def load_kept_runout(config: StationConfig, job_id: str) -> KeptRunout | None:
         wheels = {w: KeptWheel(float(d["runout_deg"]), float(d["runout_phase_deg"]), float(d["runout_mm"]),
                                np.asarray(d["cov_axis"], float), np.asarray(d["center_station_m"], float),
                                np.asarray(d["normal_station"], float), float(d["face_depth_m"]),
-                               {c: np.asarray(p, float) for c, p in d["profiles"].items()})
+                               {c: np.asarray(p, float) for c, p in d["profiles"].items()},
+                               np.asarray(d.get("hub_offset_station_m", np.zeros(3)), float).reshape(3),
+                               np.asarray(d.get("cov_hub_offset", np.zeros((3, 3))), float).reshape(3, 3))
                   for w, d in doc["wheels"].items()}
         if doc.get("format") != FORMAT or set(wheels) != set(WHEELS):
             raise ValueError("not a runout file of this station's format")
@@ -138,7 +146,7 @@ def apply_kept_runout_to(config: StationConfig, result: Measurement, images: dic
     if kept.calibration_id != result.calibration_id:
         return _not_applied(result, "the station was recalibrated since it was measured")
     linear = linear_images(images, config)
-    spins = {}
+    spins, hubs = {}, {}
     for w in WHEELS:
         k, c = kept.wheels[w], result.observations[w].circle
         pose = FacePose(np.asarray(c.center_station, float), np.asarray(c.axis_station, float), float(c.radius_m))
@@ -156,10 +164,14 @@ def apply_kept_runout_to(config: StationConfig, result: Measurement, images: dic
         angles = np.degrees([a for a, _ in turns])
         if np.ptp(angles) > PATTERN_AGREEMENT_DEG:
             return _not_applied(result, f"{w}: its cameras disagree on how far the wheel turned")
-        spins[w] = spin_from_runout(pose.axis_station, k, float(np.radians(np.mean(angles))),
+        turn = float(np.radians(np.mean(angles)))
+        spins[w] = spin_from_runout(pose.axis_station, k, turn,
                                     np.asarray(c.cov_axis, float) + unseen_axis_covariance(
                                         result.observations[w], pose.axis_station, config))
-    out = with_spin_axes(result, spins, config)
+        # the lip centre's offset from the hub turns with the wheel, as its tilt does
+        R = rotate(spins[w].axis_station, np.full(3, turn), np.eye(3)).T
+        hubs[w] = (R @ k.hub_offset_station_m, R @ k.cov_hub_offset @ R.T)
+    out = with_spin_axes(result, spins, config, hubs)
     out.warnings.append(f"runout compensated with the runout kept for job {kept.job_id!r} "
                         f"(cycle {kept.cycle_id})")
     return out
