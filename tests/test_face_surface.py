@@ -56,3 +56,30 @@ def test_a_steered_wheels_face_turn_is_found_to_hundredths_on_its_surface(steer_
                                             prior_rad=true_psi + np.radians(0.5)) - true_psi) for c in cams]
     assert np.abs(error_deg).max() < 0.06, error_deg      # each camera (the plane's profile: 0.5 deg)
     assert abs(np.mean(error_deg)) < 0.025, error_deg     # the pair, as the procedure takes it
+
+
+def test_a_circle_on_the_wheels_face_is_refused_and_the_flange_is_not():
+    from types import SimpleNamespace
+
+    from simulators.world import SimWorld
+    from station.errors import MeasurementError
+    from station.wheel.pair import check_face_behind
+
+    config = load_config(None)
+    world = SimWorld.from_config(config)
+    scene = world.vehicle_scene(3)
+    cams = (config.pairs["FL"].precision, config.pairs["FL"].reference)
+    rng = np.random.default_rng(3)
+    images = linear_images({c: world.render(c, rng, scene) for c in cams}, config)
+    flange = _pose(scene.vehicle, "FL")
+    depth = scene.vehicle.wheel.rim_face_depth_m
+
+    def observation(centre, radius):
+        circle = SimpleNamespace(center_station=centre, axis_station=flange.axis_station, radius_m=radius)
+        return SimpleNamespace(cams=cams, circle=circle)
+
+    check_face_behind(observation(flange.center_station, flange.radius_m), images, world.cameras)
+    # the ring where the spokes meet the barrel: in the face's plane, a fifth smaller
+    on_face = observation(flange.center_station - depth * flange.axis_station, 0.8 * flange.radius_m)
+    with pytest.raises(MeasurementError, match="not the flange"):
+        check_face_behind(on_face, images, world.cameras)

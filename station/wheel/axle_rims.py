@@ -67,7 +67,7 @@ def _carried_pair(wheel: str, cams: tuple[str, str], detection_sets: list[dict],
                 found = refine_candidate(images[dst], prior, camera=cameras[dst], camera_id=dst)
                 o = reconstruct_wheel(wheel, cams, {src: det, dst: found}, cameras, calibration_cov,
                                       other_contour_test=True)
-                check_same_rim(o, config, allow_unchecked=False)
+                check_same_rim(o, config, allow_unchecked=False, images=images, cameras=cameras)
             except StationError:
                 continue
             if abs(o.circle.radius_m - radius_m) > AXLE_RIM_TOLERANCE * radius_m:

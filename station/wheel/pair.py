@@ -20,8 +20,10 @@ from station.compute.frame_handoff import resolve as resolve_frame
 from station.wheel.other_contour import refit_other_contour
 from station.wheel.rim_size import AXLE_RIM_TOLERANCE
 from station.wheel.circle_fit import circle_from_ellipses, refine_circle
+from station.wheel.face_surface import face_recess
 from station.wheel.fit import WheelFit
 from station.wheel.paper import reconstruct_paper
+from station.wheel.rim_pattern import FacePose
 from station.wheel.view_agreement import ViewAgreement, view_agreement
 
 
@@ -73,7 +75,7 @@ def measure_wheel(wheel: str, cams: tuple[str, str], images: dict, cameras: dict
         try:
             out.observation = reconstruct_wheel(wheel, cams, detections, cameras, calibration_cov,
                                                 other_contour_test=True)
-            check_same_rim(out.observation, config)
+            check_same_rim(out.observation, config, images=images, cameras=cameras)
         except StationError as e:
             # a runner-up pairing is a second guess: it must pass the full check, including
             # the epipolar one that a first choice seen on part of its rim may be excused
@@ -159,12 +161,15 @@ def kept_fractions(o: WheelObservation) -> list[float]:
     return [n / max(len(d.points_px), 1) for n, d in zip(o.circle.n_points, o.detections)]
 
 
-def check_same_rim(o: WheelObservation, config: StationConfig, allow_unchecked: bool = True) -> None:
+def check_same_rim(o: WheelObservation, config: StationConfig, allow_unchecked: bool = True,
+                   images: dict | None = None, cameras: dict | None = None) -> None:
     """Refuse a wheel whose two cameras did not find the same 3-D rim.
 
     A wrong ellipse in one camera (the tyre outline, a hub, the other wheel) cannot share the
     rim's two epipolar tangent planes with the other camera, nor fit one 3-D circle with it:
-    the residuals are then tens of pixels where a true rim gives tenths.
+    the residuals are then tens of pixels where a true rim gives tenths. With the pair's
+    ``images`` (linear) and ``cameras``, the circle must also have the wheel's face behind it
+    (:func:`check_face_behind`).
     """
     limit = config.measurement.mismatch_limit_px
     nominal = np.array(config.cameras[o.cams[0]].nominal.look_at_m)
@@ -183,14 +188,44 @@ def check_same_rim(o: WheelObservation, config: StationConfig, allow_unchecked: 
             hint="look at both cameras' images of this wheel (station review); rims outside this "
                  "range need measurement.min_rim_radius_m / max_rim_radius_m")
     worst_view = max(o.circle.view_median_px)
-    if allow_unchecked and unverifiable_epipolar(o, config):
-        return  # one circle fits both views: the same rim, its tangents extrapolated (a warning says so)
-    if o.circle.epipolar_rms_px > limit or not worst_view <= limit:
+    unchecked = allow_unchecked and unverifiable_epipolar(o, config)
+    # (unchecked: one circle fits both views, the same rim, its tangents extrapolated; a warning says so)
+    if not unchecked and (o.circle.epipolar_rms_px > limit or not worst_view <= limit):
         raise MeasurementError(
             f"{o.cams[0]} and {o.cams[1]} did not find the same rim (epipolar residual "
             f"{o.circle.epipolar_rms_px:.1f} px, circle fit median {worst_view:.1f} px, "
             f"limit {limit} px)", hint="look at both cameras' images of this wheel (station review); if both "
                                        "show this wheel's rim, a camera may have moved since calibration: recalibrate")
+    if images is not None and cameras is not None:
+        check_face_behind(o, images, cameras)
+
+
+MIN_FACE_RECESS_M = 0.008  # a flange stands at least this far in front of its wheel's face
+MIN_RECESS_CELLS = 100     # points of the face both cameras agree on, for the test to be made
+
+
+def check_face_behind(o: WheelObservation, images: dict, cameras: dict) -> None:
+    """Refuse a circle that the wheel's own face does not lie behind.
+
+    The flange is the wheel's outermost edge: its spokes and face lie tens of mm behind its
+    plane. On a dark rim whose flange hardly stands out from the tyre, both cameras may agree
+    on another concentric contour, the ring where the spokes meet the barrel or the brake
+    disc's edge seen through the windows: a circle 40-90 mm inboard and 20 % smaller, with the
+    face in its plane or in front of it. Such a circle passes every other test, and its centre,
+    inboard along a cambered axis, tilts the car frame (a whole cycle's cambers 0.16 deg off,
+    stated 0.01). The face's depth comes from both views (station/wheel/face_surface.py,
+    ``face_recess``); a face the two views cannot place (plain, or too dark) is not judged."""
+    recess, cells = face_recess({c: images[c] for c in o.cams}, {c: cameras[c] for c in o.cams},
+                                FacePose(np.asarray(o.circle.center_station, float),
+                                         np.asarray(o.circle.axis_station, float), float(o.circle.radius_m)))
+    if cells >= MIN_RECESS_CELLS and recess < MIN_FACE_RECESS_M:
+        where = f"{recess * 1000:.0f} mm behind it" if recess >= 0 else f"{-recess * 1000:.0f} mm in front of it"
+        raise MeasurementError(
+            f"{o.cams[0]} and {o.cams[1]} found a circle of radius {o.circle.radius_m * 1000:.0f} mm with the "
+            f"wheel's face {where} (a flange stands at least {MIN_FACE_RECESS_M * 1000:.0f} mm in front of it): "
+            "a contour of the face or behind it (the spokes' ring, the brake disc), not the flange",
+            hint="light the rim's lip or clean it so that it stands out from the tyre, and measure again; "
+                 "look at both cameras' images of this wheel (station review)")
 
 
 ALTERNATIVES = 2  # runner-up candidates per camera tried when a pair's first choices disagree
@@ -230,7 +265,7 @@ def resolve_pair(wheel: str, cams: tuple[str, str], detections: dict, images: di
             try:
                 o = reconstruct_wheel(wheel, cams, {cams[0]: dl, cams[1]: dr}, cameras, calibration_cov,
                                       other_contour_test=True)
-                check_same_rim(o, config, allow_unchecked=False)
+                check_same_rim(o, config, allow_unchecked=False, images=images, cameras=cameras)
             except StationError:
                 continue
             if radius_m is not None and abs(o.circle.radius_m - radius_m) > AXLE_RIM_TOLERANCE * radius_m:
