@@ -176,11 +176,13 @@ RECESS_RANGE_M = (-0.08, 0.03)              # a face deeper than 80 mm reads 80:
 RECESS_STEP_M = 0.005
 
 
-def face_recess(images: dict[str, np.ndarray], cameras: dict[str, CameraModel], pose: FacePose) -> tuple[float, int]:
-    """(m, cells): how far the front of the face's outer part (``RECESS_RADII``) lies behind the
-    plane of the circle ``pose`` (positive behind), and over how many cells (NaN, 0: none). Its
-    front: the nearest tenth of the cells both cameras agree on (the spokes, where most of what
-    is seen may be the disc behind them). A coarse surface: some 10 ms a wheel."""
+def face_near_plane(images: dict[str, np.ndarray], cameras: dict[str, CameraModel], pose: FacePose,
+                    within_m: float) -> tuple[float, int]:
+    """(share, cells): the share of the cells both cameras place on the outer part of the face
+    (``RECESS_RADII``) that lie less than ``within_m`` behind the plane of the circle ``pose``, or
+    in front of it, and how many cells they place (NaN, 0: none). A coarse surface: some 7 ms a
+    wheel. A share, not a depth: a few cells matched at a wrong depth (harsh light, a tenth of
+    them at most on the simulated station) must not decide."""
     s = face_surface(images, cameras, pose, RECESS_RADII, RECESS_SAMPLES, RECESS_RANGE_M, RECESS_STEP_M)
     d = s.depth_m[s.weight > 0]
-    return (float(-np.percentile(d, 90)) if len(d) else float("nan")), int(len(d))
+    return (float(np.mean(d > -within_m)) if len(d) else float("nan")), int(len(d))

@@ -20,7 +20,7 @@ from station.compute.frame_handoff import resolve as resolve_frame
 from station.wheel.other_contour import refit_other_contour
 from station.wheel.rim_size import AXLE_RIM_TOLERANCE
 from station.wheel.circle_fit import circle_from_ellipses, refine_circle
-from station.wheel.face_surface import face_recess
+from station.wheel.face_surface import face_near_plane
 from station.wheel.fit import WheelFit
 from station.wheel.paper import reconstruct_paper
 from station.wheel.rim_pattern import FacePose
@@ -201,7 +201,8 @@ def check_same_rim(o: WheelObservation, config: StationConfig, allow_unchecked: 
 
 
 MIN_FACE_RECESS_M = 0.008  # a flange stands at least this far in front of its wheel's face
-MIN_RECESS_CELLS = 100     # points of the face both cameras agree on, for the test to be made
+MAX_NEAR_SHARE = 0.2       # of the face's points placed, at most this share nearer the circle's plane
+MIN_RECESS_CELLS = 100     # points of the face both cameras place, for the test to be made
 
 
 def check_face_behind(o: WheelObservation, images: dict, cameras: dict) -> None:
@@ -209,21 +210,24 @@ def check_face_behind(o: WheelObservation, images: dict, cameras: dict) -> None:
 
     The flange is the wheel's outermost edge: its spokes and face lie tens of mm behind its
     plane. On a dark rim whose flange hardly stands out from the tyre, both cameras may agree
-    on another concentric contour, the ring where the spokes meet the barrel or the brake
-    disc's edge seen through the windows: a circle 40-90 mm inboard and 20 % smaller, with the
-    face in its plane or in front of it. Such a circle passes every other test, and its centre,
-    inboard along a cambered axis, tilts the car frame (a whole cycle's cambers 0.16 deg off,
-    stated 0.01). The face's depth comes from both views (station/wheel/face_surface.py,
-    ``face_recess``); a face the two views cannot place (plain, or too dark) is not judged."""
-    recess, cells = face_recess({c: images[c] for c in o.cams}, {c: cameras[c] for c in o.cams},
-                                FacePose(np.asarray(o.circle.center_station, float),
-                                         np.asarray(o.circle.axis_station, float), float(o.circle.radius_m)))
-    if cells >= MIN_RECESS_CELLS and recess < MIN_FACE_RECESS_M:
-        where = f"{recess * 1000:.0f} mm behind it" if recess >= 0 else f"{-recess * 1000:.0f} mm in front of it"
+    on another concentric contour, the ring where the spokes meet the barrel: a circle a fifth
+    smaller and 40-90 mm inboard, with the spokes in its plane. Such a circle passes every other
+    test, and its centre, inboard along a cambered axis, tilts the car frame (a whole cycle's
+    cambers 0.16 deg off, stated 0.01). Of the outer face's points both cameras place
+    (station/wheel/face_surface.py, ``face_near_plane``), a circle on the face has 30-100 %
+    within ``MIN_FACE_RECESS_M`` of its plane or in front of it, a flange at most 11 % (points
+    matched at a wrong depth under harsh light); a face the views cannot place (plain, or too
+    dark) is not judged."""
+    share, cells = face_near_plane({c: images[c] for c in o.cams}, {c: cameras[c] for c in o.cams},
+                                   FacePose(np.asarray(o.circle.center_station, float),
+                                            np.asarray(o.circle.axis_station, float), float(o.circle.radius_m)),
+                                   MIN_FACE_RECESS_M)
+    if cells >= MIN_RECESS_CELLS and share > MAX_NEAR_SHARE:
         raise MeasurementError(
-            f"{o.cams[0]} and {o.cams[1]} found a circle of radius {o.circle.radius_m * 1000:.0f} mm with the "
-            f"wheel's face {where} (a flange stands at least {MIN_FACE_RECESS_M * 1000:.0f} mm in front of it): "
-            "a contour of the face or behind it (the spokes' ring, the brake disc), not the flange",
+            f"{o.cams[0]} and {o.cams[1]} found a circle of radius {o.circle.radius_m * 1000:.0f} mm with "
+            f"{share:.0%} of the wheel's face within {MIN_FACE_RECESS_M * 1000:.0f} mm of its plane or in front of "
+            "it (a flange stands in front of its face): a contour of the face (the ring where the spokes meet the "
+            "barrel), not the flange",
             hint="light the rim's lip or clean it so that it stands out from the tyre, and measure again; "
                  "look at both cameras' images of this wheel (station review)")
 
