@@ -18,7 +18,7 @@ bent rim).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -56,8 +56,8 @@ class WheelRoll:
     roll_deg: np.ndarray
     rolling_radius_m: float
     face_depth_m: float
-    hub_offset_station: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    cov_hub_offset: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
+    hub_offset_station: np.ndarray
+    cov_hub_offset: np.ndarray
 
 
 def wheel_rolls(results: list[Measurement], images: list[dict], models: dict[str, CameraModel],
@@ -69,7 +69,7 @@ def wheel_rolls(results: list[Measurement], images: list[dict], models: dict[str
     forward = np.asarray(results[-1].alignment_frame["R_station_align"])[:, 1]
     seen = {w: _follow(w, results, linear, models, config, forward) for w in WHEELS}
     radius = _car_rolling_radius(seen)
-    rolls = {}
+    spins, turns, own = {}, {}, {}
     for w, f in seen.items():
         theta = _turns(w, f, radius)
         _check_travel(w, f.poses, forward)
@@ -78,16 +78,16 @@ def wheel_rolls(results: list[Measurement], images: list[dict], models: dict[str
                                f"(at least {MIN_ROLL_DEG:.0f} needed to find its spin axis)",
                                hint=f"roll the car about {ROLL_DISTANCE_M * 100:.0f} cm each way when asked")
         cov = np.array([normal_covariance(r, w, config) for r in results])
-        spin = fit_spin_axis(np.array([p.axis_station for p in f.poses]), theta, cov, f.poses[-1].radius_m)
+        spins[w] = fit_spin_axis(np.array([p.axis_station for p in f.poses]), theta, cov, f.poses[-1].radius_m)
         turned = np.abs(theta) > np.radians(MIN_ROLL_DEG / 2)
-        own = float(np.median(-SIDE[w] * f.travel[turned] / theta[turned])) if turned.any() else float("nan")
-        rolls[w] = WheelRoll(spin, np.degrees(theta), own, f.depth)
-    _check_slip(rolls)
+        own[w] = float(np.median(-SIDE[w] * f.travel[turned] / theta[turned])) if turned.any() else float("nan")
+        turns[w] = theta
+    _check_slip(own)
     hubs = hub_centers(np.array([[p.center_station for p in seen[w].poses] for w in WHEELS]),
-                       np.radians([rolls[w].roll_deg for w in WHEELS]),
-                       np.array([rolls[w].spin.axis_station for w in WHEELS]), forward)
-    return {w: replace(rolls[w], hub_offset_station=hubs.offset_station[i], cov_hub_offset=hubs.cov_offset[i])
-            for i, w in enumerate(WHEELS)}
+                       np.array([turns[w] for w in WHEELS]), np.array([spins[w].axis_station for w in WHEELS]),
+                       forward)
+    return {w: WheelRoll(spins[w], np.degrees(turns[w]), own[w], seen[w].depth, hubs.offset_station[i],
+                         hubs.cov_offset[i]) for i, w in enumerate(WHEELS)}
 
 
 @dataclass(frozen=True)
@@ -211,9 +211,10 @@ def _check_travel(wheel: str, poses: list[FacePose], forward: np.ndarray) -> Non
                                hint="roll the car straight along the runways, steering straight ahead, and start again")
 
 
-def _check_slip(rolls: dict[str, WheelRoll]) -> None:
-    """WheelSlipped when a wheel's rolling radius is off the car's median (the four roll together)."""
-    radii = {w: r.rolling_radius_m for w, r in rolls.items() if np.isfinite(r.rolling_radius_m)}
+def _check_slip(rolling_radius_m: dict[str, float]) -> None:
+    """WheelSlipped when a wheel's rolling radius (m, NaN when it hardly turned) is off the car's
+    median (the four roll together)."""
+    radii = {w: r for w, r in rolling_radius_m.items() if np.isfinite(r)}
     if len(radii) < 3:
         return
     median = float(np.median(list(radii.values())))

@@ -33,7 +33,7 @@ from station.records.atomic_file import write_text_atomic
 from station.result import Measurement, WarningFlag
 from station.rim.camera_response import linear_images
 from station.wheel.rim_pattern import FacePose, angular_profile, ring_basis, rotation_between
-from station.wheel.runout import SpinAxis, rotate
+from station.wheel.runout import SpinAxis, rotation_matrix
 
 FORMAT = 1
 MAX_TRAVEL_M = 2 * ROLL_DISTANCE_M  # a car rolled farther since is measured with --compensate again
@@ -169,7 +169,7 @@ def apply_kept_runout_to(config: StationConfig, result: Measurement, images: dic
                                     np.asarray(c.cov_axis, float) + unseen_axis_covariance(
                                         result.observations[w], pose.axis_station, config))
         # the lip centre's offset from the hub turns with the wheel, as its tilt does
-        R = rotate(spins[w].axis_station, np.full(3, turn), np.eye(3)).T
+        R = rotation_matrix(spins[w].axis_station, turn)
         hubs[w] = (R @ k.hub_offset_station_m, R @ k.cov_hub_offset @ R.T)
     out = with_spin_axes(result, spins, config, hubs)
     out.warnings.append(f"runout compensated with the runout kept for job {kept.job_id!r} "

@@ -33,13 +33,12 @@ from station.wheel.runout import rotate
 class HubCenters:
     """Each wheel's hub centre (W,3) at the reference capture, its lip centre's offset from it
     (W,3) and that offset's covariance (W,3,3) m^2; the car's travel at each other capture
-    (K-1,) m along ``forward``; the fit's residual RMS (m)."""
+    (K-1,) m along ``forward``."""
 
     center_station: np.ndarray
     offset_station: np.ndarray
     cov_offset: np.ndarray
     travel_m: np.ndarray
-    residual_rms_m: float
 
 
 def hub_centers(centers: np.ndarray, turns_rad: np.ndarray, axes: np.ndarray, forward: np.ndarray) -> HubCenters:
@@ -70,5 +69,4 @@ def hub_centers(centers: np.ndarray, turns_rad: np.ndarray, axes: np.ndarray, fo
     cov_coef = np.array([cov_x[n_travel + 2 * w:n_travel + 2 * w + 2, n_travel + 2 * w:n_travel + 2 * w + 2]
                          for w in range(W)])
     cov_offset = basis @ cov_coef @ basis.transpose(0, 2, 1)
-    return HubCenters(centers[:, -1] - offset, offset, cov_offset, x[:n_travel],
-                      float(np.sqrt(np.mean(residual ** 2))))
+    return HubCenters(centers[:, -1] - offset, offset, cov_offset, x[:n_travel])

@@ -48,6 +48,11 @@ def rotate(axis: np.ndarray, angles_rad: np.ndarray, vectors: np.ndarray) -> np.
     return v * c + np.cross(a, v) * s + np.outer(v @ a, a) * (1 - c)
 
 
+def rotation_matrix(axis: np.ndarray, angle_rad: float) -> np.ndarray:
+    """(3,3) rotation by ``angle_rad`` about the unit ``axis`` (3,) (Rodrigues)."""
+    return rotate(axis, np.full(3, angle_rad), np.eye(3)).T
+
+
 def _residuals(p: np.ndarray, normals: np.ndarray, angles: np.ndarray, basis, whiten: np.ndarray) -> np.ndarray:
     """(2K,) the normals less the model's, across each normal, whitened by its covariance:
     p = (axis offsets (2), normal-at-zero offsets (2)); whiten (K,2,3)."""

@@ -26,7 +26,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from station.wheel.rim_pattern import ring_basis
-from station.wheel.runout import rotate
+from station.wheel.runout import rotation_matrix
 from station.wheel.uncertainty import axis_basis, normal_from
 
 
@@ -53,11 +53,6 @@ def body_frames(normals: np.ndarray, psi_rad: np.ndarray) -> np.ndarray:
         f = np.cos(psi) * e1 + np.sin(psi) * e2
         out.append(np.stack([f, np.cross(a, f), a], axis=1))
     return np.array(out)
-
-
-def rotation_matrix(axis: np.ndarray, angle_rad: float) -> np.ndarray:
-    """(3,3) rotation by ``angle_rad`` about the unit ``axis`` (3,) (Rodrigues)."""
-    return rotate(axis, np.full(3, angle_rad), np.eye(3)).T
 
 
 def rotation_vector(R: np.ndarray) -> np.ndarray:
