@@ -213,13 +213,13 @@ def scenario_sync8(fakes: FakeCameras, cycles: str = "10") -> dict:
         fakes.start(f"127.0.0.{i}")
     cams = open_station_cameras(config)
     out["serials"] = [c.identity().serial for c in cams.values()]
-    times, ramps, lost = [], True, 0
+    times, ramps, lost = [], True, []
     for _ in range(int(cycles)):
         t = time.monotonic()
         try:
             frames = capture_cycle(cams, config.capture.timeout_s)
-        except CODED_ERRORS:
-            lost += 1
+        except CODED_ERRORS as e:
+            lost.append(f"{type(e).__name__} after {time.monotonic() - t:.2f} s: {e}")
             continue
         times.append(time.monotonic() - t)
         ramps &= all(ramp_ok(f.image) for f in frames.values())

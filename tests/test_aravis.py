@@ -85,7 +85,7 @@ def test_opening_eight_reports_every_missing_camera_once():
 def test_synchronised_capture_of_eight_emulated_cameras():
     r = probe("sync8", 8, "10")
     assert r["serials"] == [f"FAKE{i}" for i in range(2, 10)]
-    assert r["lost"] == 0 and len(r["times"]) == 10 and r["ramps"]
+    assert r["lost"] == [] and len(r["times"]) == 10 and r["ramps"]
     assert max(r["times"]) < 3.0
     assert r["replay_identical"]
     drop = r["drop"]

@@ -131,6 +131,34 @@ def test_stale_and_repeated_frames_are_refused(config, world):
     assert set(e.value.failures) == {"cam2", "cam4"}
 
 
+def test_a_set_lost_to_one_corrupt_buffer_is_taken_again(config, world, caplog):
+    class Lossy(Camera):  # the first buffer arrives damaged (packet loss), the next ones whole
+        def _open(self): self.n = 0
+        def _grab(self, timeout_s):
+            self.n += 1
+            if self.n == 1:
+                raise FrameError(f"{self.camera_id}: corrupt buffer from 10.0.0.3 (missing packets)")
+            return Frame(self.camera_id, np.full((30, 40), 7, np.uint8), time.monotonic_ns(), self.n)
+
+    cams = open_station_cameras(config, SimulatedStation(world).context())
+    cams["cam3"] = Lossy("cam3", "x://", cams["cam1"].settings).open()
+    frames = capture_cycle(cams, 3.0)
+    assert list(frames) == IDS and frames["cam3"].frame_id == 2
+    assert "corrupt buffer" in caplog.text and "taking the set again" in caplog.text
+    cams["cam5"] = _Silent("cam5", "y://", cams["cam1"].settings).open()
+    t = time.monotonic()
+    with pytest.raises(CameraTimeout):  # a silent camera is not retried: one deadline
+        capture_cycle(cams, 0.5)
+    assert time.monotonic() - t < 1.2
+
+
+class _Silent(Camera):
+    def _open(self): pass
+    def _grab(self, timeout_s):
+        time.sleep(timeout_s)
+        raise CameraTimeout(f"{self.camera_id}: no frame within {timeout_s:.3g} s")
+
+
 def test_opening_fails_once_listing_every_camera(tmp_path, world):
     uris = {"cam2": f"replay://{tmp_path / 'nowhere'}", "cam5": "v4l2:///dev/video98"}
     config = station_config(tmp_path, uris)

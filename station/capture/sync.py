@@ -9,7 +9,9 @@ concurrently within ONE deadline. Timestamps are checked (no frame older than th
 none after the deadline, no repeated frame, optional skew limit). A missing, late or broken
 camera fails the cycle with one error naming every such camera; the frames that did arrive
 ride on the error (``e.frames``) so ``capture_and_save`` (station/capture/saving.py) can keep
-them: nothing is lost. With ``capture.frames_averaged`` N > 1 a cycle takes N such sets and
+them: nothing is lost. A set in which every failure is a damaged frame (a corrupt buffer from
+packet loss, a stale or repeated frame: the cameras answered) is taken again once, all cameras
+together, before the cycle fails. With ``capture.frames_averaged`` N > 1 a cycle takes N such sets and
 keeps each camera's mean (``capture_averaged``, station/capture/frame_average.py).
 """
 
@@ -97,6 +99,20 @@ def board_line(cam_id: str, cam: Camera) -> int | None:
 def capture_cycle(cameras: dict[str, Camera], timeout_s: float, trigger_board=None,
                   max_skew_s: float | None = None) -> dict[str, Frame]:
     """One synchronised set: {camera id: Frame}, or one error naming every failed camera.
+
+    A set lost only to damaged frames (FrameError: the cameras answered) is taken again once,
+    with its own deadline; a missing or silent camera fails at once.
+    """
+    try:
+        return capture_set(cameras, timeout_s, trigger_board, max_skew_s)
+    except FrameError as e:
+        log.warning("capture: %s; taking the set again", e)
+    return capture_set(cameras, timeout_s, trigger_board, max_skew_s)
+
+
+def capture_set(cameras: dict[str, Camera], timeout_s: float, trigger_board=None,
+                max_skew_s: float | None = None) -> dict[str, Frame]:
+    """One synchronised set, one attempt: {camera id: Frame}, or one error naming every failed camera.
 
     Every wait shares one deadline, ``timeout_s`` from the call. With ``trigger_board`` (a
     drivers.trigger_board.TriggerBoard) the board fires once after every camera is armed;
