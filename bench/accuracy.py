@@ -108,28 +108,31 @@ def _reason(code: int | None, cycle: bool) -> str:
     return f"{code} {names.get(code, 'error')}" + (", cycle" if cycle else "")
 
 
-def _refused_and_silent(result: Measurement, truth: dict) -> tuple[dict[str, str], list[str], int]:
-    """({refused wheel: reason}, [silently wrong wheels], wheels judged) of one cycle. A failure
-    404 refuses the wheels it names; any other failure the whole cycle (its four wheels). A
-    wheel not refused is silently wrong when its toe or camber error exceeds 3 times its stated
-    std and no warning flag names it."""
+def _refused_and_silent(result: Measurement, truth: dict) -> tuple[dict[str, str], list[str], int, list[str]]:
+    """({refused wheel: reason}, [silently wrong wheels], wheels judged, [withheld wrong wheels])
+    of one cycle. A failure 404 refuses the wheels it names; any other failure the whole cycle
+    (its four wheels). A wheel of a valid cycle is silently wrong when its toe or camber error
+    exceeds 3 times its stated std and no warning flag names it. A refused cycle reports no
+    angle at all (its JSON has no wheels), so the wheels a 404 does not name are not judged; those
+    beyond 3 stated are listed apart as withheld."""
     refused: dict[str, str] = {}
     if not result.valid:
         f = result.failure
         if f is not None and f.code == WHEEL_UNCERTAIN and f.wheel:
             refused = {w.strip(): _reason(f.code, False) for w in f.wheel.split(",")}
         else:
-            return {w: _reason(f.code if f is not None else None, True) for w in WHEELS}, [], 0
-    errs = _wheel_errors(result, truth)
-    silent = []
-    for w, (e_toe, e_camber) in errs.items():
+            return {w: _reason(f.code if f is not None else None, True) for w in WHEELS}, [], 0, []
+    beyond = []
+    for w, (e_toe, e_camber) in _wheel_errors(result, truth).items():
         if w in refused:
             continue
         r = result.wheels[w]
         if ((abs(e_toe) > 3 * r.toe_std_deg or abs(e_camber) > 3 * r.camber_std_deg)
                 and not any(f.wheel == w for f in result.warning_flags)):
-            silent.append(w)
-    return refused, silent, len([w for w in errs if w not in refused])
+            beyond.append(w)
+    if not result.valid:
+        return refused, [], 0, beyond
+    return refused, beyond, len(WHEELS), []
 
 
 def _stated(result: Measurement) -> dict[str, float]:
@@ -178,7 +181,7 @@ def run(config, cameras_by_source: dict, n: int, scenario: str, seed0: int, meth
     sigma, dark, albedo = SCENARIOS[scenario]
     world = SimWorld.from_config(config, noise_sigma=sigma, gain_override={dark: 0.8} if dark else None)
     rows = {(src, m): {"err": [], "std": [], "failed": 0, "time": [], "warnings": Counter(), "captures": [],
-                       "refused": Counter(), "silent": [], "judged": 0}
+                       "refused": Counter(), "silent": [], "judged": 0, "withheld": []}
             for src in cameras_by_source for m in methods}
     first = (next(iter(cameras_by_source)), methods[0])
     config = outside_envelope.configured(scenario, config)
@@ -201,9 +204,10 @@ def run(config, cameras_by_source: dict, n: int, scenario: str, seed0: int, meth
                                      calibration_cov=(covariance_by_source or {}).get(src))
                 rows[(src, m)]["time"].append(time.perf_counter() - t0)
                 res.add_truth(truth)
-                refused, silent, judged = _refused_and_silent(res, truth)
+                refused, silent, judged, withheld = _refused_and_silent(res, truth)
                 rows[(src, m)]["refused"].update(refused.values())
                 rows[(src, m)]["silent"] += [f"{seed}:{w}" for w in silent]
+                rows[(src, m)]["withheld"] += [f"{seed}:{w}" for w in withheld]
                 rows[(src, m)]["judged"] += judged
                 if not res.valid:
                     rows[(src, m)]["failed"] += 1
@@ -340,7 +344,8 @@ def print_table(scenario: str, rows: dict, n: int) -> None:
         refused = sum(r["refused"].values())
         reasons = "; ".join(f"{k}: {v}" for k, v in r["refused"].most_common()) or "-"
         print(f"\nrefused, {src}/{m}: {refused} of {4 * n} wheels ({reasons}); silent wrong (> 3 stated, no warning): "
-              f"{len(r['silent'])} of {r['judged']} wheels judged" + (f" ({', '.join(r['silent'])})" if r["silent"] else ""))
+              f"{len(r['silent'])} of {r['judged']} wheels of valid cycles" + (f" ({', '.join(r['silent'])})" if r["silent"] else "")
+              + (f"; beyond 3 stated but withheld with their refused cycle: {', '.join(r['withheld'])}" if r["withheld"] else ""))
     print_reliability(rows)
     print_repeatability(rows)
     times = [t for r in rows.values() for t in r["time"]]

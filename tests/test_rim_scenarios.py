@@ -231,7 +231,7 @@ def test_the_accuracy_bench_measures_a_scenario_end_to_end(station, capsys):
     rows = accuracy.run(cfg, {"truth": world.cameras}, 1, "brake-dust", SEED, ["circle"])
     r = rows[("truth", "circle")]
     assert r["failed"] + len(r["err"]) == 1
-    assert sum(r["refused"].values()) + r["judged"] == 4 and len(r["silent"]) <= r["judged"]
+    assert r["judged"] == 4 * len(r["err"]) and len(r["silent"]) <= r["judged"]  # wheels of valid cycles only
     if r["err"]:
         assert max(abs(r["err"][0][f"{w}.{a}"]) for w in ("FL", "FR", "RL", "RR") for a in ("toe", "camber")) < 0.5
     accuracy.print_table("brake-dust", rows, 1)
@@ -248,10 +248,13 @@ def test_refused_and_silently_wrong_wheels_are_told_apart():
     res = Measurement("s", valid=False, failure=Failure(404, "wheel uncertain", wheel="FL,RR"))
     for w, toe in (("FL", 0.5), ("FR", 0.1), ("RL", 0.2), ("RR", 0.1)):
         res.wheels[w] = WheelResult(toe_deg=toe, camber_deg=0.0, toe_std_deg=0.01, camber_std_deg=0.01)
-    refused, silent, judged = _refused_and_silent(res, truth)
-    assert set(refused) == {"FL", "RR"} and silent == ["RL"] and judged == 2     # RL: 0.1 off, 10 stated
+    refused, silent, judged, withheld = _refused_and_silent(res, truth)
+    # the refused cycle reports no angle: RL (0.1 off, 10 stated) is withheld with it, not silent
+    assert set(refused) == {"FL", "RR"} and silent == [] and judged == 0 and withheld == ["RL"]
+    res.valid, res.failure = True, None                                          # the same wheels reported
+    assert _refused_and_silent(res, truth) == ({}, ["FL", "RL"], 4, [])
     res.warning_flags.append(WarningFlag("uncertain", "RL"))
-    assert _refused_and_silent(res, truth)[1] == []
+    assert _refused_and_silent(res, truth)[1] == ["FL"]
     other = Measurement("s", valid=False, failure=Failure(401, "cam1: no closed rim contour"))
-    refused, silent, judged = _refused_and_silent(other, truth)
+    refused, silent, judged, withheld = _refused_and_silent(other, truth)
     assert refused == {w: "401 RimNotFound, cycle" for w in ("FL", "FR", "RL", "RR")} and judged == 0
