@@ -19,11 +19,14 @@ wheel's physical structure is there round it, and refuses, naming what it saw, o
    bordered by paint, not rubber); and the band ends: somewhere between 1.2 and 1.9 times the
    rim's size the light rises again by ``MIN_STEP`` on ``MIN_OUTSIDE_SHARE`` of the turn (the
    tyre's outline on its far side; a dark blob or the body's shadow has no such end).
-4. **Nesting**: a candidate inside a larger one that passes (the hub, a hubcap's ring, the
-   disc inside the lip) is not the rim.
-5. **The sub-pixel lip edge** by the station's refinement (``detector._refine``) at full
+4. **The sub-pixel lip edge** by the station's refinement (``detector._refine``) at full
    resolution; it must hold on ``MIN_COVERAGE`` of the perimeter and stay on the candidate,
    and the structure must hold again round the refined ellipse.
+5. **Nesting**: a candidate inside a larger one that passed steps 2-3 (the hub, a hubcap's
+   ring, the disc or the lip's inner edge) is not the rim, unless the larger one's own lip
+   edge came out as this very ellipse (one rim found twice: the larger was the lip and the
+   tyre's bead together). Judged after step 4, so that a larger candidate whose edge moved
+   onto the rim does not hide it.
 
 Of the wheels that pass, the largest (the nearest, the most pixels) is returned;
 ``details["other_wheels"]`` counts the rest. Two different accepted ellipses on one wheel
@@ -159,24 +162,33 @@ def detect_in_photo(image: np.ndarray, camera_id: str = ""):
             passed.append({**c, **st, "score": st["dark"] * c["cover"]})
         else:
             refused.append((c, why, 0 if st is None else 1))
-    # the hub, a hubcap's ring, the disc: inside a larger candidate that passed
-    rims = [c for c in passed if not any(o is not c and o["ellipse"].axes_px[0] > 1.15 * c["ellipse"].axes_px[0]
-                                         and o["ellipse"].radius_ratio(c["ellipse"].center_px[None])[0] < 0.5
-                                         for o in passed)]
-    rims.sort(key=lambda c: -c["score"])
+    passed.sort(key=lambda c: -c["score"])
     accepted = []
-    for c in rims[:MAX_REFINED]:
+    for c in passed[:MAX_REFINED]:
         e_full = c["ellipse"].scaled(s)
         try:
             det = _refined(grey, e_full, camera_id)
         except RimNotFound as ex:
             refused.append((c, f"no sub-pixel lip edge ({str(ex).split(': ', 1)[-1]})", 2))
             continue
+        c["refined"] = det.ellipse
         why = _after_refinement(det, e_full, L, s, rubber_level)
         if why is None:
             accepted.append((det, c))
         else:
             refused.append((c, why, 2))
+    # the hub, a hubcap's ring, the disc, the lip's inner edge: inside a larger candidate with
+    # the tyre round it, unless that one's lip edge is this very ellipse (one rim found twice)
+    kept = []
+    for det, c in accepted:
+        o = next((o for o in passed if _nested(det.ellipse, o["ellipse"].scaled(s))
+                  and not ("refined" in o and pc._same(o["refined"], det.ellipse, SAME_RIM))), None)
+        if o is None:
+            kept.append((det, c))
+        else:
+            refused.append((c, f"inside a larger candidate with a tyre round it ({_where(o['ellipse'].scaled(s))}; "
+                               "a hub, a disc or the lip's inner edge)", 3))
+    accepted = kept
     if not accepted:
         if not refused:
             raise RimNotFound(f"{tag}: no rim taken", hint="photograph the wheel from nearer its front")
@@ -195,6 +207,11 @@ def detect_in_photo(image: np.ndarray, camera_id: str = ""):
     det.details.update({"path": "photo", "dark_share": c["dark"], "outside_share": c["outside"],
                         "support": c["support"], "other_wheels": int(others)})
     return det
+
+
+def _nested(e: Ellipse, o: Ellipse) -> bool:
+    """``e`` lies inside the larger ``o``: centre within half of ``o``, ``o`` 15 % larger."""
+    return bool(o.axes_px[0] > 1.15 * e.axes_px[0] and o.radius_ratio(e.center_px[None])[0] < 0.5)
 
 
 def _after_refinement(det, e: Ellipse, L: np.ndarray, s: int, rubber_level: float) -> str | None:
