@@ -3,6 +3,8 @@ upright wheel in clutter is found on its lip; a lamp in a grey body, a lone dark
 tyre without a rim), a wheel too oblique or too small are refused with the reason; bad input
 is a message. Synthetic images only (CI has no photographs)."""
 
+from dataclasses import replace
+
 import cv2
 import numpy as np
 import pytest
@@ -11,7 +13,7 @@ from station.cli import main
 from station.errors import ImageError, RimNotFound
 from station.rim import photo_candidates as pc
 from station.rim.ellipse import Ellipse
-from station.rim.photo_search import detect_in_photo, geometry_verdict
+from station.rim.photo_search import _after_refinement, detect_in_photo, geometry_verdict, hidden_by
 from tests.synthetic_wheel import WheelSpec, render_wheel
 
 UPRIGHT = np.pi / 2  # major axis along the image's vertical: a wheel standing on the ground
@@ -88,6 +90,30 @@ def test_a_lying_ellipse_is_not_an_upright_wheel():
     assert geometry_verdict(Ellipse((0, 0), (200, 180), 0.0)) is None  # near-frontal: any axis
     assert geometry_verdict(Ellipse((0, 0), (40, 20), UPRIGHT)).startswith("too small")
     assert geometry_verdict(Ellipse((0, 0), (200, 30), UPRIGHT)).startswith("too oblique")
+
+
+def test_a_contour_pieced_from_several_curves_is_not_a_lip():
+    """The lip edge of a synthetic wheel lies on one ellipse to tenths of a pixel; the same
+    refinement with its points a pixel and a half off their ellipse (spokes' ends, the lip's
+    arcs) is refused, the rest unchanged."""
+    img, _ = _steep_wheel(seed=7)
+    det = detect_in_photo(img, camera_id="smooth")
+    assert det.point_sigma_px < 0.5
+    L, s = pc.search_image(img.astype(np.float32))
+    rubber = float(np.percentile(L, 35))
+    assert _after_refinement(det, det.ellipse, L, s, rubber) is None
+    rough = replace(det, point_sigma_px=1.5)
+    assert _after_refinement(rough, det.ellipse, L, s, rubber).startswith("not one smooth contour")
+
+
+def test_nesting_is_judged_on_the_larger_candidates_lip_edge():
+    rim = Ellipse((400, 300), (200, 60), UPRIGHT)
+    disc = Ellipse((402, 300), (150, 45), UPRIGHT)             # the disc inside the lip
+    lamp = Ellipse((800, 300), (50, 48), UPRIGHT)
+    assert hidden_by(disc, [(rim, rim)]) is rim                 # inside a rim: not the rim
+    assert hidden_by(disc, [(rim, None)]) is rim                # inside a wheel whose lip was not found
+    assert hidden_by(rim, [(Ellipse((400, 300), (240, 75), UPRIGHT), rim)]) is None  # one rim found twice
+    assert hidden_by(lamp, [(rim, rim)]) is None                # elsewhere in the photo
 
 
 def test_the_candidates_follow_a_bright_region_outline_at_several_levels():

@@ -50,6 +50,9 @@ MIN_DARK_SHARE = 0.5      # of the turn: rubber just outside the lip (under the 
 MIN_OUTSIDE_SHARE = 0.25  # of the turn: brighter again beyond the tyre (its far side's outline)
 RUBBER_PERCENTILE = 35.0  # the tyre band's median light at most this percentile of the photo's
 MIN_COVERAGE = 0.5        # the sub-pixel lip edge on this share of the perimeter
+MAX_EDGE_RMS_PX = 1.0     # the lip edge's points off their ellipse (robust rms): a turned lip is one
+#                           smooth curve, its edge scatters by tenths of a pixel; a contour pieced from
+#                           spokes' ends, the lip's arcs and lettering scatters by a pixel or more
 SAME_RIM = 0.1            # centre / axes within this share of a: the same ellipse
 MAX_REFINED = 6           # candidates refined, best first
 REFINE_SCALES = (1,)      # the lip edge refined at these downscales (adding 2: 31 of 61 photos, 4 wrong)
@@ -180,13 +183,13 @@ def detect_in_photo(image: np.ndarray, camera_id: str = ""):
     # the hub, a hubcap's ring, the disc, the lip's inner edge: inside a larger candidate with
     # the tyre round it, unless that one's lip edge is this very ellipse (one rim found twice)
     kept = []
+    larger = [(o["ellipse"].scaled(s), o.get("refined")) for o in passed]
     for det, c in accepted:
-        o = next((o for o in passed if _nested(det.ellipse, o["ellipse"].scaled(s))
-                  and not ("refined" in o and pc._same(o["refined"], det.ellipse, SAME_RIM))), None)
+        o = hidden_by(det.ellipse, larger)
         if o is None:
             kept.append((det, c))
         else:
-            refused.append((c, f"inside a larger candidate with a tyre round it ({_where(o['ellipse'].scaled(s))}; "
+            refused.append((c, f"inside a larger candidate with a tyre round it ({_where(o)}; "
                                "a hub, a disc or the lip's inner edge)", 3))
     accepted = kept
     if not accepted:
@@ -214,6 +217,16 @@ def _nested(e: Ellipse, o: Ellipse) -> bool:
     return bool(o.axes_px[0] > 1.15 * e.axes_px[0] and o.radius_ratio(e.center_px[None])[0] < 0.5)
 
 
+def hidden_by(e: Ellipse, larger: list) -> Ellipse | None:
+    """The candidate (of ``larger``: (candidate ellipse, its refined lip edge or None), all
+    with the tyre round them) that ``e``, a refined rim, lies inside, or None. A larger
+    candidate whose own lip edge came out as ``e`` is the same rim, not an outer one."""
+    for o, refined in larger:
+        if _nested(e, o) and not (refined is not None and pc._same(refined, e, SAME_RIM)):
+            return o
+    return None
+
+
 def _after_refinement(det, e: Ellipse, L: np.ndarray, s: int, rubber_level: float) -> str | None:
     """Why a refined candidate is not the rim, or None: the edge left the candidate, holds on
     too little of it, or the tyre's structure fails round the refined ellipse."""
@@ -221,5 +234,8 @@ def _after_refinement(det, e: Ellipse, L: np.ndarray, s: int, rubber_level: floa
         return f"the sub-pixel edge left the candidate (now {_where(det.ellipse)})"
     if det.coverage < MIN_COVERAGE:
         return f"no closed rim contour (sub-pixel edge on {det.coverage:.0%} of the perimeter)"
+    if det.point_sigma_px > MAX_EDGE_RMS_PX:
+        return (f"not one smooth contour (the edge points lie {det.point_sigma_px:.1f} px rms off their ellipse "
+                f"> {MAX_EDGE_RMS_PX:.1f})")
     why = geometry_verdict(det.ellipse)
     return why or structure_verdict(structure(L, det.ellipse.scaled(1 / s), rubber_level))
