@@ -55,7 +55,7 @@ MAX_EDGE_RMS_PX = 1.0     # the lip edge's points off their ellipse (robust rms)
 #                           spokes' ends, the lip's arcs and lettering scatters by a pixel or more
 SAME_RIM = 0.1            # centre / axes within this share of a: the same ellipse
 MAX_REFINED = 6           # candidates refined, best first
-REFINE_SCALES = (1,)      # the lip edge refined at these downscales (adding 2: 31 of 61 photos, 4 wrong)
+REFINE_SCALES = (1, 2)    # the lip edge refined at these downscales, the better coverage kept (a blurred edge)
 
 RHOS = np.round(np.arange(0.80, 1.905, 0.02), 2)   # (R,) the concentric ellipses sampled
 LIP = (RHOS >= 0.86) & (RHOS <= 0.96)
