@@ -55,7 +55,7 @@ MAX_EDGE_RMS_PX = 1.0     # the lip edge's points off their ellipse (robust rms)
 #                           spokes' ends, the lip's arcs and lettering scatters by a pixel or more
 SAME_RIM = 0.1            # centre / axes within this share of a: the same ellipse
 MAX_REFINED = 6           # candidates refined, best first
-REFINE_SCALES = (1, 2)    # the lip edge refined at these downscales, the better coverage kept (a blurred edge)
+REFINE_SCALES = (1, 2, 3)   # the lip edge refined at these downscales, the better coverage kept (a blurred edge)
 
 RHOS = np.round(np.arange(0.80, 1.905, 0.02), 2)   # (R,) the concentric ellipses sampled
 LIP = (RHOS >= 0.86) & (RHOS <= 0.96)
@@ -112,15 +112,17 @@ def structure_verdict(st: dict) -> str | None:
     return None
 
 
-def _refined(grey: np.ndarray, e: Ellipse, camera_id: str):
+def _refined(grey: np.ndarray, e: Ellipse, camera_id: str, verdict):
     """The station's sub-pixel lip edge along ``e`` (photograph px), on the photograph
     downscaled by each of ``REFINE_SCALES`` (a photograph's edge may be blurred over more
-    pixels than the edge model's windows reach): the one covering most of the rim, as a
-    RimDetection in photograph px; RimNotFound if none holds."""
+    pixels than the edge model's windows reach), each judged by ``verdict`` (RimDetection ->
+    why not, or None): (the passing one covering most of the rim, None), else (the one
+    covering most, why), as a RimDetection in photograph px; RimNotFound if none holds. A
+    coarser scale replaces a finer one only when it covers 5 % more of the perimeter."""
     from station.rim.detector import _Clock, _refine, _rescaled, _result
     from station.rim.preprocess import PixelMap, downscale
 
-    best, error = None, None
+    results, error = [], None
     for r in REFINE_SCALES:
         clock = _Clock()
         fit, samples, mask, blur = _refine(downscale(grey, r), e.scaled(1 / r), PixelMap(None))
@@ -131,10 +133,14 @@ def _refined(grey: np.ndarray, e: Ellipse, camera_id: str):
             error = ex
             continue
         det = _rescaled(det, r) if r > 1 else det
-        if best is None or det.coverage > best.coverage + 0.05:
-            best = det
-    if best is None:
+        results.append((det, verdict(det)))
+    if not results:
         raise error
+    pool = [t for t in results if t[1] is None] or results
+    best = pool[0]
+    for t in pool[1:]:  # finest first
+        if t[0].coverage > best[0].coverage + 0.05:
+            best = t
     return best
 
 
@@ -170,12 +176,11 @@ def detect_in_photo(image: np.ndarray, camera_id: str = ""):
     for c in passed[:MAX_REFINED]:
         e_full = c["ellipse"].scaled(s)
         try:
-            det = _refined(grey, e_full, camera_id)
+            det, why = _refined(grey, e_full, camera_id, lambda d: _after_refinement(d, e_full, L, s, rubber_level))
         except RimNotFound as ex:
             refused.append((c, f"no sub-pixel lip edge ({str(ex).split(': ', 1)[-1]})", 2))
             continue
         c["refined"] = det.ellipse
-        why = _after_refinement(det, e_full, L, s, rubber_level)
         if why is None:
             accepted.append((det, c))
         else:
