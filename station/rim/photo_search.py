@@ -54,8 +54,11 @@ MAX_EDGE_RMS_PX = 1.0     # the lip edge's points off their ellipse (robust rms)
 #                           smooth curve, its edge scatters by tenths of a pixel; a contour pieced from
 #                           spokes' ends, the lip's arcs and lettering scatters by a pixel or more
 SAME_RIM = 0.1            # centre / axes within this share of a: the same ellipse
+MAX_EDGE_MOVE = 0.2       # the lip edge may move this share of a off its candidate: a region's outline at
+#                           one grey level lies inside the lip where it is shaded; the refined ellipse is
+#                           judged again in full, this keeps the edge on the same wheel
 MAX_REFINED = 6           # candidates refined, best first
-REFINE_SCALES = (1, 2, 3)   # the lip edge refined at these downscales, the better coverage kept (a blurred edge)
+REFINE_SCALES = (1, 2, 3) # the lip edge refined at these downscales (a blurred edge), see _refined
 
 RHOS = np.round(np.arange(0.80, 1.905, 0.02), 2)   # (R,) the concentric ellipses sampled
 LIP = (RHOS >= 0.86) & (RHOS <= 0.96)
@@ -235,7 +238,7 @@ def hidden_by(e: Ellipse, larger: list) -> Ellipse | None:
 def _after_refinement(det, e: Ellipse, L: np.ndarray, s: int, rubber_level: float) -> str | None:
     """Why a refined candidate is not the rim, or None: the edge left the candidate, holds on
     too little of it, or the tyre's structure fails round the refined ellipse."""
-    if not pc._same(e, det.ellipse, SAME_RIM):
+    if not pc._same(e, det.ellipse, MAX_EDGE_MOVE):
         return f"the sub-pixel edge left the candidate (now {_where(det.ellipse)})"
     if det.coverage < MIN_COVERAGE:
         return f"no closed rim contour (sub-pixel edge on {det.coverage:.0%} of the perimeter)"
