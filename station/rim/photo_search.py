@@ -19,9 +19,11 @@ wheel's physical structure is there round it, and refuses, naming what it saw, o
    bordered by paint, not rubber); and the band ends: somewhere between 1.2 and 1.9 times the
    rim's size the light rises again by ``MIN_STEP`` on ``MIN_OUTSIDE_SHARE`` of the turn (the
    tyre's outline on its far side; a dark blob or the body's shadow has no such end).
-4. **The sub-pixel lip edge** by the station's refinement (``detector._refine``) at full
-   resolution; it must hold on ``MIN_COVERAGE`` of the perimeter and stay on the candidate,
-   and the structure must hold again round the refined ellipse.
+4. **The sub-pixel lip edge** by the station's refinement (``detector._refine``) at each of
+   ``REFINE_SCALES``; it must hold on ``MIN_COVERAGE`` of the perimeter, stay within
+   ``MAX_EDGE_MOVE`` of the candidate, be one smooth curve (its points within
+   ``MAX_EDGE_RMS_PX`` rms of their ellipse: a contour pieced from spokes' ends and arcs of
+   the lip is not), and the geometry and the tyre must hold again round the refined ellipse.
 5. **Nesting**: a candidate inside a larger one that passed steps 2-3 (the hub, a hubcap's
    ring, the disc or the lip's inner edge) is not the rim, unless the larger one's own lip
    edge came out as this very ellipse (one rim found twice: the larger was the lip and the
