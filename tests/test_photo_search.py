@@ -87,7 +87,8 @@ def test_a_too_oblique_wheel_is_refused_and_said_so():
 def test_a_lying_ellipse_is_not_an_upright_wheel():
     assert geometry_verdict(Ellipse((0, 0), (200, 60), 0.0)).startswith("not upright")
     assert geometry_verdict(Ellipse((0, 0), (200, 60), UPRIGHT + 0.2)) is None
-    assert geometry_verdict(Ellipse((0, 0), (200, 180), 0.0)) is None  # near-frontal: any axis
+    assert geometry_verdict(Ellipse((0, 0), (200, 130), 0.0)).startswith("not upright")
+    assert geometry_verdict(Ellipse((0, 0), (200, 180), UPRIGHT)).startswith("near-frontal")  # a round lamp too
     assert geometry_verdict(Ellipse((0, 0), (40, 20), UPRIGHT)).startswith("too small")
     assert geometry_verdict(Ellipse((0, 0), (200, 30), UPRIGHT)).startswith("too oblique")
 

@@ -9,8 +9,9 @@ wheel's physical structure is there round it, and refuses, naming what it saw, o
    follows over most of its turn, at several grey levels of a log-light search image.
 2. **Geometry of a wheel.** A wheel stands upright on the ground: seen from the side its
    major axis is near the image's vertical (``MAX_TILT_DEG``, room for camera roll and
-   pitch). Steeper than ``MIN_AXIS_RATIO`` the lip is a sliver ("too oblique"); a rim under
-   ``MIN_RIM_PX`` across is "too small".
+   pitch). Nearer round than ``MAX_AXIS_RATIO`` that cannot be told ("near-frontal": the
+   station's search is for those views); steeper than ``MIN_AXIS_RATIO`` the lip is a sliver
+   ("too oblique"); a rim under ``MIN_RIM_PX`` across is "too small".
 3. **The tyre's structure** on the candidate's concentric similar ellipses (``structure``):
    black rubber just outside the lip, a light ratio of at least ``MIN_STEP`` (2x) darker than
    the lip on ``MIN_DARK_SHARE`` of the turn (a disc seen between spokes, a grille, a hub
@@ -45,7 +46,9 @@ from station.rim.ellipse import Ellipse
 
 MIN_AXIS_RATIO = 0.2      # b/a: steeper views leave a semi-minor axis of a few search pixels
 MAX_TILT_DEG = 30.0       # the major axis off the image's vertical (upright wheel, level-ish camera)
-TILT_FREE_RATIO = 0.7     # above this b/a the axis direction is ill-defined and not tested
+MAX_AXIS_RATIO = 0.7      # b/a: nearer round the major axis's direction, hence upright, cannot be told;
+#                           a round lamp in a dark bezel then has all of a wheel's structure this search
+#                           tests (near-frontal views are the station search's, detector.detect_rim)
 MIN_RIM_PX = 100.0        # rim height 2a (photograph px)
 MIN_STEP = np.log(2.0)    # a light ratio of 2: rubber against metal or paint
 MIN_DARK_SHARE = 0.5      # of the turn: rubber just outside the lip (under the arch the metal mirrors the shadow)
@@ -99,7 +102,10 @@ def geometry_verdict(e: Ellipse) -> str | None:
     if b / a < MIN_AXIS_RATIO:
         return f"too oblique (b/a {b / a:.2f} < {MIN_AXIS_RATIO})"
     tilt = 90.0 - abs(np.degrees(e.angle_rad))
-    if b / a < TILT_FREE_RATIO and tilt > MAX_TILT_DEG:
+    if b / a >= MAX_AXIS_RATIO:
+        return (f"near-frontal (b/a {b / a:.2f} >= {MAX_AXIS_RATIO}: whether it stands upright cannot be told, "
+                "a round lamp looks the same; --search station is made for near-frontal views)")
+    if tilt > MAX_TILT_DEG:
         return f"not upright (major axis {tilt:.0f} deg off the vertical)"
     return None
 
