@@ -114,10 +114,12 @@ def judge(ellipse: Ellipse, wheels: list[Wheel]) -> tuple[str, list[float]]:
 def reason_of(message: str) -> str:
     """The kind of a refusal: the sentence after the photo's name, without its figures."""
     text = message.split(": ", 1)[-1]
-    return re.split(r"[(:]", text, 1)[0].strip()
+    if "; the best candidate" in text:  # the photo search: what its best candidate was refused for
+        text = text.rsplit(": ", 1)[-1]
+    return re.split(r"[(:]", text, maxsplit=1)[0].strip()
 
 
-def run_photo(image_path: Path, wheels: list[Wheel], gamma: float | None = None) -> Outcome:
+def run_photo(image_path: Path, wheels: list[Wheel], gamma: float | None = None, search: str = "station") -> Outcome:
     name = image_path.name
     try:
         image = read_image(image_path)
@@ -125,7 +127,7 @@ def run_photo(image_path: Path, wheels: list[Wheel], gamma: float | None = None)
         return Outcome(name, "refused", reason=reason_of(str(e)))
     t0 = time.perf_counter()
     try:
-        det = detect_photograph(image, default_gamma(image_path) if gamma is None else gamma, name)
+        det = detect_photograph(image, default_gamma(image_path) if gamma is None else gamma, name, search=search)
     except StationError as e:
         return Outcome(name, "refused", time.perf_counter() - t0, reason_of(str(e)))
     seconds = time.perf_counter() - t0
@@ -171,6 +173,7 @@ def main(argv=None) -> int:
     ap.add_argument("--split", choices=("all", "dev", "held"), default="all")
     ap.add_argument("--only", nargs="*", help="photo names (without .jpg) to run")
     ap.add_argument("--response-gamma", type=float, help="as station detect's (default: 0.45 for a JPEG)")
+    ap.add_argument("--search", choices=("station", "photo"), default="station", help="as station detect's")
     ap.add_argument("--per-photo", action="store_true", help="one line per photo")
     ap.add_argument("--json", type=Path, help="write every outcome and the summaries here")
     args = ap.parse_args(argv)
@@ -185,7 +188,8 @@ def main(argv=None) -> int:
         images = [p for p in images if p.stem in set(args.only)]
     outcomes = []
     for p in images:
-        r = run_photo(p, load_wheels(args.data / "annotations" / f"{p.stem}.json"), args.response_gamma)
+        r = run_photo(p, load_wheels(args.data / "annotations" / f"{p.stem}.json"), args.response_gamma,
+                      args.search)
         outcomes.append(r)
         if args.per_photo:
             extra = r.reason if r.status == "refused" else (

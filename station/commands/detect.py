@@ -20,6 +20,10 @@ def add_arguments(parser):
     parser.add_argument("--json", metavar="PATH", help="write the detection as JSON to PATH ('-': stdout)")
     parser.add_argument("--draw", metavar="OUT.png", type=drawing_path,
                         help="draw the rim ellipse and its edge points on the image (.png, .jpg, .bmp, .tif, ...)")
+    parser.add_argument("--search", choices=("station", "photo"), default="station",
+                        help="station (default): the station's own search, as station measure runs it on its cameras' "
+                             "near-frontal views; photo (experimental): a wheel in a street photograph, steep side "
+                             "views and clutter (docs/rim-detection.md, 'Photographs'; it can still take a wrong object)")
     parser.add_argument("--equalization", choices=("clahe", "global", "none"), default="clahe",
                         help="equalisation before Canny: clahe (default), global (the paper's), none")
     parser.add_argument("--response-gamma", type=float, default=None, metavar="G",
@@ -109,11 +113,18 @@ def default_gamma(path: str | Path) -> float:
         return SRGB_GAMMA if f.read(len(JPEG_MAGIC)) == JPEG_MAGIC else 1.0
 
 
-def detect_photograph(image: np.ndarray, gamma: float, name: str = "", equalization: str = "clahe"):
+def detect_photograph(image: np.ndarray, gamma: float, name: str = "", equalization: str = "clahe",
+                      search: str = "station"):
     """What ``station detect`` runs on an image as read (``read_image``) whose grey levels are
-    light^``gamma``: the RimDetection, or RimNotFound / ImageError with the reason."""
+    light^``gamma``: the RimDetection, or RimNotFound / ImageError with the reason. ``search``:
+    "photo" (station.rim.photo_search: a wheel among other things, steep views) or "station"
+    (detect_rim, the station's search for its own cameras' views; ``equalization`` is its)."""
     from station.rim import detect_rim
     from station.rim.camera_response import linear
+    from station.rim.photo_search import detect_in_photo
+
+    if search == "photo":
+        return detect_in_photo(linear(image, gamma), camera_id=name)
 
     return detect_rim(linear(image, gamma), camera_id=name, equalization=equalization)
 
@@ -126,7 +137,7 @@ def run(args) -> int:
     image = read_image(args.image)
     if gamma is None:
         gamma = default_gamma(args.image)
-    det = detect_photograph(image, gamma, Path(args.image).name, args.equalization)
+    det = detect_photograph(image, gamma, Path(args.image).name, args.equalization, args.search)
     e = det.ellipse
     std = np.sqrt(np.maximum(np.diag(det.ellipse_cov), 0))
     print(f"rim ellipse in {args.image} ({image.shape[1]}x{image.shape[0]} px)")

@@ -1,0 +1,149 @@
+"""The photograph search (station/rim/photo_search.py, ``station detect --search photo``): a steep,
+upright wheel in clutter is found on its lip; a lamp in a grey body, a lone dark ellipse (a
+tyre without a rim), a wheel too oblique or too small are refused with the reason; bad input
+is a message. Synthetic images only (CI has no photographs)."""
+
+from dataclasses import replace
+
+import cv2
+import numpy as np
+import pytest
+
+from station.cli import main
+from station.errors import ImageError, RimNotFound
+from station.rim import photo_candidates as pc
+from station.rim.ellipse import Ellipse
+from station.rim.photo_search import _after_refinement, detect_in_photo, geometry_verdict, hidden_by
+from tests.synthetic_wheel import WheelSpec, render_wheel
+
+UPRIGHT = np.pi / 2  # major axis along the image's vertical: a wheel standing on the ground
+SHAPE = (700, 900)
+
+
+def _steep_wheel(seed=3, **kw):
+    spec = dict(axis_ratio=0.3, rim_a_px=200.0, center_px=(420.3, 340.6), angle_rad=UPRIGHT + 0.03,
+                tyre_scale=1.45, background_level=170.0, clutter=10, glare=False)
+    spec.update(kw)
+    return render_wheel(WheelSpec(**spec), shape=SHAPE, seed=seed)
+
+
+def _scene(level=170.0, seed=0):
+    """A light body with some clutter and no wheel: (H,W) float32."""
+    img, _ = render_wheel(WheelSpec(rim_a_px=1.0, tyre_scale=1.0, center_px=(-50, -50), background_level=level,
+                                    clutter=6, glare=False), shape=SHAPE, seed=seed)
+    return img.astype(np.float32)
+
+
+def test_steep_upright_wheel_in_clutter_is_found_on_its_lip():
+    img, truth = _steep_wheel()
+    det = detect_in_photo(img, camera_id="steep")
+    e = det.ellipse
+    assert det.details["path"] == "photo"
+    assert np.linalg.norm(e.center_px - truth.center_px) < 1.0
+    np.testing.assert_allclose(e.axes_px, truth.axes_px, atol=1.0)  # the lip, not the tyre (x1.45) nor the disc
+    assert np.mean(np.abs(e.distance(truth.points(90))[0])) < 0.7
+    assert det.coverage > 0.7
+
+
+def test_the_station_path_is_the_station_search():
+    from station.commands.detect import detect_photograph
+    from station.rim import detect_rim
+
+    img, _ = render_wheel(WheelSpec(axis_ratio=0.88, rim_a_px=200, center_px=(400.2, 300.6)), shape=(640, 800),
+                          seed=21)
+    a = detect_photograph(img, 1.0, "x", search="station")
+    b = detect_rim(img, camera_id="x")
+    np.testing.assert_array_equal(a.ellipse.params, b.ellipse.params)
+    np.testing.assert_array_equal(a.points_px, b.points_px)
+
+
+def test_a_bright_lamp_in_a_grey_body_is_refused():
+    img = _scene(110.0)
+    lamp = Ellipse((450, 350), (110, 70), UPRIGHT)  # upright, 220 px high: only the surroundings tell
+    rr = lamp.radius_ratio(np.stack(np.mgrid[0:SHAPE[0], 0:SHAPE[1]][::-1], -1).reshape(-1, 2)).reshape(SHAPE)
+    img[rr < 1] = 250.0
+    img = cv2.GaussianBlur(img, (0, 0), 1.0)
+    with pytest.raises(RimNotFound) as ex:
+        detect_in_photo(img, camera_id="lamp")
+    assert "no dark tyre" in str(ex.value) or "rubber" in str(ex.value)
+
+
+def test_a_lone_dark_ellipse_is_not_a_rim():
+    img = _scene(170.0)
+    tyre = Ellipse((450, 350), (260, 80), UPRIGHT)  # a tyre's outline with nothing bright inside
+    rr = tyre.radius_ratio(np.stack(np.mgrid[0:SHAPE[0], 0:SHAPE[1]][::-1], -1).reshape(-1, 2)).reshape(SHAPE)
+    img[rr < 1] = 25.0
+    with pytest.raises(RimNotFound):
+        detect_in_photo(cv2.GaussianBlur(img, (0, 0), 1.0), camera_id="tyre")
+
+
+def test_a_too_oblique_wheel_is_refused_and_said_so():
+    img, _ = _steep_wheel(axis_ratio=0.14)
+    with pytest.raises(RimNotFound) as ex:
+        detect_in_photo(img, camera_id="oblique")
+    assert "too oblique" in str(ex.value) or "no rim-like" in str(ex.value)
+
+
+def test_a_lying_ellipse_is_not_an_upright_wheel():
+    assert geometry_verdict(Ellipse((0, 0), (200, 60), 0.0)).startswith("not upright")
+    assert geometry_verdict(Ellipse((0, 0), (200, 60), UPRIGHT + 0.2)) is None
+    assert geometry_verdict(Ellipse((0, 0), (200, 130), 0.0)).startswith("not upright")
+    assert geometry_verdict(Ellipse((0, 0), (200, 180), UPRIGHT)).startswith("near-frontal")  # a round lamp too
+    assert geometry_verdict(Ellipse((0, 0), (40, 20), UPRIGHT)).startswith("too small")
+    assert geometry_verdict(Ellipse((0, 0), (200, 30), UPRIGHT)).startswith("too oblique")
+
+
+def test_a_contour_pieced_from_several_curves_is_not_a_lip():
+    """The lip edge of a synthetic wheel lies on one ellipse to tenths of a pixel; the same
+    refinement with its points a pixel and a half off their ellipse (spokes' ends, the lip's
+    arcs) is refused, the rest unchanged."""
+    img, _ = _steep_wheel(seed=7)
+    det = detect_in_photo(img, camera_id="smooth")
+    assert det.point_sigma_px < 0.5
+    L, s = pc.search_image(img.astype(np.float32))
+    rubber = float(np.percentile(L, 35))
+    assert _after_refinement(det, det.ellipse, L, s, rubber) is None
+    rough = replace(det, point_sigma_px=1.5)
+    assert _after_refinement(rough, det.ellipse, L, s, rubber).startswith("not one smooth contour")
+
+
+def test_nesting_is_judged_on_the_larger_candidates_lip_edge():
+    rim = Ellipse((400, 300), (200, 60), UPRIGHT)
+    disc = Ellipse((402, 300), (150, 45), UPRIGHT)             # the disc inside the lip
+    lamp = Ellipse((800, 300), (50, 48), UPRIGHT)
+    assert hidden_by(disc, [(rim, rim)]) is rim                 # inside a rim: not the rim
+    assert hidden_by(disc, [(rim, None)]) is rim                # inside a wheel whose lip was not found
+    assert hidden_by(rim, [(Ellipse((400, 300), (240, 75), UPRIGHT), rim)]) is None  # one rim found twice
+    assert hidden_by(lamp, [(rim, rim)]) is None                # elsewhere in the photo
+
+
+def test_the_candidates_follow_a_bright_region_outline_at_several_levels():
+    img, truth = _steep_wheel(seed=5)
+    L, s = pc.search_image(img.astype(np.float32))
+    assert s == 1 and L.dtype == np.float32
+    cands = pc.candidates(L, 40, 400, 0.16)
+    near = [c for c in cands if pc._same(c["ellipse"], truth, 0.05)]
+    assert near and near[0]["support"] >= 2 and near[0]["cover"] > 0.8
+
+
+def test_profile_reads_concentric_ellipses():
+    L = np.zeros((200, 200), np.float32)
+    L[:, 100:] = 1.0
+    P = pc.profile(L, Ellipse((100, 100), (50, 20), UPRIGHT), np.array([0.5, 1.0, 3.0]), n_angles=8)
+    assert P.shape == (3, 8)
+    assert np.isnan(P[2]).any() and np.isfinite(P[:2]).all()  # 3x the ellipse leaves the image
+
+
+@pytest.mark.parametrize("case", ["tiny", "corrupt"])
+def test_bad_input_is_a_message(tmp_path, capsys, case):
+    p = tmp_path / "x.png"
+    if case == "tiny":
+        cv2.imwrite(str(p), np.full((20, 30), 128, np.uint8))
+    else:
+        p.write_bytes(b"\x89PNG\r\n\x1a\n" + b"\x00" * 40)
+    code = main(["detect", str(p), "--search", "photo"])
+    err = capsys.readouterr().err
+    assert code != 0 and "Traceback" not in err
+    assert ("too small" in err) if case == "tiny" else ("truncated" in err or "not a readable" in err)
+    with pytest.raises((ImageError, RimNotFound)):
+        detect_in_photo(np.full((20, 30), 128, np.uint8))
