@@ -119,7 +119,7 @@ def reason_of(message: str) -> str:
     return re.split(r"[(:]", text, maxsplit=1)[0].strip()
 
 
-def run_photo(image_path: Path, wheels: list[Wheel], gamma: float | None = None, search: str = "station") -> Outcome:
+def run_photo(image_path: Path, wheels: list[Wheel], gamma: float | None = None, search: str = "auto") -> Outcome:
     name = image_path.name
     try:
         image = read_image(image_path)
@@ -173,7 +173,7 @@ def main(argv=None) -> int:
     ap.add_argument("--split", choices=("all", "dev", "held"), default="all")
     ap.add_argument("--only", nargs="*", help="photo names (without .jpg) to run")
     ap.add_argument("--response-gamma", type=float, help="as station detect's (default: 0.45 for a JPEG)")
-    ap.add_argument("--search", choices=("station", "photo"), default="station", help="as station detect's")
+    ap.add_argument("--search", choices=("auto", "station", "photo"), default="auto", help="as station detect's")
     ap.add_argument("--per-photo", action="store_true", help="one line per photo")
     ap.add_argument("--json", type=Path, help="write every outcome and the summaries here")
     args = ap.parse_args(argv)

@@ -57,6 +57,29 @@ def test_the_station_path_is_the_station_search():
     np.testing.assert_array_equal(a.points_px, b.points_px)
 
 
+def test_station_detect_takes_the_station_search_first_then_the_photograph_search(tmp_path, capsys):
+    from station.commands.detect import detect_photograph
+
+    near, _ = render_wheel(WheelSpec(axis_ratio=0.88, rim_a_px=200, center_px=(400.2, 300.6)), shape=(640, 800),
+                           seed=21)
+    a = detect_photograph(near, 1.0, "x")                                   # auto, the default
+    assert a.details["search"] == "station"
+    np.testing.assert_array_equal(a.ellipse.params, detect_photograph(near, 1.0, "x", search="station").ellipse.params)
+    steep, truth = _steep_wheel()
+    with pytest.raises(RimNotFound):
+        detect_photograph(steep, 1.0, "steep", search="station")
+    b = detect_photograph(steep, 1.0, "steep")
+    assert b.details["search"] == "photo" and np.linalg.norm(b.ellipse.center_px - truth.center_px) < 1.0
+    p = tmp_path / "street.png"
+    cv2.imwrite(str(p), np.clip(steep, 0, 255).astype(np.uint8))
+    assert main(["detect", str(p)]) == 0
+    assert "search            photo" in capsys.readouterr().out
+    cv2.imwrite(str(p), np.clip(_scene(), 0, 255).astype(np.uint8))        # no wheel at all
+    assert main(["detect", str(p)]) != 0
+    err = capsys.readouterr().err
+    assert "The station's search:" in err and "the photograph search:" in err and "Traceback" not in err
+
+
 def test_a_bright_lamp_in_a_grey_body_is_refused():
     img = _scene(110.0)
     lamp = Ellipse((450, 350), (110, 70), UPRIGHT)  # upright, 220 px high: only the surroundings tell

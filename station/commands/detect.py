@@ -8,11 +8,12 @@ from pathlib import Path
 
 import numpy as np
 
-from station.errors import ImageError, StorageError
+from station.errors import ImageError, RimNotFound, StorageError
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 JPEG_MAGIC = b"\xff\xd8"
 SRGB_GAMMA = 0.45  # sRGB's curve, as one exponent
+SEARCHES = ("auto", "station", "photo")
 
 
 def add_arguments(parser):
@@ -20,10 +21,11 @@ def add_arguments(parser):
     parser.add_argument("--json", metavar="PATH", help="write the detection as JSON to PATH ('-': stdout)")
     parser.add_argument("--draw", metavar="OUT.png", type=drawing_path,
                         help="draw the rim ellipse and its edge points on the image (.png, .jpg, .bmp, .tif, ...)")
-    parser.add_argument("--search", choices=("station", "photo"), default="station",
-                        help="station (default): the station's own search, as station measure runs it on its cameras' "
-                             "near-frontal views; photo (experimental): a wheel in a street photograph, steep side "
-                             "views and clutter (docs/rim-detection.md, 'Photographs'; it can still take a wrong object)")
+    parser.add_argument("--search", choices=SEARCHES, default="auto",
+                        help="auto (default): the station's search, and where it finds no rim the photograph search; "
+                             "station: only the station's own search, as station measure runs it on its cameras' "
+                             "near-frontal views; photo: only the search for a wheel in a street photograph, steep "
+                             "side views among other things (docs/rim-detection.md, 'Photographs')")
     parser.add_argument("--equalization", choices=("clahe", "global", "none"), default="clahe",
                         help="equalisation before Canny: clahe (default), global (the paper's), none")
     parser.add_argument("--response-gamma", type=float, default=None, metavar="G",
@@ -114,19 +116,42 @@ def default_gamma(path: str | Path) -> float:
 
 
 def detect_photograph(image: np.ndarray, gamma: float, name: str = "", equalization: str = "clahe",
-                      search: str = "station"):
+                      search: str = "auto"):
     """What ``station detect`` runs on an image as read (``read_image``) whose grey levels are
-    light^``gamma``: the RimDetection, or RimNotFound / ImageError with the reason. ``search``:
-    "photo" (station.rim.photo_search: a wheel among other things, steep views) or "station"
-    (detect_rim, the station's search for its own cameras' views; ``equalization`` is its)."""
+    light^``gamma``: the RimDetection (``details["search"]`` names the search that found it), or
+    RimNotFound / ImageError with the reason. ``search``: "station" (detect_rim, the station's
+    search for its own cameras' near-frontal views; ``equalization`` is its), "photo"
+    (station.rim.photo_search: a wheel among other things, steep views), or "auto": the
+    station's, then, where it finds no rim, the photograph's; refused by both, the error gives
+    both reasons."""
     from station.rim import detect_rim
     from station.rim.camera_response import linear
     from station.rim.photo_search import detect_in_photo
 
+    light = linear(image, gamma)
     if search == "photo":
-        return detect_in_photo(linear(image, gamma), camera_id=name)
+        return _found_by("photo", detect_in_photo(light, camera_id=name))
+    try:
+        return _found_by("station", detect_rim(light, camera_id=name, equalization=equalization))
+    except RimNotFound as station_error:
+        if search == "station":
+            raise
+        try:
+            return _found_by("photo", detect_in_photo(light, camera_id=name))
+        except RimNotFound as photo_error:
+            raise RimNotFound(f"{name or 'image'}: no rim found. The station's search: {_reason(station_error, name)}; "
+                              f"the photograph search: {_reason(photo_error, name)}",
+                              hint=photo_error.hint or station_error.hint) from None
 
-    return detect_rim(linear(image, gamma), camera_id=name, equalization=equalization)
+
+def _found_by(search: str, det):
+    det.details["search"] = search
+    return det
+
+
+def _reason(error: Exception, name: str) -> str:
+    text = str(error)
+    return text[len(name) + 2:] if name and text.startswith(name + ": ") else text
 
 
 def run(args) -> int:
@@ -147,6 +172,7 @@ def run(args) -> int:
     print(f"  score         {det.score:9.3f}      edge points {len(det.points_px)}, "
           f"rms {det.point_sigma_px:.3f} px, coverage {det.coverage:.0%}")
     print(f"  edge blur     {det.details.get('blur_px', float('nan')):9.2f} px (Gaussian sigma of the rim edge)")
+    print(f"  search        {det.details.get('search', args.search):>9}      (--search: {args.search})")
     print(f"  grey response {gamma:9.2f}      (grey = light^{gamma:.2f}, undone; --response-gamma to change)")
     white = det.details.get("white_share", 0.0)
     if white > 0:
