@@ -60,8 +60,8 @@ def test_the_station_path_is_the_station_search():
 def test_station_detect_takes_the_station_search_first_then_the_photograph_search(tmp_path, capsys):
     from station.commands.detect import detect_photograph
 
-    near, _ = render_wheel(WheelSpec(axis_ratio=0.88, rim_a_px=200, center_px=(400.2, 300.6)), shape=(640, 800),
-                           seed=21)
+    near, _ = render_wheel(WheelSpec(axis_ratio=0.88, rim_a_px=200, center_px=(400.2, 300.6), angle_rad=UPRIGHT),
+                           shape=(640, 800), seed=21)
     a = detect_photograph(near, 1.0, "x")                                   # auto, the default
     assert a.details["search"] == "station"
     np.testing.assert_array_equal(a.ellipse.params, detect_photograph(near, 1.0, "x", search="station").ellipse.params)
@@ -78,6 +78,19 @@ def test_station_detect_takes_the_station_search_first_then_the_photograph_searc
     assert main(["detect", str(p)]) != 0
     err = capsys.readouterr().err
     assert "The station's search:" in err and "the photograph search:" in err and "Traceback" not in err
+
+
+def test_station_detect_refuses_an_oval_lying_on_its_side_found_by_the_station_search():
+    from station.commands.detect import detect_photograph
+
+    badge, _ = render_wheel(WheelSpec(axis_ratio=0.75, rim_a_px=200, center_px=(400.2, 300.6), angle_rad=0.0),
+                            shape=(640, 800), seed=21)                       # a car's badge, not a wheel
+    assert detect_photograph(badge, 1.0, "x", search="station").ellipse.axes_px[1] == pytest.approx(150, abs=1)
+    with pytest.raises(RimNotFound, match="lies on its side"):
+        detect_photograph(badge, 1.0, "x")
+    upright, _ = render_wheel(WheelSpec(axis_ratio=0.75, rim_a_px=200, center_px=(400.2, 300.6),
+                                        angle_rad=UPRIGHT), shape=(640, 800), seed=21)
+    assert detect_photograph(upright, 1.0, "x").details["search"] == "station"
 
 
 def test_a_bright_lamp_in_a_grey_body_is_refused():

@@ -132,7 +132,10 @@ def detect_photograph(image: np.ndarray, gamma: float, name: str = "", equalizat
     if search == "photo":
         return _found_by("photo", detect_in_photo(light, camera_id=name))
     try:
-        return _found_by("station", detect_rim(light, camera_id=name, equalization=equalization))
+        det = detect_rim(light, camera_id=name, equalization=equalization)
+        if search == "auto":
+            _stands_upright(det, name)
+        return _found_by("station", det)
     except RimNotFound as station_error:
         if search == "station":
             raise
@@ -142,6 +145,23 @@ def detect_photograph(image: np.ndarray, gamma: float, name: str = "", equalizat
             raise RimNotFound(f"{name or 'image'}: no rim found. The station's search: {_reason(station_error, name)}; "
                               f"the photograph search: {_reason(photo_error, name)}",
                               hint=photo_error.hint or station_error.hint) from None
+
+
+def _stands_upright(det, name: str) -> None:
+    """RimNotFound for an ellipse a standing wheel cannot make. A rim's circle lies in a vertical
+    plane: a camera beside it (a station's, a photographer's) sees its major axis near the
+    vertical (within photo_search.MAX_TILT_DEG, for roll), and one looking down on it by an angle
+    e sees the major axis level and b/a = cos e. With the same MAX_TILT_DEG allowed for looking
+    down, an oval flatter than cos(MAX_TILT_DEG) = 0.87 lying on its side is not a wheel seen by
+    a camera held about level: a badge, a lamp or a mirror."""
+    from station.rim.photo_search import MAX_TILT_DEG
+
+    a, b = det.ellipse.axes_px
+    tilt = 90.0 - abs(np.degrees(det.ellipse.angle_rad))
+    if b / a < np.cos(np.radians(MAX_TILT_DEG)) and tilt > MAX_TILT_DEG:
+        raise RimNotFound(f"{name or 'image'}: the ellipse found lies on its side (b/a {b / a:.2f}, major axis "
+                          f"{tilt:.0f} deg off the vertical): not a standing wheel seen by a camera held level",
+                          hint="a camera looking down on the wheel steeply: --search station")
 
 
 def _found_by(search: str, det):
