@@ -3,6 +3,7 @@
     .venv/bin/python bench/real_photos.py                     # all photos, markdown table
     .venv/bin/python bench/real_photos.py --split dev --per-photo
     .venv/bin/python bench/real_photos.py --data DIR --json out.json
+    .venv/bin/python bench/real_photos.py --perturb mirror       # or smaller, darker: as if other photos
 
 The photographs are read from ``../shared/data/real-wheels`` (``--data``; never copied into the
 repository): ``images/NAME.jpg`` and ``annotations/NAME.json`` with, per marked wheel, its box
@@ -119,12 +120,38 @@ def reason_of(message: str) -> str:
     return re.split(r"[(:]", text, maxsplit=1)[0].strip()
 
 
-def run_photo(image_path: Path, wheels: list[Wheel], gamma: float | None = None, search: str = "auto") -> Outcome:
+PERTURBATIONS = ("none", "mirror", "smaller", "darker")
+
+
+def perturbed(image: np.ndarray, wheels: list[Wheel], kind: str) -> tuple[np.ndarray, list[Wheel]]:
+    """The photograph and its marks changed as another photographer might have taken it:
+    ``mirror`` (left and right swapped: the car seen from its other side), ``smaller`` (0.7 of
+    the size: from farther away, some rims then under 100 px), ``darker`` (0.6 of the grey
+    levels: a shorter exposure, a dull day)."""
+    if kind == "mirror":
+        w = image.shape[1]
+        flip = [Wheel((w - 1 - x2, y1, w - 1 - x1, y2), np.column_stack([w - 1 - k[:, 0], k[:, 1]]) if len(k) else k,
+                      h) for (x1, y1, x2, y2), k, h in ((wh.box, wh.rim_points, wh.height_px) for wh in wheels)]
+        return np.ascontiguousarray(image[:, ::-1]), flip
+    if kind == "smaller":
+        import cv2
+
+        f = 0.7
+        return (cv2.resize(image, None, fx=f, fy=f, interpolation=cv2.INTER_AREA),
+                [Wheel(tuple(f * np.asarray(wh.box)), f * wh.rim_points, f * wh.height_px) for wh in wheels])
+    if kind == "darker":
+        return (0.6 * image.astype(np.float32)).round().astype(image.dtype), wheels
+    return image, wheels
+
+
+def run_photo(image_path: Path, wheels: list[Wheel], gamma: float | None = None, search: str = "auto",
+              perturbation: str = "none") -> Outcome:
     name = image_path.name
     try:
         image = read_image(image_path)
     except StationError as e:
         return Outcome(name, "refused", reason=reason_of(str(e)))
+    image, wheels = perturbed(image, wheels, perturbation)
     t0 = time.perf_counter()
     try:
         det = detect_photograph(image, default_gamma(image_path) if gamma is None else gamma, name, search=search)
@@ -174,6 +201,8 @@ def main(argv=None) -> int:
     ap.add_argument("--only", nargs="*", help="photo names (without .jpg) to run")
     ap.add_argument("--response-gamma", type=float, help="as station detect's (default: 0.45 for a JPEG)")
     ap.add_argument("--search", choices=("auto", "station", "photo"), default="auto", help="as station detect's")
+    ap.add_argument("--perturb", choices=PERTURBATIONS, default="none",
+                    help="each photo mirrored, smaller (0.7x) or darker (0.6x) first: does it hold on other photos?")
     ap.add_argument("--per-photo", action="store_true", help="one line per photo")
     ap.add_argument("--json", type=Path, help="write every outcome and the summaries here")
     args = ap.parse_args(argv)
@@ -189,7 +218,7 @@ def main(argv=None) -> int:
     outcomes = []
     for p in images:
         r = run_photo(p, load_wheels(args.data / "annotations" / f"{p.stem}.json"), args.response_gamma,
-                      args.search)
+                      args.search, args.perturb)
         outcomes.append(r)
         if args.per_photo:
             extra = r.reason if r.status == "refused" else (
