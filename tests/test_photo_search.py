@@ -158,7 +158,7 @@ def test_the_candidates_follow_a_bright_region_outline_at_several_levels():
     L, s = pc.search_image(img.astype(np.float32))
     assert s == 1 and L.dtype == np.float32
     cands = pc.candidates(L, 40, 400, 0.16)
-    near = [c for c in cands if pc._same(c["ellipse"], truth, 0.05)]
+    near = [c for c in cands if pc.same_ellipse(c["ellipse"], truth, 0.05)]
     assert near and near[0]["support"] >= 2 and near[0]["cover"] > 0.8
 
 

@@ -108,7 +108,7 @@ def candidates(L: np.ndarray, a_min: float, a_max: float, min_ratio: float) -> l
                 continue
             e, cover = got
             for f in found:  # the same ellipse at another level: one candidate
-                if _same(f["ellipse"], e, 0.08):
+                if same_ellipse(f["ellipse"], e, 0.08):
                     f["support"] += 1
                     if cover > f["cover"]:
                         f["ellipse"], f["cover"] = e, cover
@@ -119,7 +119,7 @@ def candidates(L: np.ndarray, a_min: float, a_max: float, min_ratio: float) -> l
     return found
 
 
-def _same(e: Ellipse, o: Ellipse, share: float) -> bool:
+def same_ellipse(e: Ellipse, o: Ellipse, share: float) -> bool:
     """Centres within ``share`` of the semi-major axis and sizes within that share."""
     a = max(e.axes_px[0], o.axes_px[0])
     return bool(np.linalg.norm(e.center_px - o.center_px) <= share * a

@@ -219,10 +219,10 @@ def detect_in_photo(image: np.ndarray, camera_id: str = ""):
     det, c = accepted[0]
     for d2, _ in accepted[1:]:  # a different ellipse over the same wheel: which is the lip is not known
         e, o = det.ellipse, d2.ellipse
-        if e.radius_ratio(o.center_px[None])[0] < 1.0 and not pc._same(e, o, SAME_RIM):
+        if e.radius_ratio(o.center_px[None])[0] < 1.0 and not pc.same_ellipse(e, o, SAME_RIM):
             raise RimNotFound(f"{tag}: several candidates on one wheel ({_where(e)}; {_where(o)})",
                               hint="photograph the wheel nearer its front or crop to it")
-    others = sum(not pc._same(det.ellipse, d2.ellipse, SAME_RIM) for d2, _ in accepted[1:])
+    others = sum(not pc.same_ellipse(det.ellipse, d2.ellipse, SAME_RIM) for d2, _ in accepted[1:])
     det.details.update({"path": "photo", "dark_share": c["dark"], "outside_share": c["outside"],
                         "support": c["support"], "other_wheels": int(others)})
     return det
@@ -238,7 +238,7 @@ def hidden_by(e: Ellipse, larger: list) -> Ellipse | None:
     with the tyre round them) that ``e``, a refined rim, lies inside, or None. A larger
     candidate whose own lip edge came out as ``e`` is the same rim, not an outer one."""
     for o, refined in larger:
-        if _nested(e, o) and not (refined is not None and pc._same(refined, e, SAME_RIM)):
+        if _nested(e, o) and not (refined is not None and pc.same_ellipse(refined, e, SAME_RIM)):
             return o
     return None
 
@@ -246,7 +246,7 @@ def hidden_by(e: Ellipse, larger: list) -> Ellipse | None:
 def _after_refinement(det, e: Ellipse, L: np.ndarray, s: int, rubber_level: float) -> str | None:
     """Why a refined candidate is not the rim, or None: the edge left the candidate, holds on
     too little of it, or the tyre's structure fails round the refined ellipse."""
-    if not pc._same(e, det.ellipse, MAX_EDGE_MOVE):
+    if not pc.same_ellipse(e, det.ellipse, MAX_EDGE_MOVE):
         return f"the sub-pixel edge left the candidate (now {_where(det.ellipse)})"
     if det.coverage < MIN_COVERAGE:
         return f"no closed rim contour (sub-pixel edge on {det.coverage:.0%} of the perimeter)"
