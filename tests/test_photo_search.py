@@ -3,6 +3,7 @@ upright wheel in clutter is found on its lip; a lamp in a grey body, a lone dark
 tyre without a rim), a wheel too oblique or too small are refused with the reason; bad input
 is a message. Synthetic images only (CI has no photographs)."""
 
+import json
 from dataclasses import replace
 
 import cv2
@@ -72,8 +73,9 @@ def test_station_detect_takes_the_station_search_first_then_the_photograph_searc
     assert b.details["search"] == "photo" and np.linalg.norm(b.ellipse.center_px - truth.center_px) < 1.0
     p = tmp_path / "street.png"
     cv2.imwrite(str(p), np.clip(steep, 0, 255).astype(np.uint8))
-    assert main(["detect", str(p)]) == 0
+    assert main(["detect", str(p), "--json", str(tmp_path / "d.json")]) == 0
     assert "search            photo" in capsys.readouterr().out
+    assert json.loads((tmp_path / "d.json").read_text())["search"] == "photo"
     cv2.imwrite(str(p), np.clip(_scene(), 0, 255).astype(np.uint8))        # no wheel at all
     assert main(["detect", str(p)]) != 0
     err = capsys.readouterr().err

@@ -200,7 +200,8 @@ def run(args) -> int:
               f"toward the tyre there; shorten the exposure")
     print(f"  time          {sum(det.timing_s.values()) * 1e3:9.1f} ms")
     if args.json:
-        doc = {"image": str(args.image), "width": int(image.shape[1]), "height": int(image.shape[0]), **det.to_dict()}
+        doc = {"image": str(args.image), "width": int(image.shape[1]), "height": int(image.shape[0]),
+               "search": det.details.get("search", args.search), **det.to_dict()}
         text = json.dumps(doc, indent=1)
         if args.json == "-":
             print(text)
