@@ -40,6 +40,13 @@ def user_message(error: CodedError) -> str:
     return text
 
 
+def sentence_without(subject: str, error: BaseException) -> str:
+    """The error's sentence without its leading ``"<subject>: "`` (a camera's or an image's
+    messages name it first), to quote after the subject is already named."""
+    text = str(error)
+    return text[len(subject) + 2:] if subject and text.startswith(subject + ": ") else text
+
+
 class IllegalCommand(StationError):
     """A command the sequencer's current state does not accept (code 2, station area)."""
 

@@ -25,7 +25,7 @@ from typing import Callable
 from drivers.base import Camera, Frame
 from drivers.errors import CameraMissing, CameraTimeout, DriverError, FrameError
 from station.capture.frame_average import averaged_frames
-from station.errors import CODED_ERRORS, CodedError
+from station.errors import CODED_ERRORS, CodedError, sentence_without
 
 log = logging.getLogger("station.capture")
 
@@ -47,18 +47,13 @@ def failure_error(what: str, failures: dict[str, BaseException], frames: dict | 
     else:
         cls = DriverError
     names = ", ".join(sorted(failures))
-    detail = "; ".join(f"{cid}: {_reason(cid, e)}" for cid, e in sorted(failures.items()))
+    detail = "; ".join(f"{cid}: {sentence_without(cid, e)}" for cid, e in sorted(failures.items()))
     hints = sorted({e.hint for e in failures.values() if getattr(e, "hint", None)})
     err = cls(f"{what} failed for {len(failures)} camera(s) ({names}): {detail}",
               hint="; ".join(hints) or None)
-    err.failures = {cid: _reason(cid, e) for cid, e in failures.items()}
+    err.failures = {cid: sentence_without(cid, e) for cid, e in failures.items()}
     err.frames = dict(frames or {})
     return err
-
-
-def _reason(cam_id: str, e: BaseException) -> str:
-    text = str(e)
-    return text[len(cam_id) + 2:] if text.startswith(cam_id + ": ") else text
 
 
 def run_parallel(items: dict[str, Callable[[], object]], deadline: float, what: str):

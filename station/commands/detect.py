@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from station.errors import ImageError, RimNotFound, StorageError
+from station.errors import ImageError, RimNotFound, StorageError, sentence_without
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 JPEG_MAGIC = b"\xff\xd8"
@@ -142,8 +142,8 @@ def detect_photograph(image: np.ndarray, gamma: float, name: str = "", equalizat
         try:
             return _found_by("photo", detect_in_photo(light, camera_id=name))
         except RimNotFound as photo_error:
-            raise RimNotFound(f"{name or 'image'}: no rim found. The station's search: {_reason(station_error, name)}; "
-                              f"the photograph search: {_reason(photo_error, name)}",
+            raise RimNotFound(f"{name or 'image'}: no rim found. The station's search: {sentence_without(name, station_error)}; "
+                              f"the photograph search: {sentence_without(name, photo_error)}",
                               hint=photo_error.hint or station_error.hint) from None
 
 
@@ -154,10 +154,10 @@ def _stands_upright(det, name: str) -> None:
     e sees the major axis level and b/a = cos e. With the same MAX_TILT_DEG allowed for looking
     down, an oval flatter than cos(MAX_TILT_DEG) = 0.87 lying on its side is not a wheel seen by
     a camera held about level: a badge, a lamp or a mirror."""
-    from station.rim.photo_search import MAX_TILT_DEG
+    from station.rim.photo_search import MAX_TILT_DEG, tilt_from_vertical_deg
 
     a, b = det.ellipse.axes_px
-    tilt = 90.0 - abs(np.degrees(det.ellipse.angle_rad))
+    tilt = tilt_from_vertical_deg(det.ellipse)
     if b / a < np.cos(np.radians(MAX_TILT_DEG)) and tilt > MAX_TILT_DEG:
         raise RimNotFound(f"{name or 'image'}: the ellipse found lies on its side (b/a {b / a:.2f}, major axis "
                           f"{tilt:.0f} deg off the vertical): not a standing wheel seen by a camera held level",
@@ -167,11 +167,6 @@ def _stands_upright(det, name: str) -> None:
 def _found_by(search: str, det):
     det.details["search"] = search
     return det
-
-
-def _reason(error: Exception, name: str) -> str:
-    text = str(error)
-    return text[len(name) + 2:] if name and text.startswith(name + ": ") else text
 
 
 def run(args) -> int:

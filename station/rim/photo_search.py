@@ -94,6 +94,11 @@ def _where(e: Ellipse) -> str:
             f"b/a {e.axes_px[1] / e.axes_px[0]:.2f}")
 
 
+def tilt_from_vertical_deg(e: Ellipse) -> float:
+    """The angle (deg, 0-90) between the ellipse's major axis and the image's vertical."""
+    return 90.0 - abs(np.degrees(e.angle_rad))
+
+
 def geometry_verdict(e: Ellipse) -> str | None:
     """Why an ellipse (photograph px) cannot be a measurable upright rim, or None."""
     a, b = e.axes_px
@@ -101,7 +106,7 @@ def geometry_verdict(e: Ellipse) -> str | None:
         return f"too small (rim {2 * a:.0f} px high < {MIN_RIM_PX:.0f})"
     if b / a < MIN_AXIS_RATIO:
         return f"too oblique (b/a {b / a:.2f} < {MIN_AXIS_RATIO})"
-    tilt = 90.0 - abs(np.degrees(e.angle_rad))
+    tilt = tilt_from_vertical_deg(e)
     if b / a >= MAX_AXIS_RATIO:
         return (f"near-frontal (b/a {b / a:.2f} >= {MAX_AXIS_RATIO}: whether it stands upright cannot be told, "
                 "a round lamp looks the same; --search station is made for near-frontal views)")
