@@ -3,7 +3,7 @@
     .venv/bin/python bench/real_photos.py                     # all photos, markdown table
     .venv/bin/python bench/real_photos.py --split dev --per-photo
     .venv/bin/python bench/real_photos.py --data DIR --json out.json
-    .venv/bin/python bench/real_photos.py --perturb mirror       # or smaller, darker: as if other photos
+    .venv/bin/python bench/real_photos.py --perturb mirror       # or smaller, darker, dark: as if other photos
 
 The photographs are read from ``../shared/data/real-wheels`` (``--data``; never copied into the
 repository): ``images/NAME.jpg`` and ``annotations/NAME.json`` with, per marked wheel, its box
@@ -120,14 +120,15 @@ def reason_of(message: str) -> str:
     return re.split(r"[(:]", text, maxsplit=1)[0].strip()
 
 
-PERTURBATIONS = ("none", "mirror", "smaller", "darker")
+PERTURBATIONS = ("none", "mirror", "smaller", "darker", "dark")
 
 
 def perturbed(image: np.ndarray, wheels: list[Wheel], kind: str) -> tuple[np.ndarray, list[Wheel]]:
     """The photograph and its marks changed as another photographer might have taken it:
     ``mirror`` (left and right swapped: the car seen from its other side), ``smaller`` (0.7 of
     the size: from farther away, some rims then under 100 px), ``darker`` (0.6 of the grey
-    levels: a shorter exposure, a dull day)."""
+    levels: a shorter exposure, a dull day), ``dark`` (0.15 of the grey levels: an sRGB photograph
+    some five stops under-exposed, its light about 2 % of the original's)."""
     if kind == "mirror":
         w = image.shape[1]
         flip = [Wheel((w - 1 - x2, y1, w - 1 - x1, y2), np.column_stack([w - 1 - k[:, 0], k[:, 1]]) if len(k) else k,
@@ -139,8 +140,9 @@ def perturbed(image: np.ndarray, wheels: list[Wheel], kind: str) -> tuple[np.nda
         f = 0.7
         return (cv2.resize(image, None, fx=f, fy=f, interpolation=cv2.INTER_AREA),
                 [Wheel(tuple(f * np.asarray(wh.box)), f * wh.rim_points, f * wh.height_px) for wh in wheels])
-    if kind == "darker":
-        return (0.6 * image.astype(np.float32)).round().astype(image.dtype), wheels
+    if kind in ("darker", "dark"):
+        f = 0.6 if kind == "darker" else 0.15
+        return (f * image.astype(np.float32)).round().astype(image.dtype), wheels
     return image, wheels
 
 

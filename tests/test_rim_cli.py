@@ -125,3 +125,25 @@ def test_an_srgb_photograph_is_measured_once_its_gamma_is_undone(tmp_path, capsy
     assert "edge blur" in capsys.readouterr().out
     assert main(["detect", str(tmp_path / "srgb.png"), "--response-gamma", "0"]) != 0
     assert "expected a value in [0.2, 5]" in capsys.readouterr().err
+
+
+def test_an_underexposed_photograph_is_measured_and_named_dark(tmp_path, capsys):
+    """An sRGB photograph whose brightest grey level is about 40 of 255 holds light of 2 % of
+    full scale: dark, not black. Its light is scaled up (still proportional to light) and the
+    rim found; a refusal on such a photograph says it is dark and what to do."""
+    img, truth = render_wheel(WheelSpec(axis_ratio=0.9, rim_a_px=220, center_px=(400.2, 300.6), blur_sigma_px=1.2),
+                              shape=(640, 800), seed=23)
+    encoded = np.round(255 * (0.02 * img.astype(float) / 255) ** 0.45).astype(np.uint8)
+    assert 30 <= np.percentile(encoded, 99.5) <= 50
+    cv2.imwrite(str(tmp_path / "dark.png"), encoded)
+    assert main(["detect", str(tmp_path / "dark.png"), "--response-gamma", "0.45", "--json", str(tmp_path / "d.json")]) == 0
+    doc = json.loads((tmp_path / "d.json").read_text())
+    np.testing.assert_allclose(doc["ellipse"]["center_px"], truth.center_px, atol=0.3)
+    np.testing.assert_allclose(doc["ellipse"]["axes_px"], truth.axes_px, atol=0.5)
+    capsys.readouterr()
+    flat = np.full((640, 800), 20, np.uint8)
+    flat[::7, :] = 40  # stripes: a dark photograph without a wheel
+    cv2.imwrite(str(tmp_path / "dark-nowheel.png"), flat)
+    assert main(["detect", str(tmp_path / "dark-nowheel.png"), "--response-gamma", "0.45"]) != 0
+    err = capsys.readouterr().err
+    assert "A dark photograph, its brightest grey level 40 of 255" in err and "longer exposure" in err

@@ -124,11 +124,23 @@ def detect_photograph(image: np.ndarray, gamma: float, name: str = "", equalizat
     (station.rim.photo_search: a wheel among other things, steep views), or "auto": the
     station's, then, where it finds no rim, the photograph's; refused by both, the error gives
     both reasons."""
-    from station.rim import detect_rim
     from station.rim.camera_response import linear
+
+    light, gain, brightest = _exposed(image, linear(image, gamma), name)
+    try:
+        return _with_gain(_searched(light, name, equalization, search), gain)
+    except RimNotFound as e:
+        if gain == 1.0:
+            raise
+        raise RimNotFound(f"{e.args[0]}. A dark photograph, its brightest grey level {brightest:.0f} of 255 "
+                          f"(its light was taken {gain:.0f}x brighter)",
+                          hint="photograph the wheel with a longer exposure or more light") from None
+
+
+def _searched(light: np.ndarray, name: str, equalization: str, search: str):
+    from station.rim import detect_rim
     from station.rim.photo_search import detect_in_photo
 
-    light = linear(image, gamma)
     if search == "photo":
         return _found_by("photo", detect_in_photo(light, camera_id=name))
     try:
@@ -145,6 +157,40 @@ def detect_photograph(image: np.ndarray, gamma: float, name: str = "", equalizat
             raise RimNotFound(f"{name or 'image'}: no rim found. The station's search: {sentence_without(name, station_error)}; "
                               f"the photograph search: {sentence_without(name, photo_error)}",
                               hint=photo_error.hint or station_error.hint) from None
+
+
+DARK_LIGHT_LEVEL = 12.0    # the light's brightest (99.5th percentile, of 255) under which the searches see a black image
+EXPOSED_LIGHT_LEVEL = 128.0  # a dark photograph's light is scaled to put its brightest here
+
+
+def _exposed(image: np.ndarray, light: np.ndarray, name: str) -> tuple[np.ndarray, float, float]:
+    """(light, gain, the photograph's brightest grey level of 255): a photograph is judged black,
+    saturated or flat in its own grey levels (the camera's encoding: an sRGB photograph whose
+    brightest level is 40 of 255 is dark, not black, though its light is 2 % of full scale);
+    light that dark is scaled up to EXPOSED_LIGHT_LEVEL (still proportional to light, so the
+    edge model holds; float, so no level is lost), gain 1 otherwise (the light as it was)."""
+    from station.rim.detector import _check_exposure
+    from station.rim.npfast import percentiles
+    from station.rim.preprocess import to_grey
+
+    grey = to_grey(image, name)
+    _check_exposure(grey, name or "image")
+    step = max(1, int(np.sqrt(grey.size / 20000)))
+    brightest = float(percentiles(grey[::step, ::step], [99.5])[0])
+    if light is image:
+        return light, 1.0, brightest
+    lit = to_grey(light, name)
+    hi = float(percentiles(lit[::step, ::step], [99.5])[0])
+    if hi >= DARK_LIGHT_LEVEL or hi <= 0:
+        return light, 1.0, brightest
+    gain = EXPOSED_LIGHT_LEVEL / hi
+    return np.minimum(lit * gain, 255.0).astype(np.float32), gain, brightest
+
+
+def _with_gain(det, gain: float):
+    if gain != 1.0:
+        det.details["exposure_gain"] = round(gain, 2)
+    return det
 
 
 def _stands_upright(det, name: str) -> None:
@@ -189,6 +235,8 @@ def run(args) -> int:
     print(f"  edge blur     {det.details.get('blur_px', float('nan')):9.2f} px (Gaussian sigma of the rim edge)")
     print(f"  search        {det.details.get('search', args.search):>9}      (--search: {args.search})")
     print(f"  grey response {gamma:9.2f}      (grey = light^{gamma:.2f}, undone; --response-gamma to change)")
+    if "exposure_gain" in det.details:
+        print(f"  exposure gain {det.details['exposure_gain']:9.1f}      (a dark photograph: its light taken this much brighter)")
     white = det.details.get("white_share", 0.0)
     if white > 0:
         print(f"  at the white  {white:9.0%}      of the rim edge reaches the sensor's white: the edge found lies "
