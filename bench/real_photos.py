@@ -3,7 +3,7 @@
     .venv/bin/python bench/real_photos.py                     # all photos, markdown table
     .venv/bin/python bench/real_photos.py --split dev --per-photo
     .venv/bin/python bench/real_photos.py --data DIR --json out.json
-    .venv/bin/python bench/real_photos.py --perturb mirror       # or smaller, darker, dark: as if other photos
+    .venv/bin/python bench/real_photos.py --perturb mirror       # or smaller, darker, dark, blurred: as if other photos
 
 The photographs are read from ``../shared/data/real-wheels`` (``--data``; never copied into the
 repository): ``images/NAME.jpg`` and ``annotations/NAME.json`` with, per marked wheel, its box
@@ -113,14 +113,16 @@ def judge(ellipse: Ellipse, wheels: list[Wheel]) -> tuple[str, list[float]]:
 
 
 def reason_of(message: str) -> str:
-    """The kind of a refusal: the sentence after the photo's name, without its figures."""
+    """The kind of a refusal: the sentence after the photo's name, without its figures, and
+    whether it names the photograph blurred or dark."""
     text = message.split(": ", 1)[-1]
     if "; the best candidate" in text:  # the photo search: what its best candidate was refused for
-        text = text.rsplit(": ", 1)[-1]
-    return re.split(r"[(:]", text, maxsplit=1)[0].strip()
+        text = text.split("; the photograph is blurred", 1)[0].split(". A dark photograph", 1)[0].rsplit(": ", 1)[-1]
+    named = [w for w, key in (("blurred", "the photograph is blurred"), ("dark", "A dark photograph")) if key in message]
+    return re.split(r"[(:]", text, maxsplit=1)[0].strip() + "".join(f", {w}" for w in named)
 
 
-PERTURBATIONS = ("none", "mirror", "smaller", "darker", "dark")
+PERTURBATIONS = ("none", "mirror", "smaller", "darker", "dark", "blurred")
 
 
 def perturbed(image: np.ndarray, wheels: list[Wheel], kind: str) -> tuple[np.ndarray, list[Wheel]]:
@@ -128,7 +130,8 @@ def perturbed(image: np.ndarray, wheels: list[Wheel], kind: str) -> tuple[np.nda
     ``mirror`` (left and right swapped: the car seen from its other side), ``smaller`` (0.7 of
     the size: from farther away, some rims then under 100 px), ``darker`` (0.6 of the grey
     levels: a shorter exposure, a dull day), ``dark`` (0.15 of the grey levels: an sRGB photograph
-    some five stops under-exposed, its light about 2 % of the original's)."""
+    some five stops under-exposed, its light about 2 % of the original's), ``blurred`` (a Gaussian
+    blur of 6 px: out of focus or shaken)."""
     if kind == "mirror":
         w = image.shape[1]
         flip = [Wheel((w - 1 - x2, y1, w - 1 - x1, y2), np.column_stack([w - 1 - k[:, 0], k[:, 1]]) if len(k) else k,
@@ -143,6 +146,10 @@ def perturbed(image: np.ndarray, wheels: list[Wheel], kind: str) -> tuple[np.nda
     if kind in ("darker", "dark"):
         f = 0.6 if kind == "darker" else 0.15
         return (f * image.astype(np.float32)).round().astype(image.dtype), wheels
+    if kind == "blurred":
+        import cv2
+
+        return cv2.GaussianBlur(image, (0, 0), 6.0), wheels
     return image, wheels
 
 

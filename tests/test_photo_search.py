@@ -185,3 +185,24 @@ def test_bad_input_is_a_message(tmp_path, capsys, case):
     assert ("too small" in err) if case == "tiny" else ("truncated" in err or "not a readable" in err)
     with pytest.raises((ImageError, RimNotFound)):
         detect_in_photo(np.full((20, 30), 128, np.uint8))
+
+
+@pytest.mark.parametrize("blur", [1.0, 6.0])
+def test_the_edge_blur_is_read_along_a_candidate(blur):
+    from station.rim.photo_search import BLURRED_PX, edge_blur_px
+
+    img, truth = _steep_wheel(blur_sigma_px=blur, noise_sigma=1.0)
+    found = edge_blur_px(img.astype(np.float32), truth)
+    if blur > BLURRED_PX:
+        assert abs(found - blur) < 0.2 * blur, found
+    else:  # read at 1/3 scale, a sharp edge comes out about 2 px
+        assert found < BLURRED_PX, found
+
+
+def test_a_refusal_on_a_blurred_photograph_says_so():
+    """A wheel blurred far beyond a sharp photograph's edges (sigma 9 px) is refused: the refusal
+    names the blur as well as what its best candidate lacked."""
+    img, _ = _steep_wheel(blur_sigma_px=9.0)
+    with pytest.raises(RimNotFound) as ex:
+        detect_in_photo(img, camera_id="soft")
+    assert "the photograph is blurred there (edge blur" in str(ex.value), ex.value

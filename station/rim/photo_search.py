@@ -64,6 +64,9 @@ MAX_EDGE_MOVE = 0.2       # the lip edge may move this share of a off its candid
 #                           judged again in full, this keeps the edge on the same wheel
 MAX_REFINED = 6           # candidates refined, best first
 REFINE_SCALES = (1, 2, 3) # the lip edge refined at these downscales (a blurred edge), see _refined
+BLURRED_PX = 4.0          # an edge blur (Gaussian sigma, photograph px) named "blurred" in a refusal: the
+#                           rims found in sharp street photographs are blurred by 0.6-2.4 px
+BLUR_SCALE = 3            # the downscale the blur is read at (its profiles then reach 12 px either side)
 
 RHOS = np.round(np.arange(0.80, 1.905, 0.02), 2)   # (R,) the concentric ellipses sampled
 LIP = (RHOS >= 0.86) & (RHOS <= 0.96)
@@ -218,6 +221,9 @@ def detect_in_photo(image: np.ndarray, camera_id: str = ""):
             raise RimNotFound(f"{tag}: no rim taken", hint="photograph the wheel from nearer its front")
         # the candidate that came furthest (geometry, tyre, lip edge), then the most stable
         c, why, _ = max(refused, key=lambda r: (r[2], r[0]["support"], r[0]["cover"]))
+        blur = edge_blur_px(grey, c["ellipse"].scaled(s))
+        if blur > BLURRED_PX:
+            why += f"; the photograph is blurred there (edge blur {blur:.1f} px > {BLURRED_PX:.0f})"
         raise RimNotFound(f"{tag}: no rim taken; the best candidate {_where(c['ellipse'].scaled(s))}: {why}",
                           hint="photograph the wheel in focus, from nearer its front, the rim 100 px or more high")
     accepted.sort(key=lambda t: -t[0].ellipse.axes_px[0])
@@ -231,6 +237,16 @@ def detect_in_photo(image: np.ndarray, camera_id: str = ""):
     det.details.update({"path": "photo", "dark_share": c["dark"], "outside_share": c["outside"],
                         "support": c["support"], "other_wheels": int(others)})
     return det
+
+
+def edge_blur_px(grey: np.ndarray, e: Ellipse) -> float:
+    """The blur (Gaussian sigma, photograph px) of the bright-inside edges along ``e``
+    (photograph px) in ``grey``, read at 1/``BLUR_SCALE``: NaN where none is found."""
+    from station.rim.preprocess import PixelMap, downscale
+    from station.rim.subpixel import edge_points
+
+    _, sigma = edge_points(downscale(grey, BLUR_SCALE), e.scaled(1 / BLUR_SCALE), PixelMap(None), n=256)
+    return float("nan") if sigma is None else BLUR_SCALE * float(sigma)
 
 
 def _nested(e: Ellipse, o: Ellipse) -> bool:
