@@ -14,6 +14,7 @@ from station.capture.frame_average import mean_image
 from station.errors import CarMovedSideways, RollTooShort, WheelSlipped
 from station.measure import measure_frames
 from station.procedures.runout import ROLL_PLAN, compensated, wheel_rolls
+from station.wheel.face_motion import MIN_POINTS as MIN_FACE_POINTS
 from station.wheel.rim_pattern import rotation_between
 from station.wheel.runout import fit_cone, fit_spin_axis, rotate
 from tests.station_fixtures import small_station_config
@@ -121,6 +122,7 @@ def test_rolling_finds_each_wheels_spin_axis_and_runout(tmp_path):
         spin = np.hypot(result.wheels[w].camber_deg - t["camber_deg"], result.wheels[w].toe_deg - t["toe_deg"])
         rim = np.hypot(results[-1].wheels[w].camber_deg - t["camber_deg"], results[-1].wheels[w].toe_deg - t["toe_deg"])
         assert spin < 0.05, (w, spin)
+        assert rolls[w].face_points >= MIN_FACE_POINTS, w  # the face's own motion joined the lip's
         if t["runout_deg"] >= 0.15:
             assert spin < 0.5 * rim, (w, spin, rim)  # the rim plane is off by its runout
         assert np.ptp(rolls[w].roll_deg) == pytest.approx(2 * np.degrees(0.15 / scene.vehicle.wheel.tyre_radius_m),

@@ -4,8 +4,10 @@ The car is rolled back and forward along the runways while the cameras take it a
 positions (``ROLL_PLAN``, the last where it started). At each capture every wheel's rim gives its
 3-D circle (the normal of its lip plane) and its face's angular profile; the profiles tell how far
 each wheel turned between the captures (station/wheel/rim_pattern.py), and the normals turned by
-those angles fix each wheel's spin axis (station/wheel/runout.py); the lip centres turning about
-the hubs fix where each hub is (station/wheel/hub_center.py). The result is the last capture's
+those angles fix each wheel's spin axis (station/wheel/runout.py), joined with the axis of the
+face's own rigid motion (station/wheel/face_motion.py: the lip's edge moves with the view, the
+face's points do not); the lip centres turning about the hubs fix where each hub is
+(station/wheel/hub_center.py). The result is the last capture's
 measurement with the spin axes in place of the rim normals and the car frame on the hubs, each
 wheel's runout beside.
 
@@ -31,6 +33,7 @@ from station.procedures.poses import face_pose, normal_covariance
 from station.result import Measurement, WarningFlag
 from station.rim.camera_response import linear_images
 from station.wheel.rim_pattern import FacePose, angular_profile, face_depth, rotation_between
+from station.wheel.face_motion import face_spin_axis, with_face
 from station.wheel.hub_center import hub_centers
 from station.wheel.runout import SpinAxis, fit_spin_axis
 
@@ -50,7 +53,8 @@ class WheelRoll:
     """One wheel over the captures: its spin axis fit, the turn at each capture (deg, relative to
     the last), its rolling radius (m, NaN when it hardly turned), its face's depth behind the lip,
     its lip centre's offset from its hub at the last capture (3,) m and that offset's (3,3)
-    covariance (station/wheel/hub_center.py)."""
+    covariance (station/wheel/hub_center.py); the face points whose motion joined the lip's spin
+    axis (station/wheel/face_motion.py; 0: the lip's alone)."""
 
     spin: SpinAxis
     roll_deg: np.ndarray
@@ -58,6 +62,7 @@ class WheelRoll:
     face_depth_m: float
     hub_offset_station: np.ndarray
     cov_hub_offset: np.ndarray
+    face_points: int = 0
 
 
 def wheel_rolls(results: list[Measurement], images: list[dict], models: dict[str, CameraModel],
@@ -69,7 +74,7 @@ def wheel_rolls(results: list[Measurement], images: list[dict], models: dict[str
     forward = np.asarray(results[-1].alignment_frame["R_station_align"])[:, 1]
     seen = {w: _follow(w, results, linear, models, config, forward) for w in WHEELS}
     radius = _car_rolling_radius(seen)
-    spins, turns, own = {}, {}, {}
+    spins, turns, own, face_points = {}, {}, {}, {}
     for w, f in seen.items():
         theta = _turns(w, f, radius)
         _check_travel(w, f.poses, forward)
@@ -79,6 +84,12 @@ def wheel_rolls(results: list[Measurement], images: list[dict], models: dict[str
                                hint=f"roll the car about {ROLL_DISTANCE_M * 100:.0f} cm each way when asked")
         cov = np.array([normal_covariance(r, w, config) for r in results])
         spins[w] = fit_spin_axis(np.array([p.axis_station for p in f.poses]), theta, cov, f.poses[-1].radius_m)
+        cams = (config.pairs[w].precision, config.pairs[w].reference)
+        face = face_spin_axis([(im[cams[0]], im[cams[1]]) for im in linear], (models[cams[0]], models[cams[1]]),
+                              f.poses, theta)
+        face_points[w] = 0 if face is None else face.points
+        if face is not None:
+            spins[w] = with_face(spins[w], face, f.poses[-1].radius_m)
         turned = np.abs(theta) > np.radians(MIN_ROLL_DEG / 2)
         own[w] = float(np.median(-SIDE[w] * f.travel[turned] / theta[turned])) if turned.any() else float("nan")
         turns[w] = theta
@@ -87,7 +98,7 @@ def wheel_rolls(results: list[Measurement], images: list[dict], models: dict[str
                        np.array([turns[w] for w in WHEELS]), np.array([spins[w].axis_station for w in WHEELS]),
                        forward)
     return {w: WheelRoll(spins[w], np.degrees(turns[w]), own[w], seen[w].depth, hubs.offset_station[i],
-                         hubs.cov_offset[i]) for i, w in enumerate(WHEELS)}
+                         hubs.cov_offset[i], face_points[w]) for i, w in enumerate(WHEELS)}
 
 
 @dataclass(frozen=True)

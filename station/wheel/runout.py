@@ -94,13 +94,22 @@ def fit_spin_axis(normals: np.ndarray, roll_rad: np.ndarray, cov_normals: np.nda
     a = normal_from(sol.x[:2], *basis)
     m = normal_from(sol.x[2:4], *basis)
     cov = np.full((3, 3), np.nan) if cov_n is None else _axis_covariance(sol, basis)
+    unweighted = _residuals(sol.x, n, theta, basis, _whitening(n, None))
+    misfit = float(np.degrees(np.sqrt(np.mean(unweighted ** 2) * 2)))
+    return spin_axis(a, cov, m, misfit, lip_radius_m)
+
+
+def spin_axis(axis: np.ndarray, cov_axis: np.ndarray, normal_at_zero: np.ndarray, misfit_deg: float,
+              lip_radius_m: float) -> SpinAxis:
+    """The SpinAxis of spin axis ``axis`` (3,) with its (3,3) covariance and the rim normal at
+    roll 0 (3,): the runout is the tilt between them."""
+    a, m = np.asarray(axis, float), np.asarray(normal_at_zero, float)
     tilt = float(np.arccos(np.clip(a @ m, -1.0, 1.0)))
     e1, e2 = ring_basis(m)
     toward = a - m * (a @ m)  # the spin axis seen from the rim's normal: the rim leans away from it
     phase = float(np.degrees(np.arctan2(-(toward @ e2), -(toward @ e1)))) % 360.0 if tilt > 0 else 0.0
-    unweighted = _residuals(sol.x, n, theta, basis, _whitening(n, None))
-    misfit = float(np.degrees(np.sqrt(np.mean(unweighted ** 2) * 2)))
-    return SpinAxis(a, cov, m, float(np.degrees(tilt)), phase, 2000.0 * lip_radius_m * np.sin(tilt), misfit)
+    return SpinAxis(a, np.asarray(cov_axis, float), m, float(np.degrees(tilt)), phase,
+                    2000.0 * lip_radius_m * np.sin(tilt), misfit_deg)
 
 
 def _axis_covariance(sol, basis) -> np.ndarray:
