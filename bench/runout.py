@@ -4,7 +4,8 @@ Every vehicle's four rims are tilted against their spin axes by U(0, --runout) d
 phase (simulators.vehicle.random_runout); the car is rolled along the procedure's plan
 (station.procedures.runout.ROLL_PLAN, --distance each way) and captured at each position (8-frame
 means, sensor noise sigma 2). Each capture is measured with the station's calibration; the
-procedure then finds every wheel's spin axis. Prints, against the spin-axis truth, the error of
+procedure then finds every wheel's spin axis (the lip normals' fit, joined with the face's own
+motion where the two agree). Prints, against the spin-axis truth, the error of
 toe, camber, total toe and thrust compensated and, on the same vehicles, of the last capture's
 rim-plane measurement; the runout's error; stated uncertainty against the observed error; the
 refused procedures; the computing time of the procedure (its captures' measurements and the fit).
@@ -102,7 +103,7 @@ def main() -> int:
         cams, cov = {c: calib.model(c) for c in config.cameras}, calib.pair_covariance
     frames = config.capture.frames_averaged if args.frames is None else args.frames
     comp_err, comp_std, rim_err, runout_err, failed, seconds = [], [], [], [], [], []
-    turn_err, frame_tilt = [], []
+    turn_err, frame_tilt, face_points = [], [], []
     for i in range(args.n):
         seed = args.seed + i
         base = world.vehicle_scene(seed)
@@ -138,6 +139,7 @@ def main() -> int:
         comp_std.append(stated(result))
         rim_err.append(errors(results[-1], truth))
         runout_err += [rolls[w].spin.runout_deg - truth["wheels"][w]["runout_deg"] for w in WHEELS]
+        face_points += [rolls[w].face_points for w in WHEELS]
         truths = [world.truth(replace(base, vehicle=replace(vehicle, roll_m=p * args.distance))) for p in ROLL_PLAN]
         turn_err += [rolls[w].roll_deg[k] - (truths[k]["wheels"][w]["roll_deg"] - truth["wheels"][w]["roll_deg"])
                      for w in WHEELS for k in range(len(ROLL_PLAN) - 1)]
@@ -169,6 +171,10 @@ def main() -> int:
         hub_tilt, lip_tilt = np.sqrt(np.mean(np.square(frame_tilt), axis=0))
         print(f"the car frame's up against the true up: {hub_tilt:.4f} deg RMS through the four hubs found "
               f"(compensated), {lip_tilt:.4f} through the lip centres (rim plane)")
+    if face_points:
+        fp = np.array(face_points)
+        print(f"the face's motion joined the lip's axis on {np.sum(fp > 0)} of {len(fp)} wheels "
+              f"(points followed: median {np.median(fp[fp > 0]) if np.any(fp > 0) else 0:.0f})")
     print(f"refused or failed procedures: {len(failed)} of {args.n}" + "".join(f"\n  - {f}" for f in failed))
     per_vehicle = np.sum(np.array(seconds).reshape(-1, len(ROLL_PLAN)), axis=1) if len(seconds) % len(ROLL_PLAN) == 0 else []
     if len(per_vehicle):

@@ -399,7 +399,7 @@ def _record(path: Path, station: Station, result: Measurement, images: dict, cyc
         for wheel, r in ((cycle and cycle.rolls) or {}).items():
             circles = [p.observations[wheel].circle for p in cycle.positions]
             rec.log_roll(wheel, [c.center_station for c in circles], [c.axis_station for c in circles],
-                         r.spin.axis_station, float(circles[-1].radius_m))
+                         r.spin.axis_station, float(circles[-1].radius_m), r.face_points)
         for wheel, sw in ((cycle and cycle.sweep) or {}).items():
             circles = [p.observations[wheel].circle for p in cycle.positions]
             rec.log_steering(wheel, [c.center_station for c in circles], [c.axis_station for c in circles],

@@ -6,9 +6,9 @@ covariances."""
 import numpy as np
 import pytest
 
-from station.wheel.face_motion import combined, joint_fit
+from station.wheel.face_motion import AGREEMENT_CHI2, FaceSpin, combined, joint_fit, with_face
 from station.wheel.face_points import rigid_fit, rigid_ransac
-from station.wheel.runout import rotation_matrix
+from station.wheel.runout import fit_spin_axis, rotation_matrix
 
 
 def _angle_deg(a, b):
@@ -87,3 +87,23 @@ def test_two_axes_join_by_their_covariances():
     assert c[2] == pytest.approx(0.8 * b[2] / b[0], rel=1e-3)
     assert cov[1, 1] == pytest.approx(0.8e-8, rel=1e-3) and cov[2, 2] == pytest.approx(0.8e-8, rel=1e-3)
     assert np.linalg.norm(c) == pytest.approx(1.0)
+
+
+def test_a_face_axis_that_disagrees_with_the_lips_makes_the_joined_axis_less_certain():
+    axis = np.array([1.0, 0.0, 0.0])
+    turns = np.radians([0.0, -25.0, 25.0, 0.0])
+    m = np.array([1.0, 0.003, 0.002])
+    m /= np.linalg.norm(m)
+    normals = np.array([rotation_matrix(axis, th) @ m for th in turns])
+    lip = fit_spin_axis(normals, turns, np.broadcast_to(np.eye(3) * 1e-8, (4, 3, 3)), 0.22)
+    sd = np.sqrt(np.trace(lip.cov_axis) / 2)
+    near = FaceSpin(np.array([1.0, 1.0 * sd, 0.0]) / np.linalg.norm([1.0, 1.0 * sd, 0.0]), lip.cov_axis.copy(), 80)
+    joined = with_face(lip, near, 0.22)
+    assert joined is not None                                   # within their noise: halfway between
+    assert joined.axis_station[1] == pytest.approx(0.5 * sd, rel=0.05)
+    far_off = 2 * sd * np.sqrt(AGREEMENT_CHI2)                  # well beyond both covariances
+    far = FaceSpin(np.array([1.0, far_off, 0.0]) / np.linalg.norm([1.0, far_off, 0.0]), lip.cov_axis.copy(), 80)
+    apart = with_face(lip, far, 0.22)
+    assert apart.axis_station[1] == pytest.approx(0.5 * far_off, rel=0.05)
+    d2 = far_off ** 2 / (2 * sd ** 2)                           # each component's variance sd^2, summed
+    np.testing.assert_allclose(apart.cov_axis, joined.cov_axis * d2 / 2, rtol=0.05)

@@ -87,9 +87,9 @@ def wheel_rolls(results: list[Measurement], images: list[dict], models: dict[str
         cams = (config.pairs[w].precision, config.pairs[w].reference)
         face = face_spin_axis([(im[cams[0]], im[cams[1]]) for im in linear], (models[cams[0]], models[cams[1]]),
                               f.poses, theta)
-        face_points[w] = 0 if face is None else face.points
-        if face is not None:
-            spins[w] = with_face(spins[w], face, f.poses[-1].radius_m)
+        joined = None if face is None else with_face(spins[w], face, f.poses[-1].radius_m)  # or the lip's alone
+        face_points[w] = 0 if joined is None else face.points
+        spins[w] = joined or spins[w]
         turned = np.abs(theta) > np.radians(MIN_ROLL_DEG / 2)
         own[w] = float(np.median(-SIDE[w] * f.travel[turned] / theta[turned])) if turned.any() else float("nan")
         turns[w] = theta

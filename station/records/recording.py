@@ -289,9 +289,11 @@ class CycleRecorder:
         self._log(f"{base}/axis", rr.Arrows3D(origins=[c], vectors=[w * max(radius_m, 0.1)], colors=[color]))
         self._log(f"{base}/plane", rr.LineStrips3D([circle_station(c, w, float(radius_m))], colors=[color]))
 
-    def log_roll(self, wheel: str, centers_station, normals_station, spin_axis_station, radius_m: float) -> None:
+    def log_roll(self, wheel: str, centers_station, normals_station, spin_axis_station, radius_m: float,
+                 face_points: int = 0) -> None:
         """Runout compensation of a wheel: its centre (K,3) and rim normal (K,3) at each roll
-        position, the fitted spin axis (3,) from the last centre, and the cone the rim normal
+        position, the fitted spin axis (3,) from the last centre (its label says how many of the
+        face's points joined it, station/wheel/face_motion.py), and the cone the rim normal
         sweeps about it, drawn at the last centre with the tilt magnified ``CONE_MAGNIFIED`` times."""
         cs = _points(centers_station, 3, "centers_station")
         ns = _points(normals_station, 3, "normals_station")
@@ -306,7 +308,9 @@ class CycleRecorder:
         self._log(f"{base}/rim_normals", rr.Arrows3D(origins=np.repeat(cs[-1:], len(ns), axis=0),
                                                      vectors=length * magnified, colors=[color]))
         self._log(f"{base}/spin_axis", rr.Arrows3D(origins=[cs[-1]], vectors=[a * length * 1.2],
-                                                   colors=[(255, 255, 255)], labels=[f"{wheel} spin axis"]))
+                                                   colors=[(255, 255, 255)],
+                                                   labels=[f"{wheel} spin axis (lip and {face_points} face points)"
+                                                           if face_points else f"{wheel} spin axis (lip)"]))
         tilt = float(np.mean(np.arccos(np.clip(ns @ a, -1.0, 1.0))))
         tip_circle = circle_station(cs[-1] + length * a, a, length * np.tan(tilt) * CONE_MAGNIFIED)
         self._log(f"{base}/cone", rr.LineStrips3D([tip_circle], colors=[color]))

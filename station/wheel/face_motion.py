@@ -46,6 +46,8 @@ CAUCHY_SCALE = 2.5              # the Cauchy loss's width, in robust sigmas of t
 MIN_POINTS = 30                 # points followed through every capture, else no face axis
 COVARIANCE_SCALE = 1.885        # the fit's stated axis sd is this much too small (simulated station:
 #                                 observed / stated over 40 wheels, bench/runout.py's seeds 3200-3209)
+AGREEMENT_CHI2 = 13.8           # the lip's and the face's axes further apart (chi-square, 2 dof, 0.1 %): the
+#                                 joined axis's stated variance grows with their distance (``with_face``)
 
 
 @dataclass(frozen=True)
@@ -269,13 +271,27 @@ def _rotation_axis(R: np.ndarray) -> np.ndarray:
     return w / np.linalg.norm(w)
 
 
-def with_face(spin: SpinAxis, face: FaceSpin, lip_radius_m: float) -> SpinAxis:
+def with_face(spin: SpinAxis, face: FaceSpin, lip_radius_m: float) -> SpinAxis | None:
     """The lip's spin axis ``spin`` joined with the face's (``combined``); the runout is then the
-    tilt of the lip's normal against the joined axis. A lip axis without a covariance stays."""
+    tilt of the lip's normal against the joined axis. Where the two disagree beyond their
+    covariances (squared Mahalanobis distance d^2 over ``AGREEMENT_CHI2``) one of them is off by
+    more than it says, and which cannot be told: the joined axis is stated d^2 / 2 times less
+    certain (its variance). None (the lip's axis stays) when the lip's has no covariance."""
     if not np.all(np.isfinite(spin.cov_axis)):
-        return spin
+        return None
     a, cov = combined(spin.axis_station, spin.cov_axis, face.axis_station, face.cov_axis)
-    return spin_axis(a, cov, spin.normal_at_zero, spin.misfit_deg, lip_radius_m)
+    d2 = disagreement(spin.axis_station, spin.cov_axis, face.axis_station, face.cov_axis)
+    return spin_axis(a, cov * (d2 / 2 if d2 > AGREEMENT_CHI2 else 1.0), spin.normal_at_zero, spin.misfit_deg,
+                     lip_radius_m)
+
+
+def disagreement(axis_a: np.ndarray, cov_a: np.ndarray, axis_b: np.ndarray, cov_b: np.ndarray) -> float:
+    """The squared Mahalanobis distance between two estimates (3,) of one unit axis across it,
+    under the sum of their (3,3) covariances (chi-square with 2 degrees of freedom)."""
+    _, u, v = axis_basis(axis_a)
+    B = np.stack([u, v], 1)
+    z = B.T @ (np.asarray(axis_b) - axis_a)
+    return float(z @ np.linalg.solve(B.T @ (cov_a + cov_b) @ B, z))
 
 
 def combined(axis_a: np.ndarray, cov_a: np.ndarray, axis_b: np.ndarray, cov_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
