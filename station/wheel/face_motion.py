@@ -9,9 +9,10 @@ the lip's edge does.
 1. At every capture, corners of the face matched in the pair and triangulated
    (station/wheel/face_points.py); the rigid motion from the reference capture (the last) to
    each other one, by consensus, where the face pattern's turn puts the points.
-2. Each reference point's patch, laid on the face's plane, is followed into both cameras of
-   every capture by a Lucas-Kanade shift (``followed``): one physical patch in all 2K views,
-   triangulated with its covariance.
+2. Each point's patch, laid on the face's plane, is followed into both cameras of every
+   capture by a Lucas-Kanade shift (``followed``): one physical patch in all 2K views,
+   triangulated with its covariance. Every capture's points are anchors, not only the
+   reference's (``followed_all``): a corner one view finds another misses.
 3. One fit of all captures (``joint_fit``): the axis (2 dof), a turn and a translation per
    capture and the body's points, the residuals whitened by each point's covariance and
    weighted down by a Cauchy loss (corners that are not one physical point, a caliper seen
@@ -40,6 +41,7 @@ PATCH_HALF = 5                  # patches of 11 x 11 samples, about a pixel apar
 CONSENSUS_M = 0.8e-3            # a point follows the coarse motion within this
 REMATCH_M = 1.0e-3              # points found again within this of the coarse motion's prediction
 REMATCH_DESCRIPTOR = 400.0      # with a first camera's descriptor this close
+DUPLICATE_M = 1.5e-3            # another capture's corner this near a point already anchored is that point
 TRACK_REPROJECTION_PX = 0.5     # a followed patch's two views meet within this
 FLOOR_M = 0.05e-3               # added to every point's position noise (the patch's own texture)
 CAUCHY_SCALE = 2.5              # the Cauchy loss's width, in robust sigmas of the whitened residuals
@@ -120,16 +122,18 @@ def _plane_grid(X: np.ndarray, axis: np.ndarray, step_m: np.ndarray) -> np.ndarr
 
 
 def followed(images: list[tuple[np.ndarray, np.ndarray]], cameras: tuple[CameraModel, CameraModel],
-             anchors: FacePoints, axis: np.ndarray, motions: list) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The reference capture's points ``anchors`` followed into every capture: ``images`` (K)
-    of the pair, the last the reference; ``motions`` (K) (R (3,3), t (3,)) from the reference
-    to each capture, or (None, None). Returns X (K,N,3), C (K,N,3,3), ok (K,N)."""
+             anchors: FacePoints, axis: np.ndarray, motions: list, source: int = -1
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The points ``anchors`` of capture ``source`` (the reference, the last, unless told)
+    followed into every capture: ``images`` (K) of the pair; ``motions`` (K) (R (3,3), t (3,))
+    from the source capture to each capture, or (None, None). Returns X (K,N,3), C (K,N,3,3),
+    ok (K,N)."""
     cam_a, cam_b = cameras
     K, N = len(images), len(anchors)
     depth = (anchors.X_station - cam_a.center_station) @ cam_a.optical_axis_station
     grid = _plane_grid(anchors.X_station, axis, depth / cam_a.K[0, 0])                # (N,m,m,3)
     m = grid.shape[1]
-    reference_a = np.asarray(images[-1][0], np.float32)
+    reference_a = np.asarray(images[source][0], np.float32)
     template, _ = _normalised(_sample(reference_a, cam_a.project(grid.reshape(-1, 3)).reshape(N, m, m, 2)))
     X, C = np.full((K, N, 3), np.nan), np.full((K, N, 3, 3), np.nan)
     ok = np.zeros((K, N), bool)
@@ -140,7 +144,7 @@ def followed(images: list[tuple[np.ndarray, np.ndarray]], cameras: tuple[CameraM
         centres = anchors.X_station @ R.T + t
         uv, conv = [], np.ones(N, bool)
         for q, cam in enumerate(cameras):
-            if k == K - 1 and q == 0:     # the template's own view
+            if k == source % K and q == 0:     # the template's own view
                 uv.append(anchors.uv_a)
                 continue
             shift, c = lucas_kanade(template, np.asarray(images[k][q], np.float32), cam.project(moved).reshape(N, m, m, 2))
@@ -149,6 +153,37 @@ def followed(images: list[tuple[np.ndarray, np.ndarray]], cameras: tuple[CameraM
         X[k], C[k], err = triangulated(cam_a, cam_b, uv[0], uv[1])
         ok[k] = conv & (err < TRACK_REPROJECTION_PX)
     return X, C, ok
+
+
+def followed_all(images: list[tuple[np.ndarray, np.ndarray]], cameras: tuple[CameraModel, CameraModel],
+                 points: list[FacePoints], axis: np.ndarray, motions: list) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every capture's points ``points`` (K) followed into every capture (``followed``): a corner
+    one capture's view finds and the reference's does not still carries the face. ``motions`` (K)
+    from the reference (the last) to each capture, or (None, None). A point within
+    ``DUPLICATE_M`` of one already anchored (the reference's first, then the others in turn, put
+    in the reference by the motions) is left out: one physical corner counts once. Returns X
+    (K,N,3), C (K,N,3,3), ok (K,N), N the anchors of all captures."""
+    K = len(images)
+    taken = np.zeros((0, 3))
+    out = []
+    for j in [K - 1] + list(range(K - 1)):
+        Rj, tj = motions[j]
+        if Rj is None or not len(points[j]):
+            continue
+        in_reference = (points[j].X_station - tj) @ Rj                              # R^T (X - t), (N_j,3)
+        if len(taken):
+            new = np.linalg.norm(in_reference[:, None] - taken[None], axis=2).min(1) > DUPLICATE_M
+        else:
+            new = np.ones(len(in_reference), bool)
+        if not new.any():
+            continue
+        anchors = FacePoints(*(np.asarray(f)[new] for f in (points[j].X_station, points[j].cov, points[j].uv_a,
+                                                             points[j].uv_b, points[j].desc_a, points[j].desc_b)))
+        from_j = [(None, None) if R is None else (R @ Rj.T, t - R @ Rj.T @ tj) for R, t in motions]
+        axis_j = Rj @ axis
+        out.append(followed(images, cameras, anchors, axis_j, from_j, source=j))
+        taken = np.vstack([taken, in_reference[new]])
+    return tuple(np.concatenate(parts, axis=1) for parts in zip(*out))
 
 
 def coarse_motion(before: FacePoints, after: FacePoints, centre_before: np.ndarray, centre_after: np.ndarray,
@@ -251,7 +286,7 @@ def face_spin_axis(images: list[tuple[np.ndarray, np.ndarray]], cameras: tuple[C
         return None
     motions = [coarse_motion(reference, p, poses[-1].center_station, pose.center_station, axis, th)
                for p, pose, th in zip(points[:-1], poses[:-1], turns[:-1])] + [(np.eye(3), np.zeros(3))]
-    X, C, ok = followed(images, cameras, reference, axis, motions)
+    X, C, ok = followed_all(images, cameras, points, axis, motions)
     if (ok.all(0)).sum() < MIN_POINTS:
         return None
     turned = [k for k in range(len(turns) - 1) if motions[k][0] is not None]
