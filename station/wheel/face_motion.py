@@ -46,8 +46,10 @@ TRACK_REPROJECTION_PX = 0.5     # a followed patch's two views meet within this
 FLOOR_M = 0.05e-3               # added to every point's position noise (the patch's own texture)
 CAUCHY_SCALE = 2.5              # the Cauchy loss's width, in robust sigmas of the whitened residuals
 MIN_POINTS = 30                 # points followed through every capture, else no face axis
-COVARIANCE_SCALE = 1.885        # the fit's stated axis sd is this much too small (simulated station:
-#                                 observed / stated over 40 wheels, bench/runout.py's seeds 3200-3209)
+COVARIANCE_SCALE = 1.885        # the face's stated axis sd is scaled by this: what it understated from the
+#                                 reference capture's points alone (bench/runout.py's seeds 3200-3209); from
+#                                 every capture's points it understates by 2.375 there, but joined with that
+#                                 scale toe measured worse (docs/procedures.md, step 4)
 AGREEMENT_CHI2 = 13.8           # the lip's and the face's axes further apart (chi-square, 2 dof, 0.1 %): the
 #                                 joined axis's stated variance grows with their distance (``with_face``)
 
