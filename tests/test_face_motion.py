@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from station.wheel.face_motion import AGREEMENT_CHI2, FaceSpin, combined, joint_fit, with_face
-from station.wheel.face_points import rigid_fit, rigid_ransac
+from calibration.rigid_motion import kabsch
+from station.wheel.face_points import rigid_ransac
 from station.wheel.runout import fit_spin_axis, rotation_matrix
 
 
@@ -56,7 +57,7 @@ def test_joint_fit_keeps_the_axis_when_some_points_do_not_turn():
     assert _angle_deg(a, axis) < 4 * sd
     assert n <= 0.9 * X.shape[1]                                # the still points weighed out
     # a plain rigid fit of all points through the end captures is pulled away by the caliper
-    R, _ = rigid_fit(X[0], X[1])
+    R, _ = kabsch(X[1], X[0])
     w = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
     assert _angle_deg(w * np.sign(w @ axis), axis) > 5 * _angle_deg(a, axis)
 

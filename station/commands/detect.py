@@ -159,7 +159,6 @@ def _searched(light: np.ndarray, name: str, equalization: str, search: str):
                               hint=photo_error.hint or station_error.hint) from None
 
 
-DARK_LIGHT_LEVEL = 12.0    # the light's brightest (99.5th percentile, of 255) under which the searches see a black image
 EXPOSED_LIGHT_LEVEL = 128.0  # a dark photograph's light is scaled to put its brightest here
 
 
@@ -168,20 +167,17 @@ def _exposed(image: np.ndarray, light: np.ndarray, name: str) -> tuple[np.ndarra
     saturated or flat in its own grey levels (the camera's encoding: an sRGB photograph whose
     brightest level is 40 of 255 is dark, not black, though its light is 2 % of full scale);
     light that dark is scaled up to EXPOSED_LIGHT_LEVEL (still proportional to light, so the
-    edge model holds; float, so no level is lost), gain 1 otherwise (the light as it was)."""
-    from station.rim.detector import _check_exposure
-    from station.rim.npfast import percentiles
+    edge model holds; float, so no level is lost) when the searches would take it for black
+    (``detector.BLACK_GREY``), gain 1 otherwise (the light as it was)."""
+    from station.rim.detector import BLACK_GREY, _check_exposure, exposure_levels
     from station.rim.preprocess import to_grey
 
-    grey = to_grey(image, name)
-    _check_exposure(grey, name or "image")
-    step = max(1, int(np.sqrt(grey.size / 20000)))
-    brightest = float(percentiles(grey[::step, ::step], [99.5])[0])
+    brightest = _check_exposure(to_grey(image, name), name or "image")
     if light is image:
         return light, 1.0, brightest
     lit = to_grey(light, name)
-    hi = float(percentiles(lit[::step, ::step], [99.5])[0])
-    if hi >= DARK_LIGHT_LEVEL or hi <= 0:
+    hi = exposure_levels(lit)[1]
+    if hi >= BLACK_GREY or hi <= 0:  # light the searches would not take for a black image
         return light, 1.0, brightest
     gain = EXPOSED_LIGHT_LEVEL / hi
     return np.minimum(lit * gain, 255.0).astype(np.float32), gain, brightest

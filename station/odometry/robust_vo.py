@@ -20,6 +20,7 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
+from calibration.rigid_motion import kabsch
 from calibration.triangulation import opencv_from_paper, triangulate_optimal
 from station.odometry.paper_vo import StepEstimate
 
@@ -35,29 +36,6 @@ class RobustSettings:
     refine: bool = True
     min_inliers: int = 8
     seed: int = 0
-
-
-def kabsch(P: np.ndarray, Q: np.ndarray, w: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Rigid fit ``P ~ A Q + b`` in least squares (A a rotation), batched.
-
-    P, Q: (..., k, 3); w: (..., k) weights or None. Returns A (..., 3, 3), b (..., 3).
-    """
-    P = np.asarray(P, float)
-    Q = np.asarray(Q, float)
-    w = np.ones(P.shape[:-1]) if w is None else np.asarray(w, float)
-    w = w / w.sum(axis=-1, keepdims=True)
-    cP = np.einsum("...k,...kj->...j", w, P)
-    cQ = np.einsum("...k,...kj->...j", w, Q)
-    H = np.einsum("...k,...ki,...kj->...ij", w, Q - cQ[..., None, :], P - cP[..., None, :])
-    U, _, Vt = np.linalg.svd(H)
-    d = np.sign(np.linalg.det(np.swapaxes(Vt, -1, -2) @ np.swapaxes(U, -1, -2)))
-    D = np.zeros(H.shape)
-    D[..., 0, 0] = 1
-    D[..., 1, 1] = 1
-    D[..., 2, 2] = d
-    A = np.swapaxes(Vt, -1, -2) @ D @ np.swapaxes(U, -1, -2)
-    b = cP - np.einsum("...ij,...j->...i", A, cQ)
-    return A, b
 
 
 @dataclass

@@ -35,6 +35,7 @@ from calibration.camera_model import CameraModel
 from station.wheel.face_points import FacePoints, matched, rigid_ransac, stereo_points, triangulated
 from station.wheel.rim_pattern import FacePose
 from station.wheel.runout import SpinAxis, rotation_matrix, spin_axis
+from station.wheel.steering_axis import rotation_vector
 from station.wheel.uncertainty import axis_basis, normal_from
 
 PATCH_HALF = 5                  # patches of 11 x 11 samples, about a pixel apart in the first camera
@@ -295,17 +296,13 @@ def face_spin_axis(images: list[tuple[np.ndarray, np.ndarray]], cameras: tuple[C
     if not turned:
         return None
     R = motions[max(turned, key=lambda k: abs(turns[k]))][0]
-    axis0 = _rotation_axis(R)
+    axis0 = rotation_vector(R)
+    axis0 /= np.linalg.norm(axis0)
     axis0 = axis0 if axis0 @ axis > 0 else -axis0
     a, cov, n = joint_fit(X, C, ok, axis0, np.where(np.isfinite(turns), turns, 0.0))
     if n < MIN_POINTS:
         return None
     return FaceSpin(a, cov * COVARIANCE_SCALE ** 2, n)
-
-
-def _rotation_axis(R: np.ndarray) -> np.ndarray:
-    w = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
-    return w / np.linalg.norm(w)
 
 
 def with_face(spin: SpinAxis, face: FaceSpin, lip_radius_m: float) -> SpinAxis | None:

@@ -25,6 +25,7 @@ import cv2
 import numpy as np
 
 from calibration.camera_model import CameraModel
+from calibration.rigid_motion import kabsch
 from station.wheel.rim_pattern import FacePose, ring_basis
 
 FACE_REACH = 1.6                # corners within this many lip radii of the wheel's centre (face and lettering)
@@ -200,15 +201,6 @@ def matched(before: FacePoints, after: FacePoints, predicted: np.ndarray, gate_m
     return _mutual_best(np.where(near & (D < MAX_DESCRIPTOR_DISTANCE), D, np.inf), ratio)
 
 
-def rigid_fit(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(R (3,3), t (3,)) minimising |R A_i + t - B_i|^2 over points (N,3) (Kabsch)."""
-    ca, cb = A.mean(0), B.mean(0)
-    U, _, Vt = np.linalg.svd((A - ca).T @ (B - cb))
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
-    R = Vt.T @ D @ U.T
-    return R, cb - R @ ca
-
-
 def rigid_ransac(A: np.ndarray, B: np.ndarray, threshold_m: float, iterations: int = 400,
                  seed: int = 0) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray]:
     """The rigid motion (R, t) taking most of points A (N,3) to B (N,3) within ``threshold_m``
@@ -223,16 +215,16 @@ def rigid_ransac(A: np.ndarray, B: np.ndarray, threshold_m: float, iterations: i
     for s in samples:
         if np.linalg.norm(np.cross(A[s[1]] - A[s[0]], A[s[2]] - A[s[0]])) < 1e-4:
             continue
-        R, t = rigid_fit(A[s], B[s])
+        R, t = kabsch(B[s], A[s])
         inliers = np.linalg.norm(A @ R.T + t - B, axis=1) < threshold_m
         if inliers.sum() > best.sum():
             best = inliers
     if best.sum() < 3:
         return None, None, best
     for _ in range(2):
-        R, t = rigid_fit(A[best], B[best])
+        R, t = kabsch(B[best], A[best])
         best = np.linalg.norm(A @ R.T + t - B, axis=1) < threshold_m
         if best.sum() < 3:
             return None, None, best
-    R, t = rigid_fit(A[best], B[best])
+    R, t = kabsch(B[best], A[best])
     return R, t, best
