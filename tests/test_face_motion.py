@@ -1,12 +1,14 @@
 """The spin axis from the face's rigid motion (station/wheel/face_motion.py, face_points.py): the
 joint fit returns the axis of exact motions, keeps it when points that do not turn (a caliper)
 are among them, the consensus finds a rigid motion among outliers, and two axes join by their
-covariances."""
+covariances, and a patch followed by Lucas-Kanade states its shift's uncertainty."""
 
+import cv2
 import numpy as np
 import pytest
 
-from station.wheel.face_motion import AGREEMENT_CHI2, FaceSpin, combined, joint_fit, with_face
+from station.wheel.face_motion import (AGREEMENT_CHI2, FaceSpin, _normalised, _sample, combined, joint_fit, lucas_kanade,
+                                      with_face)
 from calibration.rigid_motion import kabsch
 from station.wheel.face_points import rigid_ransac
 from station.wheel.runout import fit_spin_axis, rotation_matrix
@@ -108,3 +110,26 @@ def test_a_face_axis_that_disagrees_with_the_lips_makes_the_joined_axis_less_cer
     assert apart.axis_station[1] == pytest.approx(0.5 * far_off, rel=0.05)
     d2 = far_off ** 2 / (2 * sd ** 2)                           # each component's variance sd^2, summed
     np.testing.assert_allclose(apart.cov_axis, joined.cov_axis * d2 / 2, rtol=0.05)
+
+
+def test_a_patch_on_an_edge_is_known_across_it_not_along_it():
+    """Lucas-Kanade finds a textured patch's shift and states it about equally well known both
+    ways; a patch on a strong straight edge over a faint texture is found across the edge, and
+    its stated uncertainty along the edge is the larger."""
+    rng = np.random.default_rng(5)
+    xx = np.mgrid[0:120, 0:120][1].astype(float)
+    textured = (cv2.GaussianBlur(rng.uniform(0, 1, (120, 120)), (0, 0), 2.0) * 4000).astype(np.float32)
+    edge = (1000 + 3000 / (1 + np.exp(-(xx - 60.3) / 1.2)) + 0.3 * textured).astype(np.float32)  # a vertical edge
+    g = np.arange(-5, 6, dtype=float)
+    grid = np.stack(np.meshgrid(g, g, indexing="xy"), -1)[None] + np.array([60.0, 60.0])      # (1,11,11,2)
+    true_shift = np.array([0.4, -0.3])
+    sd = {}
+    for name, image in (("textured", textured), ("edge", edge)):
+        template, _ = _normalised(_sample(image, grid))
+        shift, ok, cov = lucas_kanade(template, (image + rng.normal(0, 20, image.shape)).astype(np.float32),
+                                      grid - true_shift)
+        assert ok[0]
+        assert abs(shift[0, 0] - true_shift[0]) < 0.1                # across the edge
+        sd[name] = np.sqrt(np.diag(cov[0]))
+    assert abs(sd["textured"][1] / sd["textured"][0] - 1) < 0.2
+    assert sd["edge"][1] ** 2 > 1.8 * sd["edge"][0] ** 2          # variances

@@ -11,7 +11,8 @@ the lip's edge does.
    each other one, by consensus, where the face pattern's turn puts the points.
 2. Each point's patch, laid on the face's plane, is followed into both cameras of every
    capture by a Lucas-Kanade shift (``followed``): one physical patch in all 2K views,
-   triangulated with its covariance. Every capture's points are anchors, not only the
+   triangulated with its covariance, from each shift's own (a patch on an edge is known across
+   the edge, not along it). Every capture's points are anchors, not only the
    reference's (``followed_all``): a corner one view finds another misses.
 3. One fit of all captures (``joint_fit``): the axis (2 dof), a turn and a translation per
    capture and the body's points, the residuals whitened by each point's covariance and
@@ -32,7 +33,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from calibration.camera_model import CameraModel
-from station.wheel.face_points import FacePoints, matched, rigid_ransac, stereo_points, triangulated
+from station.wheel.face_points import PIXEL_NOISE_PX, FacePoints, matched, rigid_ransac, stereo_points, triangulated
 from station.wheel.rim_pattern import FacePose
 from station.wheel.runout import SpinAxis, rotation_matrix, spin_axis
 from station.wheel.steering_axis import rotation_vector
@@ -91,11 +92,14 @@ def _normalised(patches: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def lucas_kanade(template: np.ndarray, image: np.ndarray, uv0: np.ndarray, iterations: int = 12):
     """The shift (N,2) px that best lays each normalised ``template`` patch (N,m,m) on ``image``
     (H,W) float32 sampled at ``uv0`` (N,m,m,2) + shift (normalised patches, Gauss-Newton);
-    whether it converged (N,) bool."""
+    whether it converged (N,) bool; the shift's covariance (N,2,2) px^2: the residual's variance
+    through the inverse of the patch's gradient matrix (large along an edge, where the patch only
+    knows its position across it), plus ``PIXEL_NOISE_PX`` on each coordinate."""
     gx = cv2.Sobel(image, cv2.CV_32F, 1, 0, ksize=3) / 8
     gy = cv2.Sobel(image, cv2.CV_32F, 0, 1, ksize=3) / 8
     d = np.zeros((len(template), 2))
     step = np.zeros_like(d)
+    H = np.tile(np.eye(2), (len(template), 1, 1))
     for _ in range(iterations):
         uv = uv0 + d[:, None, None, :]
         patch, norm = _normalised(_sample(image, uv))
@@ -112,9 +116,13 @@ def lucas_kanade(template: np.ndarray, image: np.ndarray, uv0: np.ndarray, itera
         if np.max(np.abs(step)) < 1e-3:
             break
     last = _sample(image, uv0 + d[:, None, None, :])
-    _, norm = _normalised(last)
-    seen = np.isfinite(last).mean((1, 2)) >= 0.9                  # the patch on the image
-    return d, (np.abs(step).max(1) < 0.02) & (np.linalg.norm(d, axis=1) < 3.0) & seen & (norm > 1e-3)
+    fitted, norm = _normalised(last)
+    seen = np.isfinite(last)
+    residual = np.where(seen, fitted - template, 0.0)
+    variance = (residual ** 2).sum((1, 2)) / np.maximum(seen.sum((1, 2)) - 2, 1)
+    cov = variance[:, None, None] * np.linalg.inv(H) + PIXEL_NOISE_PX ** 2 * np.eye(2)
+    converged = (np.abs(step).max(1) < 0.02) & (np.linalg.norm(d, axis=1) < 3.0) & (seen.mean((1, 2)) >= 0.9) & (norm > 1e-3)
+    return d, converged & np.isfinite(cov).all((1, 2)), cov
 
 
 def _plane_grid(X: np.ndarray, axis: np.ndarray, step_m: np.ndarray) -> np.ndarray:
@@ -145,15 +153,18 @@ def followed(images: list[tuple[np.ndarray, np.ndarray]], cameras: tuple[CameraM
             continue
         moved = grid.reshape(-1, 3) @ R.T + t
         centres = anchors.X_station @ R.T + t
-        uv, conv = [], np.ones(N, bool)
+        uv, cov_uv, conv = [], [], np.ones(N, bool)
         for q, cam in enumerate(cameras):
-            if k == source % K and q == 0:     # the template's own view
+            if k == source % K and q == 0:     # the template's own view: the refined corner
                 uv.append(anchors.uv_a)
+                cov_uv.append(np.broadcast_to(PIXEL_NOISE_PX ** 2 * np.eye(2), (N, 2, 2)))
                 continue
-            shift, c = lucas_kanade(template, np.asarray(images[k][q], np.float32), cam.project(moved).reshape(N, m, m, 2))
+            shift, c, cov_shift = lucas_kanade(template, np.asarray(images[k][q], np.float32),
+                                               cam.project(moved).reshape(N, m, m, 2))
             uv.append(cam.project(centres) + shift)
+            cov_uv.append(np.where(c[:, None, None], cov_shift, np.eye(2)))
             conv &= c
-        X[k], C[k], err = triangulated(cam_a, cam_b, uv[0], uv[1])
+        X[k], C[k], err = triangulated(cam_a, cam_b, uv[0], uv[1], *cov_uv)
         ok[k] = conv & (err < TRACK_REPROJECTION_PX)
     return X, C, ok
 

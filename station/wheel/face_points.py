@@ -102,10 +102,12 @@ def corners(image: np.ndarray, mask: np.ndarray, angle_deg: float) -> tuple[np.n
 
 
 def triangulated(cam_a: CameraModel, cam_b: CameraModel, uv_a: np.ndarray, uv_b: np.ndarray,
-                 sigma_px: float = PIXEL_NOISE_PX) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                 cov_a: np.ndarray | None = None, cov_b: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Points (N,3) from matched pixels (N,2) of two cameras (linear triangulation of the
-    undistorted rays), their covariances (N,3,3) from ``sigma_px`` on each pixel coordinate
-    (numerical Jacobian) and the larger of the two reprojection errors (N,) px."""
+    undistorted rays), their covariances (N,3,3) from each pixel's (N,2,2) covariance ``cov_a``,
+    ``cov_b`` px^2 (``PIXEL_NOISE_PX`` on each coordinate unless given; numerical Jacobian) and
+    the larger of the two reprojection errors (N,) px."""
     P_a = np.hstack([cam_a.R_cam_station, cam_a.t_cam_station[:, None]])
     P_b = np.hstack([cam_b.R_cam_station, cam_b.t_cam_station[:, None]])
 
@@ -119,7 +121,10 @@ def triangulated(cam_a: CameraModel, cam_b: CameraModel, uv_a: np.ndarray, uv_b:
     J = np.stack([(points(uv_a + h * (q == 0) * np.array([1, 0]) + h * (q == 1) * np.array([0, 1]),
                           uv_b + h * (q == 2) * np.array([1, 0]) + h * (q == 3) * np.array([0, 1])) - X) / h
                   for q in range(4)], axis=2)                                       # (N,3,4)
-    cov = sigma_px ** 2 * J @ J.transpose(0, 2, 1)
+    isotropic = PIXEL_NOISE_PX ** 2 * np.eye(2)
+    cov_a = isotropic if cov_a is None else cov_a
+    cov_b = isotropic if cov_b is None else cov_b
+    cov = J[..., :2] @ cov_a @ J[..., :2].transpose(0, 2, 1) + J[..., 2:] @ cov_b @ J[..., 2:].transpose(0, 2, 1)
     err = np.maximum(np.linalg.norm(cam_a.project(X) - uv_a, axis=1), np.linalg.norm(cam_b.project(X) - uv_b, axis=1))
     return X, cov, err
 
