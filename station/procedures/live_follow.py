@@ -71,23 +71,29 @@ class Approach:
 
 def wait_until_at(target: float, read: Callable[[], dict[str, float]], wheels: tuple[str, ...], approach: Approach,
                   line: Callable[[float, dict[str, float], bool], str], show: Callable[[str], None],
-                  lost: Callable[[list[str]], str], on_reading: Callable | None = None) -> bool:
+                  lost: Callable[[list[str]], str], on_reading: Callable | None = None,
+                  needed: int | None = None) -> bool:
     """Read until the mean over ``wheels`` of ``read()`` ({wheel: value}) stands at ``target``;
     each reading is shown (``line(mean, values, reached)``) and handed to ``on_reading(target,
     values, reached)`` (which may raise to end the wait); a reading that misses a wheel shows
-    ``lost(wheels missed)`` and is handed on without that wheel. Returns True
-    when reached, False when ``approach.timeout_s`` passed first."""
+    ``lost(wheels missed)`` and is handed on without that wheel. ``needed`` wheels (all unless
+    told) must be seen for a reading to count; the mean is then over those seen (one wheel
+    tells how far a rigid car rolled). Returns True when reached, False when
+    ``approach.timeout_s`` passed first."""
     t0, recent = time.monotonic(), []
+    needed = len(wheels) if needed is None else needed
     while time.monotonic() - t0 < approach.timeout_s:
         values = read()
         missed = [w for w in wheels if w not in values]
         if missed:
             show(lost(missed))
+        seen = [w for w in wheels if w in values]
+        if len(seen) < needed:
             recent = []
             if on_reading is not None:  # the wheels seen (a PLC shows "no value" for the others)
                 on_reading(target, values, False)
             continue
-        mean = float(np.mean([values[w] for w in wheels]))
+        mean = float(np.mean([values[w] for w in seen]))
         recent = (recent + [mean])[-approach.still_updates:]
         still = len(recent) == approach.still_updates and np.ptp(recent) <= approach.still
         reached = abs(mean - target) <= approach.tolerance and still

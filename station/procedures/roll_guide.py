@@ -6,8 +6,8 @@ second, a bar of how far the car has rolled toward the position asked for ("roll
 [########------] 9.1 of 15 cm") from the front cameras alone (the live loop's tracking detection
 and 3-D fit, station/procedures/live_follow.py), and returns once the front wheels' centres stand
 within ``tolerance_m`` of that position and have stood still for ``still_updates`` readings. The
-roll is the mean travel of the front rims' centres along the station's y (forward +) since the
-first reading. On the simulated station its technician (drivers.context.Simulation) rolls the car
+roll is the mean travel of the front rims' centres seen along the station's y (forward +) since
+the first reading; one front rim lost for a moment (shown) does not hold the car up. On the simulated station its technician (drivers.context.Simulation) rolls the car
 when asked; at a real station the technician does.
 """
 
@@ -49,7 +49,7 @@ class GuidedRolling:
                                      hint="check the front cameras' view and measure again")
         begin, self.position_m = self.position_m, self.position_m + float(distance_m)
         way = "forward" if distance_m > 0 else "back"
-        self.show(f"roll the car {way} by about {abs(distance_m) * 100:.0f} cm (push it slowly, steering straight, "
+        self.show(f"roll the car {way} by about {abs(distance_m) * 100:.3g} cm (push it slowly, steering straight, "
                   "then let it stand still)")
         if self.mover is not None:
             self.mover.roll_car(distance_m)
@@ -58,15 +58,15 @@ class GuidedRolling:
             done = (travel - begin) / distance_m if distance_m else 1.0
             filled = int(round(np.clip(done, 0.0, 1.0) * BAR_CHARS))
             return (f"  roll {way} [{'#' * filled}{'-' * (BAR_CHARS - filled)}] "
-                    f"{(travel - begin) * 100 * np.sign(distance_m):.1f} of {abs(distance_m) * 100:.0f} cm"
+                    f"{(travel - begin) * 100 * np.sign(distance_m):.1f} of {abs(distance_m) * 100:.3g} cm"
                     + ("   hold still: capturing" if reached else ""))
 
         def lost(wheels: list[str]) -> str:
             return (f"  {', '.join(wheels)}: rim not seen ({'; '.join(str(self.rims.why.get(w)) for w in wheels)}); "
                     "roll back toward the start a little")
 
-        if not wait_until_at(self.position_m, self.travel, FRONT, self.approach, line, self.show, lost):
-            raise RollNotReached(f"the car did not stand {self.position_m * 100:+.0f} cm from where it started "
+        if not wait_until_at(self.position_m, self.travel, FRONT, self.approach, line, self.show, lost, needed=1):
+            raise RollNotReached(f"the car did not stand {self.position_m * 100:+.3g} cm from where it started "
                                  f"within {self.approach.timeout_s:.0f} s",
                                  hint="roll the car as the bar shows, let it stand still, and measure again")
 
