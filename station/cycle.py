@@ -188,7 +188,7 @@ class Station:
     def _roll_moves(self, operator: AlignmentOperator, distance_m: float) -> list[tuple[str, Callable[[], None]]]:
         """The roll plan's moves (runout compensation)."""
         steps = [(b - a) * distance_m for a, b in zip(ROLL_PLAN, ROLL_PLAN[1:])]
-        return [(f"roll the car {'forward' if d > 0 else 'back'} {abs(d) * 100:.0f} cm",
+        return [(f"roll the car {'forward' if d > 0 else 'back'} {abs(d) * 100:.3g} cm",
                  lambda d=d: operator.roll_car(d)) for d in steps]
 
     def _steer_moves(self, operator: AlignmentOperator, sweep_deg: float) -> list[tuple[str, Callable[[], None]]]:

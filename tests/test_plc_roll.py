@@ -36,13 +36,15 @@ PY = sys.executable
 IDLE, BUSY, DONE, FAULT, ROLL = 0, 1, 2, 3, 4
 MEASURE, ACK, COMPENSATED, IN_POSITION = 1, 4, 5, 6
 WHEELS = ("FL", "FR", "RL", "RR")
-PLAN_MM = [-150, 300, -150]  # station/procedures/runout.py: ROLL_PLAN (0, -1, 1, 0) x 0.15 m
+PLAN_MM = [-150, 75, 150, 75, -150]  # station/procedures/runout.py: ROLL_PLAN (0, -1, -0.5, 0.5, 1, 0) x 0.15 m
+POSITIONS_MM = [-150, -75, 75, 150, 0]
+ROLLS = len(PLAN_MM)
 
 
 # --- the table ----------------------------------------------------------------------------------
 def test_the_plan_the_prompts_announce_is_the_procedures():
     assert [round(d * 1000) for d in roll_plan()] == PLAN_MM
-    assert [round(d * 1000) for d in roll_plan(0.1)] == [-100, 200, -100]
+    assert [round(d * 1000) for d in roll_plan(0.1)] == [-100, 50, 100, 50, -100]
 
 
 def test_compensated_measure_and_in_position_are_the_next_free_commands_and_roll_the_next_state():
@@ -186,12 +188,12 @@ class RecordingSimulation:
 
 def test_the_operator_numbers_the_rolls_adds_up_the_position_and_moves_the_simulated_car():
     gate, sim = RecordingGate(), RecordingSimulation()
-    op = PlcRollOperator(gate, 3, sim)
+    op = PlcRollOperator(gate, ROLLS, sim)
     for d in roll_plan():
         op.roll_car(d)
     assert [(p.step, p.steps, p.distance_mm, p.position_mm) for p in gate.prompts] == \
-        [(1, 3, -150, -150), (2, 3, 300, 150), (3, 3, -150, 0)]
-    assert sim.rolled == pytest.approx([-0.15, 0.3, -0.15])
+        [(k + 1, ROLLS, d, x) for k, (d, x) in enumerate(zip(PLAN_MM, POSITIONS_MM))]
+    assert sim.rolled == pytest.approx([d / 1000 for d in PLAN_MM])
 
 
 def test_the_simulated_car_is_not_moved_when_the_plc_does_not_confirm():
@@ -272,9 +274,9 @@ def test_compensated_dry_run_cycles_through_the_roll_handshake_with_the_plc_simu
     assert reports[2].fault_code == 412  # job 10 fails on purpose, after its rolls
     for r in reports:
         assert [s.distance_mm for s in r.rolls] == PLAN_MM
-        assert [s.position_mm for s in r.rolls] == [-150, 150, 0]
+        assert [s.position_mm for s in r.rolls] == POSITIONS_MM
     assert reports[0].compensated == 1 and all(reports[0].runout[w][0] is not None for w in WHEELS)
-    assert len(seen) == 15 and bg.device.stats["rolls"] == 15
+    assert len(seen) == 5 * ROLLS and bg.device.stats["rolls"] == 5 * ROLLS
     # an ordinary cycle on the same station: no rolls, rim planes, no runout
     plain = sim.run_cycle("JOB-000013", None, MEASURE, expect=expect)
     assert plain.problems == [] and plain.rolls == [] and plain.compensated == 0
@@ -285,7 +287,7 @@ def test_in_roll_only_in_position_is_taken(station):
     assert not trigger(client, "JOB-000001").isError()
     b = wait_state(client, {ROLL})
     assert (b["active_command"], b["roll_step"], b["roll_steps"], b["roll_distance_mm"], b["roll_position_mm"]) \
-        == (COMPENSATED, 1, 3, -150, -150)
+        == (COMPENSATED, 1, ROLLS, -150, -150)
     assert b["result_valid"] == 0
     refused = 0
     for command in (MEASURE, 2, 3, ACK, COMPENSATED):
@@ -294,10 +296,10 @@ def test_in_roll_only_in_position_is_taken(station):
         refused += 1
         b = block(client)
         assert (b["state"], b["reject_code"], b["reject_count"], b["roll_step"]) == (ROLL, 501, refused, 1)
-    for step, distance, position in ((2, 300, 150), (3, -150, 0)):
+    for step, distance, position in zip(range(2, ROLLS + 1), PLAN_MM[1:], POSITIONS_MM[1:]):
         assert not client.write_register(0, IN_POSITION).isError()
         b = wait_roll(client, step)
-        assert (b["roll_steps"], b["roll_distance_mm"], b["roll_position_mm"]) == (3, distance, position)
+        assert (b["roll_steps"], b["roll_distance_mm"], b["roll_position_mm"]) == (ROLLS, distance, position)
     assert not client.write_register(0, IN_POSITION).isError()
     b = wait_state(client, {DONE})
     assert (b["roll_step"], b["roll_steps"], b["roll_distance_mm"], b["roll_position_mm"]) == (0, 0, 0, 0)
@@ -316,18 +318,18 @@ def test_a_roll_not_confirmed_in_time_faults_415_and_the_station_goes_on(station
     t0 = time.monotonic()
     b = wait_state(client, {FAULT}, timeout=5)
     assert 0.2 < time.monotonic() - t0 < 3
-    assert b["fault_code"] == 415 and b["fault_reason"] == "roll 1/3 not confirmed by the PLC within 0.4 s"
+    assert b["fault_code"] == 415 and b["fault_reason"] == f"roll 1/{ROLLS} not confirmed by the PLC within 0.4 s"
     assert (b["roll_step"], b["roll_distance_mm"], b["result_valid"]) == (0, 0, 0)
     r = client.write_register(0, IN_POSITION)  # too late
     assert r.isError() and block(client)["reject_code"] == 508
     assert bg.device.stats["roll_timeouts"] == 1
     assert not client.write_register(0, ACK).isError()
     rep = PlcSimulator(client).run_cycle("JOB-000002", None, COMPENSATED, expect=dry_run_expectation(10))
-    assert rep.problems == [] and rep.state == "done" and len(rep.rolls) == 3
+    assert rep.problems == [] and rep.state == "done" and len(rep.rolls) == ROLLS
 
 
 def test_the_time_in_roll_is_the_plcs_not_the_cycle_timeouts(station):
-    """Three rolls of 0.3 s against a cycle timeout of 0.5 s: the cycle is done, not 505, and its
+    """Five rolls of 0.3 s against a cycle timeout of 0.5 s: the cycle is done, not 505, and its
     cycle_time_us leaves the rolls out."""
     bg, client, _ = station(cycle_timeout_s=0.5, roll_timeout_s=5)
     rep = PlcSimulator(client, conveyor_s=0.3).run_cycle("JOB-000001", None, COMPENSATED)
@@ -395,11 +397,12 @@ def test_the_plc_simulator_command_line_rolls_and_reports_each_step(capsys, stat
     out = capsys.readouterr().out
     assert rc == 0, out
     assert "runout compensation (command 5)" in out.splitlines()[0]
-    assert out.count("roll 1/3: back 150 mm (to -150 mm)") == 2
-    assert out.count("roll 2/3: forward 300 mm (to +150 mm)") == 2
-    assert out.count("roll 3/3: back 150 mm (to the start)") == 2
+    assert out.count("roll 1/5: back 150 mm (to -150 mm)") == 2
+    assert out.count("roll 2/5: forward 75 mm (to -75 mm)") == 2
+    assert out.count("roll 4/5: forward 75 mm (to +150 mm)") == 2
+    assert out.count("roll 5/5: back 150 mm (to the start)") == 2
     assert "fault 412" in out and "runout compensated: FL " in out
-    assert "2 cycles, 0 with problems, 6 rolls of the car" in out.splitlines()[-1]
+    assert "2 cycles, 0 with problems, 10 rolls of the car" in out.splitlines()[-1]
     with pytest.raises(SystemExit):  # argparse: a clear message, exit status 2
         plc_sim_main(["--port", str(port), "--compensate", "--conveyor-s", "-1"])
 
@@ -439,7 +442,7 @@ def test_mbpoll_drives_a_compensated_cycle(station):
         elif status.get(100) == str(DONE):
             break
         time.sleep(0.02)
-    assert prompts == [(1, 3, -150, -150), (2, 3, 300, 150), (3, 3, -150, 0)]
+    assert prompts == [(k + 1, ROLLS, d, x) for k, (d, x) in enumerate(zip(PLAN_MM, POSITIONS_MM))]
     assert status[104] == "1" and status[105] == str(COMPENSATED) and status[106] == "501"
     want = synthetic_result(CycleRequest("measure_compensated", job, None, 0), fail_every=10)
     flag = parse(mbpoll(target + ["-r", "208", "127.0.0.1"]).stdout)
@@ -490,7 +493,7 @@ def test_station_serve_dry_run_rolls_with_the_plc_simulator_and_times_out_a_roll
     assert rc == 0
     assert serve.returncode == 0, err
     assert "served 3 cycles (2 done, 1 fault)" in out and "Traceback" not in err
-    assert "7 rolls of the car asked of the PLC, 1 not confirmed in time" in out
+    assert "11 rolls of the car asked of the PLC, 1 not confirmed in time" in out
 
 
 def test_station_serve_refuses_a_bad_roll_timeout(capsys):

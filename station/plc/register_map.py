@@ -198,7 +198,7 @@ STATION_FIELDS = [
           "angles may be off: the texts name the wheel)"),
     Field("roll_step", 115, "u16", 1, "in state roll: the roll the station waits for, 1..roll_steps; 0 in "
           "any other state"),
-    Field("roll_steps", 116, "u16", 1, "in state roll: the rolls of the whole procedure (3); 0 in any other "
+    Field("roll_steps", 116, "u16", 1, "in state roll: the rolls of the whole procedure (5); 0 in any other "
           "state"),
     Field("roll_distance_mm", 117, "i16", 1, "in state roll: how far to roll the car now, + forward, - back; "
           "0 in any other state", unit="mm", scale=1),

@@ -38,7 +38,8 @@ from station.wheel.hub_center import hub_centers
 from station.wheel.runout import SpinAxis, fit_spin_axis
 
 ROLL_DISTANCE_M = 0.15         # how far the car is rolled each way: about 25 deg of a wheel's turn
-ROLL_PLAN = (0.0, -1.0, 1.0, 0.0)  # where the car stands at each capture, in roll distances; the last is the result's
+ROLL_PLAN = (0.0, -1.0, -0.5, 0.5, 1.0, 0.0)  # where the car stands at each capture, in roll distances; the last is the
+#                                                result's; the stops between the ends see the lip from views of their own
 TYRE_BEYOND_LIP_M = 0.10       # a rolling radius to expect from the lip's (only to tell a rim's N-fold symmetry apart)
 MIN_ROLL_DEG = 10.0            # the captures must turn every wheel through at least this
 MIN_PATTERN_PEAK = 0.7         # a face followed from one capture to another correlates at least this well
@@ -92,6 +93,7 @@ def wheel_rolls(results: list[Measurement], images: list[dict], models: dict[str
         spins[w] = joined or spins[w]
         turned = np.abs(theta) > np.radians(MIN_ROLL_DEG / 2)
         own[w] = float(np.median(-SIDE[w] * f.travel[turned] / theta[turned])) if turned.any() else float("nan")
+        _check_each_turn(w, theta, f.travel, own[w])
         turns[w] = theta
     _check_slip(own)
     hubs = hub_centers(np.array([[p.center_station for p in seen[w].poses] for w in WHEELS]),
@@ -220,6 +222,22 @@ def _check_travel(wheel: str, poses: list[FacePose], forward: np.ndarray) -> Non
         raise CarMovedSideways(f"{wheel}: its centre moved {off * 1000:.0f} mm across the line of the car's travel while "
                                f"it was rolled (at most {SIDEWAYS_M * 1000:.0f} mm)",
                                hint="roll the car straight along the runways, steering straight ahead, and start again")
+
+
+def _check_each_turn(wheel: str, theta: np.ndarray, travel_m: np.ndarray, radius_m: float) -> None:
+    """WheelSlipped when the wheel's turn at one capture (``theta`` (K,) rad) is off what its
+    centre's travel (``travel_m`` (K,)) over its own rolling radius predicts by more than
+    ``SLIP_SHARE`` of the whole roll's turn: a slip at one position, which the median radius over
+    the captures does not show."""
+    if not np.isfinite(radius_m):
+        return
+    off = np.abs(theta + SIDE[wheel] * travel_m / radius_m)
+    k = int(np.argmax(off))
+    if off[k] > SLIP_SHARE * np.ptp(theta):
+        raise WheelSlipped(f"{wheel}: at capture {k + 1} of {len(theta)} it had turned {np.degrees(off[k]):.1f} deg off what "
+                           f"the car's travel over its rolling radius of {radius_m * 1000:.0f} mm predicts: it slipped, or "
+                           "was turned or braked",
+                           hint="release the brakes, roll the car slowly on a clean runway and start again")
 
 
 def _check_slip(rolling_radius_m: dict[str, float]) -> None:

@@ -51,8 +51,8 @@ STEPS = (
          "fits its calibration (a camera knocked out of place shows as drift). Kept as job 'calibration-check'.",
          "station measure --job calibration-check", _calibration_check),
     Step("runout", "Runout compensation",
-         "Release the brake, wheels straight. When asked, roll the car back about 15 cm, then forward about 30 cm, "
-         "then back to the start, slowly, following the bar; let it stand still at each position. The station "
+         "Release the brake, wheels straight. When asked, roll the car back about 15 cm, then forward in steps of "
+         "7.5, 15 and 7.5 cm (15 cm past the start), then back to the start, slowly, following the bar; let it stand still at each position. The station "
          "finds each wheel's spin axis and keeps the runout with the job.",
          "station measure --compensate --job JOB", _runout),
     Step("steering", "Steering sweep (caster, SAI)",
