@@ -173,3 +173,20 @@ def test_the_hubs_are_found_from_the_lip_centres_of_a_rolled_car():
     assert np.allclose(found.center_station, hubs, atol=1e-9)
     assert np.allclose(found.offset_station, offsets, atol=1e-9)
     assert np.allclose(found.travel_m, travel[:3], atol=1e-9)
+
+
+def test_the_views_agreement_a_spin_axis_carries_is_its_typical_captures():
+    """One capture whose two views disagree (an edge decided the other way under its noise) does
+    not make the spin axis uncertain; the median capture's agreement is what it carries."""
+    from types import SimpleNamespace
+
+    from station.procedures.runout import _typical_views
+    from station.wheel.view_agreement import ViewAgreement
+
+    def views(deg):
+        return ViewAgreement(np.zeros((2, 3)), np.zeros(2), np.zeros(2), np.array([0.0, np.radians(deg), 0.0]))
+
+    angles = [0.05, 1.38, 0.08, 0.06, 0.04, 0.54]
+    typical = _typical_views([SimpleNamespace(views=views(a)) for a in angles])
+    assert typical.angle_deg == pytest.approx(0.06)
+    assert _typical_views([SimpleNamespace(views=None)]) is None

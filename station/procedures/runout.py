@@ -36,6 +36,7 @@ from station.wheel.rim_pattern import FacePose, angular_profile, face_depth, rot
 from station.wheel.face_motion import face_spin_axis, with_face
 from station.wheel.hub_center import hub_centers
 from station.wheel.runout import SpinAxis, fit_spin_axis
+from station.wheel.view_agreement import ViewAgreement
 
 ROLL_DISTANCE_M = 0.15         # how far the car is rolled each way: about 25 deg of a wheel's turn
 ROLL_PLAN = (0.0, -1.0, -0.5, 0.5, 1.0, 0.0)  # where the car stands at each capture, in roll distances; the last is the
@@ -64,6 +65,7 @@ class WheelRoll:
     hub_offset_station: np.ndarray
     cov_hub_offset: np.ndarray
     face_points: int = 0
+    views: ViewAgreement | None = None
 
 
 def wheel_rolls(results: list[Measurement], images: list[dict], models: dict[str, CameraModel],
@@ -100,7 +102,20 @@ def wheel_rolls(results: list[Measurement], images: list[dict], models: dict[str
                        np.array([turns[w] for w in WHEELS]), np.array([spins[w].axis_station for w in WHEELS]),
                        forward)
     return {w: WheelRoll(spins[w], np.degrees(turns[w]), own[w], seen[w].depth, hubs.offset_station[i],
-                         hubs.cov_offset[i], face_points[w]) for i, w in enumerate(WHEELS)}
+                         hubs.cov_offset[i], face_points[w], _typical_views([r.observations[w] for r in results]))
+            for i, w in enumerate(WHEELS)}
+
+
+def _typical_views(observations: list) -> ViewAgreement | None:
+    """The views' agreement (station/wheel/view_agreement.py) of the capture whose two views
+    disagree the median amount among ``observations`` (one wheel's, K captures; the lower middle
+    when K is even). An edge bias where the light puts it shows at every capture; one capture's
+    edge decided the other way (new noise at the same place gives the usual agreement) is one
+    normal of the several the spin axis rests on, and the face's axis checks it."""
+    views = [o.views for o in observations if o.views is not None]
+    if not views:
+        return None
+    return sorted(views, key=lambda v: v.angle_deg)[(len(views) - 1) // 2]
 
 
 @dataclass(frozen=True)
@@ -177,18 +192,22 @@ def compensated(reference: Measurement, rolls: dict[str, WheelRoll], config: Sta
     its spin axis, their uncertainty from the fit, and its runout; a warning per rim whose runout
     exceeds ``measurement.runout_limit_deg``."""
     return with_spin_axes(reference, {w: r.spin for w, r in rolls.items()}, config,
-                          {w: (r.hub_offset_station, r.cov_hub_offset) for w, r in rolls.items()})
+                          {w: (r.hub_offset_station, r.cov_hub_offset) for w, r in rolls.items()},
+                          {w: r.views for w, r in rolls.items() if r.views is not None})
 
 
 def with_spin_axes(reference: Measurement, spins: dict[str, SpinAxis], config: StationConfig,
-                   hub_offsets: dict[str, tuple[np.ndarray, np.ndarray]] | None = None) -> Measurement:
+                   hub_offsets: dict[str, tuple[np.ndarray, np.ndarray]] | None = None,
+                   views: dict[str, ViewAgreement] | None = None) -> Measurement:
     """A copy of the valid ``reference`` whose angles are of the spin axes ``spins`` (one per
     wheel, with their covariance: it holds the normals' unseen share already), each wheel's runout
     beside; ``runout_compensated`` set; a warning per rim that runs out beyond the limit. With
     ``hub_offsets`` (per wheel: its lip centre's offset from its hub (3,) m and its (3,3)
-    covariance), the car frame rests on the hubs instead of the lip centres. A spin
-    axis less certain than ``measurement.uncertainty_limit_deg`` makes it invalid, as a single
-    capture's rim plane would (station.measure.refuse_uncertain_wheels)."""
+    covariance), the car frame rests on the hubs instead of the lip centres. With ``views`` (per
+    wheel: the views' agreement of its typical capture, ``_typical_views``) that, not the
+    reference's, adds to each spin axis's uncertainty. A spin axis less certain than
+    ``measurement.uncertainty_limit_deg`` makes it invalid, as a single capture's rim plane
+    would (station.measure.refuse_uncertain_wheels)."""
     result = replace(reference, wheels={}, axles={}, warnings=list(reference.warnings),
                      warning_flags=list(reference.warning_flags), timing_s=dict(reference.timing_s))
     fits = {w: replace(o.circle, axis_station=spins[w].axis_station, cov_axis=spins[w].cov_axis)
@@ -197,7 +216,9 @@ def with_spin_axes(reference: Measurement, spins: dict[str, SpinAxis], config: S
         c = fits[w]
         fits[w] = replace(c, center_station=np.asarray(c.center_station, float) - offset,
                           cov_center=np.asarray(c.cov_center, float) + cov)
-    fill_angles(result, fits, reference.observations, config, unseen=False)
+    observations = {w: replace(o, views=views[w]) if views and w in views else o
+                    for w, o in reference.observations.items()}
+    fill_angles(result, fits, observations, config, unseen=False)
     limit = config.measurement.runout_limit_deg
     for w, s in spins.items():
         result.wheels[w] = replace(result.wheels[w], runout_deg=s.runout_deg, runout_phase_deg=s.runout_phase_deg,
@@ -208,7 +229,7 @@ def with_spin_axes(reference: Measurement, spins: dict[str, SpinAxis], config: S
                         "and camber are of the spin axis, but check the rim and its mounting",
                         WarningFlag("runout", w))
     result.runout_compensated = True
-    result.failure = refuse_uncertain_wheels(result, reference.observations, config)
+    result.failure = refuse_uncertain_wheels(result, observations, config)
     result.valid = result.failure is None
     return result
 
