@@ -30,7 +30,7 @@ from station.config import StationConfig
 from station.errors import CODED_ERRORS, ProcedureError, StationError, StorageError, WheelLeftView
 from station.measure import measure_frames
 from station.operator import AlignmentOperator
-from station.procedures.runout import ROLL_DISTANCE_M, ROLL_PLAN, compensated, wheel_rolls
+from station.procedures.runout import MIN_POSITIONS, ROLL_DISTANCE_M, ROLL_PLAN, compensated, wheel_rolls
 from station.procedures.runout_store import apply_kept_runout_to, keep_runout
 from station.procedures.steering import DEFAULT_SWEEP_DEG, STEER_PLAN, steering_geometry, sweep_poses
 from station.records.atomic_file import write_text_atomic
@@ -199,19 +199,26 @@ class Station:
 
     def _measure_rolled(self, cycle: _Cycle, captures: list[dict], method: str) -> Measurement:
         """Each position measured, then the spin axes (station/procedures/runout.py): the last
-        position's result with toe and camber of the spin axes. A position that fails, or a
-        procedure the checks refuse, gives an invalid result naming why."""
+        position's result with toe and camber of the spin axes. A position other than the last
+        that fails is left out with a warning while ``MIN_POSITIONS`` remain; the last (the
+        result's) failing, fewer remaining, or a procedure the checks refuse, gives an invalid
+        result naming why."""
         results = []
         for frames, truth in zip(captures, cycle.truths):
             cycle.truth = truth  # each position's result against the car as it stood then
             results.append(self._measure(cycle, frames, method, apply_kept_runout=False, refuse_uncertain=False))
+        bad = [k for k, r in enumerate(results) if not r.valid]
+        if bad and (bad[-1] == len(results) - 1 or len(results) - len(bad) < MIN_POSITIONS):
+            failed = results[bad[-1]]
+            failed.warnings.insert(0, f"runout compensation: position {bad[-1] + 1} of {len(results)} failed")
+            return failed
+        left_out = [f"runout compensation: position {k + 1} of {len(results)} left out ({results[k].failure.message})"
+                    for k in bad]
+        results = [r for k, r in enumerate(results) if k not in bad]
+        captures = [c for k, c in enumerate(captures) if k not in bad]
         cycle.positions = results
         result = results[-1]
-        bad = next((k for k, r in enumerate(results) if not r.valid), None)
-        if bad is not None:
-            failed = results[bad]
-            failed.warnings.insert(0, f"runout compensation: position {bad + 1} of {len(results)} failed")
-            return failed
+        result.warnings[:0] = left_out
         t0 = time.perf_counter()
         images = [{cid: f.image for cid, f in frames.items()} for frames in captures]
         try:

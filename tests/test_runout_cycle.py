@@ -126,3 +126,27 @@ def test_a_roll_that_did_not_happen_is_refused_with_its_code_and_kept(station):
         row = h.get(result.cycle_id)
     assert row is not None and not row["valid"]
     assert not runout_path(station.config, "JOB-R3").exists()
+
+
+@pytest.mark.slow
+def test_a_position_that_fails_is_left_out_and_named(station, monkeypatch):
+    """A rim lost at one position between the roll's ends costs that position, not the cycle."""
+    from station.result import Failure
+
+    measure, calls = Station._measure, []
+
+    def third_fails(self, cycle, frames, method, **kw):
+        result = measure(self, cycle, frames, method, **kw)
+        calls.append(result)
+        if len(calls) == 3:
+            result.valid, result.failure = False, Failure(400, "FR (cam1, cam2): a rim made to fail", "none", "FR")
+        return result
+
+    monkeypatch.setattr(Station, "_measure", third_fails)
+    result = station.measure(compensate=station.context.simulation)
+    assert result.valid, result.failure
+    assert result.runout_compensated
+    assert f"runout compensation: position 3 of {len(ROLL_PLAN)} left out (FR (cam1, cam2): a rim made to fail)" \
+        in result.warnings
+    for w in WHEELS:
+        assert _spin_error(result, result.truth, w) < 0.06, w

@@ -41,6 +41,7 @@ from station.wheel.view_agreement import ViewAgreement
 ROLL_DISTANCE_M = 0.15         # how far the car is rolled each way: about 25 deg of a wheel's turn
 ROLL_PLAN = (0.0, -1.0, -0.5, 0.5, 1.0, 0.0)  # where the car stands at each capture, in roll distances; the last is the
 #                                                result's; the stops between the ends see the lip from views of their own
+MIN_POSITIONS = 4              # a position whose measurement failed is left out while this many remain
 TYRE_BEYOND_LIP_M = 0.10       # a rolling radius to expect from the lip's (only to tell a rim's N-fold symmetry apart)
 MIN_ROLL_DEG = 10.0            # the captures must turn every wheel through at least this
 MIN_PATTERN_PEAK = 0.7         # a face followed from one capture to another correlates at least this well
