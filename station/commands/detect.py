@@ -168,11 +168,11 @@ def _exposed(image: np.ndarray, light: np.ndarray, name: str) -> tuple[np.ndarra
     brightest level is 40 of 255 is dark, not black, though its light is 2 % of full scale);
     light that dark is scaled up to EXPOSED_LIGHT_LEVEL (still proportional to light, so the
     edge model holds; float, so no level is lost) when the searches would take it for black
-    (``detector.BLACK_GREY``), gain 1 otherwise (the light as it was)."""
-    from station.rim.detector import BLACK_GREY, _check_exposure, exposure_levels
+    (``exposure.BLACK_GREY``), gain 1 otherwise (the light as it was)."""
+    from station.rim.exposure import BLACK_GREY, check_exposure, exposure_levels
     from station.rim.preprocess import to_grey
 
-    brightest = _check_exposure(to_grey(image, name), name or "image")
+    brightest = check_exposure(to_grey(image, name), name or "image")
     if light is image:
         return light, 1.0, brightest
     lit = to_grey(light, name)

@@ -31,7 +31,8 @@ from station.rim import hough
 from station.rim.choice import choose
 from station.rim.ellipse import Ellipse
 from station.rim.ellipse_fit import fit_direct, fit_geometric, ransac_ellipse
-from station.rim.npfast import finite_rows, median, percentiles, rows, sector_medians
+from station.rim.exposure import check_exposure
+from station.rim.npfast import finite_rows, median, rows, sector_medians
 from station.rim.preprocess import PixelMap, detection_scale, downscale, equalize, noise_grey, to_grey
 from station.rim.subpixel import WIDE_BLUR_PX, edge_points, repositioned, window_scale
 from station.rim.white_edge import white_share
@@ -96,32 +97,6 @@ class _Clock:
         now = time.perf_counter()
         self.stages[name] = self.stages.get(name, 0.0) + now - self.t
         self.t = now
-
-
-BLACK_GREY = 12.0  # an image whose brightest grey level (99.5th percentile, of 255) is under this is black
-
-
-def exposure_levels(grey: np.ndarray) -> tuple[float, float]:
-    """The darkest and brightest grey levels (1st, 99.5th percentile) of ``grey`` (H,W), from
-    about 2e4 of its pixels (enough to tell the exposure)."""
-    step = max(1, int(np.sqrt(grey.size / 20000)))
-    lo, hi = percentiles(grey[::step, ::step], [1.0, 99.5])
-    return float(lo), float(hi)
-
-
-def _check_exposure(grey: np.ndarray, tag: str) -> float:
-    """RimNotFound for a black, saturated or flat image; else its brightest grey level."""
-    lo, hi = exposure_levels(grey)
-    if hi < BLACK_GREY:
-        raise RimNotFound(f"{tag}: image is black (brightest grey level {hi:.0f} of 255)",
-                          hint="check the lighting, the exposure time and that the lens is uncovered")
-    if lo > 243:
-        raise RimNotFound(f"{tag}: image is saturated (darkest grey level {lo:.0f} of 255)",
-                          hint="reduce the exposure time or gain")
-    if hi - lo < 8:
-        raise RimNotFound(f"{tag}: image has no contrast (grey levels {lo:.0f}..{hi:.0f})",
-                          hint="check that the camera sees the wheel and is in focus")
-    return hi
 
 
 _TABLES = BoundedCache(16)  # per camera and image size
@@ -293,7 +268,7 @@ def detect_rim(image: np.ndarray, *, camera=None, prior: Ellipse | None = None, 
     tag = camera_id or "image"
     clock = _Clock()
     grey = to_grey(image, camera_id)
-    _check_exposure(grey, tag)
+    check_exposure(grey, tag)
     pmap = PixelMap(camera)
     clock.lap("grey")
     fit = None

@@ -43,6 +43,7 @@ import numpy as np
 from station.errors import RimNotFound
 from station.rim import photo_candidates as pc
 from station.rim.ellipse import Ellipse
+from station.rim.exposure import check_exposure
 
 MIN_AXIS_RATIO = 0.2      # b/a: steeper views leave a semi-minor axis of a few search pixels
 MAX_TILT_DEG = 30.0       # the major axis off the image's vertical (upright wheel, level-ish camera)
@@ -167,12 +168,11 @@ def detect_in_photo(image: np.ndarray, camera_id: str = ""):
     """The rim in a photograph (``image``: grey levels proportional to light, grey or BGR,
     uint8/uint16/float): a ``RimDetection`` (``details["path"] == "photo"``), or RimNotFound
     naming what was seen and why it was not taken."""
-    from station.rim.detector import _check_exposure
     from station.rim.preprocess import to_grey
 
     tag = camera_id or "image"
     grey = to_grey(image, camera_id)
-    _check_exposure(grey, tag)
+    check_exposure(grey, tag)
     L, s = pc.search_image(grey)
     rubber_level = float(np.percentile(L[::2, ::2], RUBBER_PERCENTILE))
     a_min = 0.5 * MIN_RIM_PX / s
