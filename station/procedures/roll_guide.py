@@ -7,8 +7,9 @@ second, a bar of how far the car has rolled toward the position asked for ("roll
 and 3-D fit, station/procedures/live_follow.py), and returns once the front wheels' centres stand
 within ``tolerance_m`` of that position and have stood still for ``still_updates`` readings. The
 roll is the mean travel of the front rims' centres seen along the station's y (forward +) since
-the first reading; one front rim lost for a moment (shown) does not hold the car up. On the simulated station its technician (drivers.context.Simulation) rolls the car
-when asked; at a real station the technician does.
+the first reading; one front rim lost for a moment (shown) does not hold the car up. On the
+simulated station its technician (drivers.context.Simulation) rolls the car when asked; at a
+real station the technician does.
 """
 
 from __future__ import annotations

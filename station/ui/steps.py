@@ -52,8 +52,8 @@ STEPS = (
          "station measure --job calibration-check", _calibration_check),
     Step("runout", "Runout compensation",
          "Release the brake, wheels straight. When asked, roll the car back about 15 cm, then forward in steps of "
-         "7.5, 15 and 7.5 cm (15 cm past the start), then back to the start, slowly, following the bar; let it stand still at each position. The station "
-         "finds each wheel's spin axis and keeps the runout with the job.",
+         "7.5, 15 and 7.5 cm (15 cm past the start), then back to the start, slowly, following the bar; let it "
+         "stand still at each position. The station finds each wheel's spin axis and keeps the runout with the job.",
          "station measure --compensate --job JOB", _runout),
     Step("steering", "Steering sweep (caster, SAI)",
          "Front wheels on the turn plates (pins out), brake held with the pedal depressor. When asked, steer left "

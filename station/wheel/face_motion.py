@@ -121,7 +121,8 @@ def lucas_kanade(template: np.ndarray, image: np.ndarray, uv0: np.ndarray, itera
     residual = np.where(seen, fitted - template, 0.0)
     variance = (residual ** 2).sum((1, 2)) / np.maximum(seen.sum((1, 2)) - 2, 1)
     cov = variance[:, None, None] * np.linalg.inv(H) + PIXEL_NOISE_PX ** 2 * np.eye(2)
-    converged = (np.abs(step).max(1) < 0.02) & (np.linalg.norm(d, axis=1) < 3.0) & (seen.mean((1, 2)) >= 0.9) & (norm > 1e-3)
+    converged = ((np.abs(step).max(1) < 0.02) & (np.linalg.norm(d, axis=1) < 3.0)
+                 & (seen.mean((1, 2)) >= 0.9) & (norm > 1e-3))                # the patch on the image
     return d, converged & np.isfinite(cov).all((1, 2)), cov
 
 
