@@ -174,9 +174,9 @@ def unseen_axis_covariance(o: WheelObservation, axis_station: np.ndarray, config
 
 def views_covariance(o: WheelObservation, config: StationConfig) -> np.ndarray:
     """(3,3) what the pair's two views' disagreement about the rim's axis adds to it
-    (station/wheel/view_agreement.py). A procedure of several captures adds it to what it
-    reports, not to each capture: the arc a view sees off the edge stays where the light puts
-    it while the wheel rolls or steers, so it weighs every capture alike."""
+    (station/wheel/view_agreement.py). A procedure of several captures adds it to the axis it
+    finds from the lip, not to each capture: the arc a view sees off the edge stays where the
+    light puts it while the wheel rolls or steers, so it weighs every capture alike."""
     return disagreement_covariance(o.views, config.measurement.view_edge_bias_px)
 
 
@@ -199,12 +199,12 @@ def unseen_axis_shape(axis_station: np.ndarray, toe_scale: float) -> np.ndarray:
 
 
 def fill_angles(result: Measurement, fits: dict[str, WheelFit], observations: dict, config: StationConfig,
-                unseen: bool = True) -> None:
+                floors: bool = True) -> None:
     """The angles of the wheels ``fits`` (one WheelFit per wheel), their standard uncertainty
-    and each wheel's 3-D rim, into ``result``. ``unseen``: add each wheel's unseen variance
-    (:func:`unseen_axis_variance`) to its fit's axis covariance (False: the fits' covariances
-    hold it already, as a spin axis fitted to several captures does). The views' disagreement
-    (:func:`views_covariance`, of ``observations``) is added either way."""
+    and each wheel's 3-D rim, into ``result``. ``floors``: add each wheel's unseen variance
+    (:func:`unseen_axis_variance`) and its views' disagreement (:func:`views_covariance`, of
+    ``observations``) to its fit's axis covariance (False: the fits' covariances hold both
+    already, as a spin axis fitted to several captures does)."""
     centers = {w: f.center_station for w, f in fits.items()}
     axes = {w: f.axis_station for w, f in fits.items()}
     angles = alignment.compute_angles(centers, axes)
@@ -212,8 +212,9 @@ def fill_angles(result: Measurement, fits: dict[str, WheelFit], observations: di
     # the floor: an error no single cycle's residuals show (a decision between arcs that a
     # new capture may take the other way, an edge bias the circle absorbs completely), in
     # quadrature across each axis, less in toe's direction than camber's (docs/measurement.md)
-    cov_a = {w: _finite_cov(f.cov_axis, 1e-8) + views_covariance(observations[w], config)
-             + (unseen_axis_covariance(observations[w], f.axis_station, config) if unseen else 0.0)
+    cov_a = {w: _finite_cov(f.cov_axis, 1e-8) + (views_covariance(observations[w], config)
+                                                  + unseen_axis_covariance(observations[w], f.axis_station, config)
+                                                  if floors else 0.0)
              for w, f in fits.items()}
     cov = alignment.angle_covariance(centers, axes, cov_c, cov_a)
     std = dict(zip(ANGLE_NAMES, np.sqrt(np.clip(np.diag(cov), 0, None))))

@@ -190,3 +190,32 @@ def test_the_views_agreement_a_spin_axis_carries_is_its_typical_captures():
     typical = _typical_views([SimpleNamespace(views=views(a)) for a in angles])
     assert typical.angle_deg == pytest.approx(0.06)
     assert _typical_views([SimpleNamespace(views=None)]) is None
+
+
+def test_a_lip_whose_two_views_disagree_weighs_less_against_the_faces_axis():
+    """The views' disagreement is a bias of the lip's edge, not of the face: it goes into the
+    lip's spin axis before the two join, so the joined axis leans to the face's and is stated
+    by what the face knows, not by the lip's doubt added afterwards."""
+    from station.procedures.runout import lip_spin_axis
+    from station.wheel.face_motion import FaceSpin, with_face
+    from station.wheel.view_agreement import ViewAgreement, disagreement_covariance
+
+    rng = np.random.default_rng(4)
+    a, m = _rim(rng, 0.2)
+    theta = np.radians(np.array([0.0, -25.0, -12.5, 12.5, 25.0, 0.0]))
+    cov = np.tile(np.eye(3) * np.radians(0.01) ** 2, (6, 1, 1))
+    across = np.cross(a, [0.0, 0.0, 1.0])
+    across /= np.linalg.norm(across)
+    views = ViewAgreement(np.array([a, a]), np.zeros(2), np.zeros(2), np.radians(0.16) * across)
+    agreeing = lip_spin_axis(rotate(a, theta, m), theta, cov, 0.22, None, 0.05)
+    doubted = lip_spin_axis(rotate(a, theta, m), theta, cov, 0.22, views, 0.05)
+    np.testing.assert_allclose(doubted.cov_axis - agreeing.cov_axis, disagreement_covariance(views, 0.05), atol=1e-15)
+    assert np.sqrt(np.trace(doubted.cov_axis) / 2) > np.radians(0.16 / 2) * 0.99     # half the disagreement
+    # a face axis 0.02 deg off the lip's, as sure as the lip's fit alone
+    face_axis = a + np.radians(0.02) * np.cross(a, across)
+    face = FaceSpin(face_axis / np.linalg.norm(face_axis), agreeing.cov_axis.copy(), 150)
+    even = with_face(agreeing, face, 0.22)
+    leaning = with_face(doubted, face, 0.22)
+    assert _angle_deg(even.axis_station, a) == pytest.approx(0.01, rel=0.05)        # halfway
+    assert _angle_deg(leaning.axis_station, face.axis_station) < 0.002               # nearly the face's
+    assert np.trace(leaning.cov_axis) < np.trace(agreeing.cov_axis) * 1.01            # stated as sure as the face

@@ -36,7 +36,7 @@ from station.wheel.rim_pattern import FacePose, angular_profile, face_depth, rot
 from station.wheel.face_motion import face_spin_axis, with_face
 from station.wheel.hub_center import hub_centers
 from station.wheel.runout import SpinAxis, fit_spin_axis
-from station.wheel.view_agreement import ViewAgreement
+from station.wheel.view_agreement import ViewAgreement, disagreement_covariance
 
 ROLL_DISTANCE_M = 0.15         # how far the car is rolled each way: about 25 deg of a wheel's turn
 ROLL_PLAN = (0.0, -1.0, -0.5, 0.5, 1.0, 0.0)  # where the car stands at each capture, in roll distances; the last is the
@@ -78,6 +78,7 @@ def wheel_rolls(results: list[Measurement], images: list[dict], models: dict[str
     forward = np.asarray(results[-1].alignment_frame["R_station_align"])[:, 1]
     seen = {w: _follow(w, results, linear, models, config, forward) for w in WHEELS}
     radius = _car_rolling_radius(seen)
+    views = {w: _typical_views([r.observations[w] for r in results]) for w in WHEELS}
     spins, turns, own, face_points = {}, {}, {}, {}
     for w, f in seen.items():
         theta = _turns(w, f, radius)
@@ -87,7 +88,8 @@ def wheel_rolls(results: list[Measurement], images: list[dict], models: dict[str
                                f"(at least {MIN_ROLL_DEG:.0f} needed to find its spin axis)",
                                hint=f"roll the car about {ROLL_DISTANCE_M * 100:.0f} cm each way when asked")
         cov = np.array([normal_covariance(r, w, config) for r in results])
-        spins[w] = fit_spin_axis(np.array([p.axis_station for p in f.poses]), theta, cov, f.poses[-1].radius_m)
+        spins[w] = lip_spin_axis(np.array([p.axis_station for p in f.poses]), theta, cov, f.poses[-1].radius_m,
+                                 views[w], config.measurement.view_edge_bias_px)
         cams = (config.pairs[w].precision, config.pairs[w].reference)
         face = face_spin_axis([(im[cams[0]], im[cams[1]]) for im in linear], (models[cams[0]], models[cams[1]]),
                               f.poses, theta)
@@ -103,8 +105,20 @@ def wheel_rolls(results: list[Measurement], images: list[dict], models: dict[str
                        np.array([turns[w] for w in WHEELS]), np.array([spins[w].axis_station for w in WHEELS]),
                        forward)
     return {w: WheelRoll(spins[w], np.degrees(turns[w]), own[w], seen[w].depth, hubs.offset_station[i],
-                         hubs.cov_offset[i], face_points[w], _typical_views([r.observations[w] for r in results]))
+                         hubs.cov_offset[i], face_points[w], views[w])
             for i, w in enumerate(WHEELS)}
+
+
+def lip_spin_axis(normals_station: np.ndarray, theta_rad: np.ndarray, cov_normals: np.ndarray, radius_m: float,
+                  views: ViewAgreement | None, edge_bias_px: float) -> SpinAxis:
+    """The spin axis the lip's normals (K,3) at the turns ``theta_rad`` (K,) give, with their
+    (K,3,3) covariances (station/wheel/runout.py), its covariance holding the disagreement of
+    the typical capture's two views (``views``, beyond what ``edge_bias_px`` explains,
+    station/wheel/view_agreement.py): a bias of the lip's edge that stays where the light puts
+    it, alike at every capture, which the face's own motion does not share; joined with the
+    face's axis, a lip whose views disagree weighs that much less."""
+    spin = fit_spin_axis(normals_station, theta_rad, cov_normals, radius_m)
+    return replace(spin, cov_axis=spin.cov_axis + disagreement_covariance(views, edge_bias_px))
 
 
 def _typical_views(observations: list) -> ViewAgreement | None:
@@ -201,12 +215,12 @@ def with_spin_axes(reference: Measurement, spins: dict[str, SpinAxis], config: S
                    hub_offsets: dict[str, tuple[np.ndarray, np.ndarray]] | None = None,
                    views: dict[str, ViewAgreement] | None = None) -> Measurement:
     """A copy of the valid ``reference`` whose angles are of the spin axes ``spins`` (one per
-    wheel, with their covariance: it holds the normals' unseen share already), each wheel's runout
-    beside; ``runout_compensated`` set; a warning per rim that runs out beyond the limit. With
-    ``hub_offsets`` (per wheel: its lip centre's offset from its hub (3,) m and its (3,3)
-    covariance), the car frame rests on the hubs instead of the lip centres. With ``views`` (per
-    wheel: the views' agreement of its typical capture, ``_typical_views``) that, not the
-    reference's, adds to each spin axis's uncertainty. A spin axis less certain than
+    wheel, with their covariance: it holds the normals' unseen share and the views' disagreement
+    already), each wheel's runout beside; ``runout_compensated`` set; a warning per rim that runs
+    out beyond the limit. With ``hub_offsets`` (per wheel: its lip centre's offset from its hub
+    (3,) m and its (3,3) covariance), the car frame rests on the hubs instead of the lip centres.
+    With ``views`` (per wheel: the views' agreement of its typical capture, ``_typical_views``)
+    that, not the reference's, is reported with each wheel. A spin axis less certain than
     ``measurement.uncertainty_limit_deg`` makes it invalid, as a single capture's rim plane
     would (station.measure.refuse_uncertain_wheels)."""
     result = replace(reference, wheels={}, axles={}, warnings=list(reference.warnings),
@@ -219,7 +233,7 @@ def with_spin_axes(reference: Measurement, spins: dict[str, SpinAxis], config: S
                           cov_center=np.asarray(c.cov_center, float) + cov)
     observations = {w: replace(o, views=views[w]) if views and w in views else o
                     for w, o in reference.observations.items()}
-    fill_angles(result, fits, observations, config, unseen=False)
+    fill_angles(result, fits, observations, config, floors=False)
     limit = config.measurement.runout_limit_deg
     for w, s in spins.items():
         result.wheels[w] = replace(result.wheels[w], runout_deg=s.runout_deg, runout_phase_deg=s.runout_phase_deg,

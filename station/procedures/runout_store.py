@@ -26,7 +26,7 @@ from calibration.camera_model import CameraModel
 from calibration.station_frame import SIDE, WHEELS
 from station.config import StationConfig
 from station.errors import StorageError
-from station.measure import unseen_axis_covariance
+from station.measure import unseen_axis_covariance, views_covariance
 from station.procedures.runout import (MIN_PATTERN_PEAK, PATTERN_AGREEMENT_DEG, ROLL_DISTANCE_M, TYRE_BEYOND_LIP_M,
                                        WheelRoll, with_spin_axes)
 from station.records.atomic_file import write_text_atomic
@@ -166,8 +166,8 @@ def apply_kept_runout_to(config: StationConfig, result: Measurement, images: dic
             return _not_applied(result, f"{w}: its cameras disagree on how far the wheel turned")
         turn = float(np.radians(np.mean(angles)))
         spins[w] = spin_from_runout(pose.axis_station, k, turn,
-                                    np.asarray(c.cov_axis, float) + unseen_axis_covariance(
-                                        result.observations[w], pose.axis_station, config))
+                                    np.asarray(c.cov_axis, float) + views_covariance(result.observations[w], config)
+                                    + unseen_axis_covariance(result.observations[w], pose.axis_station, config))
         # the lip centre's offset from the hub turns with the wheel, as its tilt does
         R = rotation_matrix(spins[w].axis_station, turn)
         hubs[w] = (R @ k.hub_offset_station_m, R @ k.cov_hub_offset @ R.T)
