@@ -2,7 +2,6 @@
 writes the job id and the command register, reads the result registers as big-endian float32 and
 as int16, and gets the right Modbus exceptions for bad writes. Over TCP and over RTU (socat)."""
 
-import re
 import shutil
 import subprocess
 import time
@@ -13,24 +12,10 @@ from station.plc import register_map as rm
 from station.plc.background import BackgroundServer
 from station.plc.device import PlcDevice
 from station.plc.runner import CycleRequest, dry_run_runner, synthetic_result
+from tests.mbpoll_cli import mbpoll, parse, signed
 
 pytestmark = pytest.mark.skipif(shutil.which("mbpoll") is None, reason="mbpoll is not installed (apt-get install mbpoll)")
 JOB = "WVWZZZ1KZAW000017"
-
-
-def mbpoll(args: list[str], *values: int) -> subprocess.CompletedProcess:
-    return subprocess.run(["mbpoll", "-0", "-1", "-o", "2", *args, *map(str, values)],
-                          capture_output=True, text=True, timeout=20)
-
-
-def parse(out: str) -> dict[int, str]:
-    """mbpoll's '[120]: \t0.243700' lines -> {120: '0.243700'}."""
-    return {int(a): v.strip() for a, v in re.findall(r"^\[(\d+)\]:\s+(\S+)", out, re.M)}
-
-
-def signed(v: str) -> int:
-    n = int(v)
-    return n - 65536 if n > 32767 else n
 
 
 def drive_a_cycle(target: list[str]) -> None:

@@ -7,7 +7,6 @@ a small simulated station whose car the PLC's simulated conveyor moves."""
 from __future__ import annotations
 
 import math
-import re
 import shutil
 import socket
 import subprocess
@@ -30,6 +29,7 @@ from station.plc.master import main as plc_sim_main
 from station.plc.results import cleared_registers, result_registers, roll_prompt_registers
 from station.plc.roll_operator import PlcRollOperator, RollPrompt, roll_plan
 from station.plc.runner import CycleRequest, dry_run_runner, synthetic_result
+from tests.mbpoll_cli import mbpoll, parse, signed
 
 ROOT = Path(__file__).resolve().parent.parent
 PY = sys.executable
@@ -408,20 +408,6 @@ def test_the_plc_simulator_command_line_rolls_and_reports_each_step(capsys, stat
 
 
 # --- a third-party client and the command -------------------------------------------------------
-def mbpoll(args: list[str], *values: int) -> subprocess.CompletedProcess:
-    return subprocess.run(["mbpoll", "-0", "-1", "-o", "2", *args, *map(str, values)],
-                          capture_output=True, text=True, timeout=20)
-
-
-def parse(out: str) -> dict[int, str]:
-    return {int(a): v.strip() for a, v in re.findall(r"^\[(\d+)\]:\s+(\S+)", out, re.M)}
-
-
-def signed(v: str) -> int:
-    n = int(v)
-    return n - 65536 if n > 32767 else n
-
-
 @pytest.mark.skipif(shutil.which("mbpoll") is None, reason="mbpoll is not installed (apt-get install mbpoll)")
 def test_mbpoll_drives_a_compensated_cycle(station):
     job = "WVWZZZ1KZAW000017"

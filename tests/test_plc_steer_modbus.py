@@ -6,7 +6,6 @@ technician the simulation is."""
 from __future__ import annotations
 
 import math
-import re
 import shutil
 import socket
 import subprocess
@@ -27,6 +26,7 @@ from station.plc.master import PlcSimulator, dry_run_expectation
 from station.plc.master import main as plc_sim_main
 from station.plc.runner import CycleRequest, dry_run_runner, synthetic_result
 from station.plc.steer_operator import steer_plan
+from tests.mbpoll_cli import mbpoll, parse, signed
 from tests.plc_steer_common import (ACK, BUSY, CASTER, CLEARED_STEER, COMPENSATED, DONE, FAULT, FRONT, IDLE,
                                      IN_POSITION, MEASURE, STEER)
 
@@ -345,20 +345,6 @@ def test_the_plc_simulator_command_line_prints_the_steers_and_the_steering(capsy
 
 
 # --- a third-party client and the command -------------------------------------------------------
-def mbpoll(args: list[str], *values: int) -> subprocess.CompletedProcess:
-    return subprocess.run(["mbpoll", "-0", "-1", "-o", "2", *args, *map(str, values)],
-                          capture_output=True, text=True, timeout=20)
-
-
-def parse(out: str) -> dict[int, str]:
-    return {int(a): v.strip() for a, v in re.findall(r"^\[(\d+)\]:\s+(\S+)", out, re.M)}
-
-
-def signed(v: str) -> int:
-    n = int(v)
-    return n - 65536 if n > 32767 else n
-
-
 @pytest.mark.skipif(shutil.which("mbpoll") is None, reason="mbpoll is not installed (apt-get install mbpoll)")
 def test_mbpoll_follows_a_steering_sweep(station):
     job = "WVWZZZ1KZAW000017"
