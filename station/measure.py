@@ -294,7 +294,9 @@ def _why_uncertain(o: WheelObservation, std_deg: float, config: StationConfig) -
                 f"{views.angle_deg:.2f} deg: one of them sees the rim's edge off on part of the rim "
                 f"(the fainter edge is {faint}'s)",
                 f"Look at {faint}'s image of the rim's lip: clean the lip (brake dust, dirt), shade it from direct "
-                f"sun, light it, or give {faint} a longer exposure if the rim is dark.")
+                f"sun, light it, or give {faint} a longer exposure if the rim is dark. On a glossy lip (clear-coated "
+                f"dark paint, polish, chrome) the lamps it mirrors move its edge: dim or move the lamps whose "
+                f"reflections sit on the lip, or light the wheel with a diffuse panel.")
     kept = kept_fractions(o)
     weak = o.cams[int(np.argmin(kept))]
     return (f"the 3-D rim rests on {min(kept):.0%} of {weak}'s edge points",
