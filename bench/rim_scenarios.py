@@ -32,7 +32,12 @@ its mirror reflectance of the workshop at normal incidence (simulators.scene.App
   99.5th percentile at grey 200-240);
 - sun-fixed-exposure: the same sun with each camera's fixed gain: the lit lip goes to white;
 - shop-reflections: gloss paint mirroring the workshop's lights in bands round the arches,
-  reflectance 0.12-0.3.
+  reflectance 0.12-0.3;
+- polished-, gunmetal-, gloss-black-, chrome-diffuse: those finishes with the station's
+  diffuse light panels round each wheel: the metal mirrors a smooth surround of radiance
+  0.3-0.6 (+/-20 % top to bottom, a dark slot at the cameras' height for them to look
+  through) instead of the workshop's lamps, windows and floor; the light on the wheel as
+  before.
 """
 
 from __future__ import annotations
@@ -62,8 +67,10 @@ LOOKS = {  # Appearance ranges of the other scenarios (angles in rad)
 }
 SUN = {"elevation_deg": (5, 20), "azimuth_off_deg": (-50, 50), "key_strength": (2.5, 4.0), "ambient": (0.15, 0.3),
        "veiling_glare": (0.08, 0.2), "auto_exposure": (200, 240)}
+UNDER_PANELS = {f"{k}-diffuse": k for k in ("polished", "gunmetal", "gloss-black", "chrome")}  # kind: its finish
+PANEL_SURROUND = (0.3, 0.6)   # the panels' radiance, as the metal mirrors it
 KINDS = ("silver", *FINISHES, "brake-dust", "dirt", "tyre-lettering", "protector-ridge", "low-contrast",
-         "arch-shadow", "sun-auto-exposure", "sun-fixed-exposure", "shop-reflections")
+         "arch-shadow", "sun-auto-exposure", "sun-fixed-exposure", "shop-reflections", *UNDER_PANELS)
 
 
 def _draw(r: np.random.Generator, ranges: dict) -> dict:
@@ -90,10 +97,12 @@ def scene_for(world, kind: str, seed: int, nominal, **overrides):
         return scene
     r = np.random.default_rng([seed, 137])
     wheel, look, light = {}, {}, {}
-    if kind in FINISHES:
-        look = _draw(r, FINISHES[kind])
+    if kind in FINISHES or kind in UNDER_PANELS:   # under the panels: the finish's own draws
+        look = _draw(r, FINISHES[UNDER_PANELS.get(kind, kind)])
         wheel["rim_albedo"] = look.pop("rim_albedo")
         look["spoke_albedo"] = wheel["rim_albedo"]
+        if kind in UNDER_PANELS:
+            look["surround"] = float(np.random.default_rng([seed, 140]).uniform(*PANEL_SURROUND))
     elif kind in LOOKS:
         look = _draw(r, LOOKS[kind])
         if kind == "arch-shadow":

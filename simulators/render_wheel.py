@@ -375,7 +375,8 @@ def trace_wheel(o: np.ndarray, d: np.ndarray, idx: np.ndarray, hits: Hits, light
                   specular=spec, shininess=shininess, key_scale=key_scale)
     if look.rim_mirror > 0:  # the workshop mirrored in the metal, less where dust and dirt cover it
         mm = np.flatnonzero(metal)
-        mirror = mirror_reflection(tuple(c[mm] for c in normals), (du[mm], dv[mm], dw[mm]), R, look.rim_mirror)
+        mirror = mirror_reflection(tuple(c[mm] for c in normals), (du[mm], dv[mm], dw[mm]), R, look.rim_mirror,
+                                   look.surround)
         value[mm] += mirror if clean is None else mirror * clean[mm]
     hits.store(idx[sel], t, LABEL_WHEEL + 40 * wheel_index + label_part, value)
 

@@ -53,6 +53,10 @@ class Appearance:
     rim_shininess: float = 24.0         # Phong exponent
     rim_mirror: float = 0.0             # reflectance of the workshop at normal incidence (Schlick
                                         # Fresnel: more at grazing angles); chrome ~0.9, clear coat ~0.05
+    surround: float = 0.0               # what the rim's metal mirrors: 0 the workshop (lamps, windows,
+                                        # floor); > 0 the station's diffuse light panels round the
+                                        # wheel, a smooth surround of this radiance (+/-20 % top to bottom)
+                                        # with a dark slot at the cameras' height (shading.mirror_reflection)
     spoke_albedo: float | None = None   # None: the vehicle's own
     # brake dust (a span of the lip's arc) and dirt (blotches) on the lip
     dust: float = 0.0                   # weight of dust_albedo at the span's middle (0: no dust)

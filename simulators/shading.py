@@ -104,11 +104,15 @@ def workshop_environment(rx: np.ndarray, ry: np.ndarray, rz: np.ndarray) -> np.n
     return value.astype(np.float32)
 
 
-def mirror_reflection(normals: tuple, dirs: tuple, R_station_frame: np.ndarray, reflectance) -> np.ndarray:
+def mirror_reflection(normals: tuple, dirs: tuple, R_station_frame: np.ndarray, reflectance,
+                      surround: float = 0.0) -> np.ndarray:
     """(N,) float32 radiance the surfaces reflect of the workshop (:func:`workshop_environment`),
-    Schlick's Fresnel weight ``F = m + (1 - m) (1 - |n.d|)^5`` with m = ``reflectance``
-    (scalar or (N,)). normals, dirs: three (N,) components each, unit, in a frame that
-    R_station_frame (3,3) turns into the station frame."""
+    or with ``surround`` > 0 of diffuse light panels round the wheel (radiance ``surround``,
+    20 % more straight up and less straight down) with a slot at the cameras' height, level
+    with the wheel, for them to look through (a dark band 0.1 rad wide about the horizontal),
+    by Schlick's Fresnel weight ``F = m + (1 - m)
+    (1 - |n.d|)^5`` with m = ``reflectance`` (scalar or (N,)). normals, dirs: three (N,)
+    components each, unit, in a frame that R_station_frame (3,3) turns into the station frame."""
     nx, ny, nz = normals
     dx, dy, dz = dirs
     ndotd = nx * dx + ny * dy + nz * dz
@@ -117,7 +121,11 @@ def mirror_reflection(normals: tuple, dirs: tuple, R_station_frame: np.ndarray, 
     rs = [R[k, 0] * r[0] + R[k, 1] * r[1] + R[k, 2] * r[2] for k in range(3)]
     m = np.asarray(reflectance, np.float32)
     fresnel = m + (1.0 - m) * (1.0 - np.minimum(np.abs(ndotd), 1.0)).astype(np.float32) ** 5
-    return (fresnel * workshop_environment(*rs)).astype(np.float32)
+    if surround > 0:
+        seen = surround * (1.0 + 0.2 * rs[2]) * (1.0 - 0.85 * np.exp(-(rs[2] / 0.1) ** 2))
+    else:
+        seen = workshop_environment(*rs)
+    return (fresnel * seen).astype(np.float32)
 
 
 def bilinear(texture: np.ndarray, s: np.ndarray, t: np.ndarray, wrap: bool = False) -> np.ndarray:

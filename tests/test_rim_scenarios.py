@@ -135,6 +135,24 @@ def test_chrome_lip_shows_the_workshop_in_bands(station):
     assert crossings >= 4
 
 
+def test_diffuse_panels_take_the_lamps_bands_off_a_glossy_lip(station):
+    """Under the panels the polished lip mirrors a smooth surround (and the cameras' slot):
+    its mirrored light is much more even round the wheel than the bands the workshop's lamps
+    and floor make of it."""
+    _, _, panels = view(station, "polished-diffuse")
+    _, _, workshop = view(station, "polished")
+    assert panels.vehicle == workshop.vehicle and 0.3 <= panels.appearance.surround <= 0.6
+    assert replace(panels.appearance, surround=0.0) == workshop.appearance   # only what it mirrors differs
+    plain = lip_and_tyre(station, None, without(station, "polished", rim_mirror=0.0)[2])[0]
+    spread = {}
+    for kind in ("polished", "polished-diffuse"):
+        lip = lip_and_tyre(station, kind)[0]
+        mirrored = (lip - plain)[~np.isnan(lip) & ~np.isnan(plain)]
+        assert mirrored.min() > 0                                 # the metal mirrors something everywhere
+        spread[kind] = np.percentile(mirrored, 95) - np.percentile(mirrored, 5)
+    assert spread["polished-diffuse"] < 0.4 * spread["polished"], spread
+
+
 def test_brake_dust_darkens_the_lip_over_its_span_only(station):
     _, _, scene = view(station, "brake-dust")
     look = scene.appearance
