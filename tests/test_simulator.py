@@ -356,3 +356,22 @@ def test_a_burst_of_frames_renders_the_still_scene_once(monkeypatch):
     world.blur_sigma["cam1"] = 1.5                                          # the lens was refocused
     world.render("cam1", np.random.default_rng(1))
     assert len(calls) == 3
+
+
+def test_the_panels_surround_is_even_but_for_the_cameras_slot():
+    """A mirror under the station's panels (``surround``) sees their radiance, a fifth more
+    straight up, and a dark slot level with the wheel; the workshop it replaces is neither."""
+    from simulators.shading import mirror_reflection
+
+    up, level, down = np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, -1.0])
+    seen = {}
+    for name, ray_out in (("up", up), ("level", level), ("down", down)):
+        n = ray_out + np.array([0.0, 1.0, 0.0])   # the mirror's normal halfway to a ray arriving along -y
+        n /= np.linalg.norm(n)
+        comps = lambda v: tuple(np.array([c]) for c in v)  # noqa: E731
+        panels = mirror_reflection(comps(n), comps([0.0, -1.0, 0.0]), np.eye(3), 1.0, surround=0.5)
+        workshop = mirror_reflection(comps(n), comps([0.0, -1.0, 0.0]), np.eye(3), 1.0)
+        seen[name] = (float(panels[0]), float(workshop[0]))
+    assert seen["up"][0] == pytest.approx(0.6, rel=1e-5) and seen["down"][0] == pytest.approx(0.4, rel=1e-5)
+    assert seen["level"][0] == pytest.approx(0.5 * 0.15, rel=1e-5)          # the slot: 85 % darker
+    assert seen["up"][1] != pytest.approx(0.6, rel=0.05)                   # the workshop's ceiling is another light
