@@ -109,7 +109,7 @@ def mirror_reflection(normals: tuple, dirs: tuple, R_station_frame: np.ndarray, 
     """(N,) float32 radiance the surfaces reflect of the workshop (:func:`workshop_environment`),
     or with ``surround`` > 0 of diffuse light panels round the wheel (radiance ``surround``,
     20 % more straight up and less straight down) with a slot at the cameras' height, level
-    with the wheel, for them to look through (a dark band 0.1 rad wide about the horizontal),
+    with the wheel, for them to look through (a dark band to about 0.1 rad above and below),
     by Schlick's Fresnel weight ``F = m + (1 - m) (1 - |n.d|)^5`` with m = ``reflectance``
     (scalar or (N,)). normals, dirs: three (N,) components each, unit, in a frame that
     R_station_frame (3,3) turns into the station frame."""
