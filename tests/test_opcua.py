@@ -19,6 +19,7 @@ import yaml
 
 from station.plc import register_map as rm
 from station.plc.runner import CycleRequest, synthetic_result
+from tests.serve_process import free_port
 
 asyncua = pytest.importorskip("asyncua", reason="asyncua (the `shop` extra) is not installed")
 from asyncua import Client, ua  # noqa: E402
@@ -27,14 +28,8 @@ PY = sys.executable
 NS = "urn:wheel-alignment-station:plc"
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def _start(*extra: str, config: str | None = None):
-    mb, op = _free_port(), _free_port()
+    mb, op = free_port(), free_port()
     cmd = [PY, "-m", "station.cli", *(["--config", config] if config else []), "serve", "--dry-run",
            "--port", str(mb), "--opcua", "--opcua-port", str(op), "--log-level", "warning", *extra]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

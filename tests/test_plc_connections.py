@@ -23,6 +23,7 @@ from station.plc.device import PlcDevice
 from station.plc.master import PlcSimulator, dry_run_expectation
 from station.plc.runner import dry_run_runner
 from tests.plc_wire import closed_by_server, connect, frame, read_pdu, receive
+from tests.serve_process import free_port
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -129,15 +130,9 @@ def _serve_config(tmp_path: Path, **plc) -> Path:
     return path
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def _serve_with_few_files(tmp_path: Path, nofile: int, **plc):
     """`station serve --dry-run` in a process whose open-file limit is ``nofile``."""
-    port = _free_port()
+    port = free_port()
     cfg = _serve_config(tmp_path, **plc)
     proc = subprocess.Popen(
         [sys.executable, "-m", "station.cli", "--config", str(cfg), "serve", "--dry-run", "--port", str(port)],

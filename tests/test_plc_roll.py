@@ -8,12 +8,8 @@ from __future__ import annotations
 
 import math
 import shutil
-import socket
-import subprocess
-import sys
 import threading
 import time
-from pathlib import Path
 
 import pytest
 from pymodbus.client import ModbusTcpClient
@@ -30,9 +26,8 @@ from station.plc.results import cleared_registers, result_registers, roll_prompt
 from station.plc.roll_operator import PlcRollOperator, RollPrompt, roll_plan
 from station.plc.runner import CycleRequest, dry_run_runner, synthetic_result
 from tests.mbpoll_cli import mbpoll, parse, signed
+from tests.serve_process import dry_run_serve, free_port
 
-ROOT = Path(__file__).resolve().parent.parent
-PY = sys.executable
 IDLE, BUSY, DONE, FAULT, ROLL = 0, 1, 2, 3, 4
 MEASURE, ACK, COMPENSATED, IN_POSITION = 1, 4, 5, 6
 WHEELS = ("FL", "FR", "RL", "RR")
@@ -447,20 +442,9 @@ def test_mbpoll_drives_a_compensated_cycle(station):
     assert parse(mbpoll(target + ["-r", "100", "127.0.0.1"]).stdout)[100] == str(IDLE)
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def test_station_serve_dry_run_rolls_with_the_plc_simulator_and_times_out_a_roll():
-    port = _free_port()
-    serve = subprocess.Popen([PY, "-m", "station.cli", "serve", "--dry-run", "--port", str(port), "--cycles", "3",
-                              "--roll-timeout-s", "0.5", "--log-level", "warning"], cwd=ROOT,
-                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        line = serve.stdout.readline()
-        assert f"Modbus TCP 127.0.0.1:{port}" in line, line + serve.stderr.read()
+    port = free_port()
+    with dry_run_serve(port, "--cycles", "3", "--roll-timeout-s", "0.5", "--log-level", "warning") as serve:
         rc = plc_sim_main(["--port", str(port), "--cycles", "2", "--compensate", "--dry-run-check", "--quiet",
                            "--conveyor-s", "0.05"])
         client = ModbusTcpClient("127.0.0.1", port=port, timeout=2, retries=0)
@@ -473,9 +457,6 @@ def test_station_serve_dry_run_rolls_with_the_plc_simulator_and_times_out_a_roll
         finally:
             client.close()
         out, err = serve.communicate(timeout=20)
-    finally:
-        if serve.poll() is None:
-            serve.kill()
     assert rc == 0
     assert serve.returncode == 0, err
     assert "served 3 cycles (2 done, 1 fault)" in out and "Traceback" not in err

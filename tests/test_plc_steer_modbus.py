@@ -7,12 +7,8 @@ from __future__ import annotations
 
 import math
 import shutil
-import socket
-import subprocess
-import sys
 import threading
 import time
-from pathlib import Path
 
 import pytest
 from pymodbus.client import ModbusTcpClient
@@ -29,9 +25,8 @@ from station.plc.steer_operator import steer_plan
 from tests.mbpoll_cli import mbpoll, parse, signed
 from tests.plc_steer_common import (ACK, BUSY, CASTER, CLEARED_STEER, COMPENSATED, DONE, FAULT, FRONT, IDLE,
                                      IN_POSITION, MEASURE, STEER)
+from tests.serve_process import dry_run_serve, free_port
 
-ROOT = Path(__file__).resolve().parent.parent
-PY = sys.executable
 
 # --- over Modbus TCP ----------------------------------------------------------------------------
 @pytest.fixture
@@ -386,26 +381,13 @@ def test_mbpoll_follows_a_steering_sweep(station):
     assert mbpoll(target + ["-r", "0", "127.0.0.1"], ACK).returncode == 0
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def test_station_serve_dry_run_sweeps_with_the_plc_simulator():
-    port = _free_port()
-    serve = subprocess.Popen([PY, "-m", "station.cli", "serve", "--dry-run", "--port", str(port), "--cycles", "2",
-                              "--steer-timeout-s", "30", "--cycle-timeout-s", "1", "--log-level", "warning"],
-                             cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        line = serve.stdout.readline()
-        assert f"Modbus TCP 127.0.0.1:{port}" in line, line + serve.stderr.read()
+    port = free_port()
+    with dry_run_serve(port, "--cycles", "2", "--steer-timeout-s", "30", "--cycle-timeout-s", "1",
+                       "--log-level", "warning") as serve:
         rc = plc_sim_main(["--port", str(port), "--cycles", "2", "--caster", "--dry-run-check", "--quiet",
                            "--first-job", "11"])
         out, err = serve.communicate(timeout=30)
-    finally:
-        if serve.poll() is None:
-            serve.kill()
     assert rc == 0
     assert serve.returncode == 0, err
     # about 1 s of steering per steer against a 1 s cycle timeout: the steering is not the station's time

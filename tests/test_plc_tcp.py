@@ -23,9 +23,9 @@ from station.plc.background import BackgroundServer
 from station.plc.device import PlcDevice
 from station.plc.runner import CycleRequest, dry_run_runner, synthetic_result
 from station.result import Failure, Measurement
+from tests.serve_process import dry_run_serve, free_port
 
 ROOT = Path(__file__).resolve().parent.parent
-PY = sys.executable
 IDLE, BUSY, DONE, FAULT = 0, 1, 2, 3
 
 
@@ -349,26 +349,12 @@ def test_mailbox_reads_back_zero_and_job_registers_keep_the_text(station):
     wait_state(client, {DONE})
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def test_station_serve_command_with_the_plc_simulator():
-    port = _free_port()
-    serve = subprocess.Popen([PY, "-m", "station.cli", "serve", "--dry-run", "--port", str(port), "--cycles", "4",
-                              "--log-level", "warning"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                             text=True)
-    try:
-        line = serve.stdout.readline()
-        assert f"Modbus TCP 127.0.0.1:{port}" in line, line + serve.stderr.read()
+    port = free_port()
+    with dry_run_serve(port, "--cycles", "4", "--log-level", "warning") as serve:
         rc = plc_sim_main(["--port", str(port), "--cycles", "4", "--dry-run-check", "--first-job", "8",
                            "--spec", "x"])
         out, err = serve.communicate(timeout=20)
-    finally:
-        if serve.poll() is None:
-            serve.kill()
     assert rc == 0
     assert serve.returncode == 0, err
     assert "served 4 cycles (3 done, 1 fault)" in out  # job 10 fails on purpose
@@ -404,7 +390,7 @@ def test_serve_on_an_uncalibrated_station_faults_the_cycle_and_keeps_serving(tmp
     from tests.station_fixtures import small_station_config
 
     cfg = small_station_config(tmp_path)
-    port = _free_port()
+    port = free_port()
     proc = subprocess.Popen([sys.executable, "-m", "station.cli", "--config", str(cfg.path), "serve",
                              "--port", str(port), "--cycles", "1"], stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True)
