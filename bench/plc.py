@@ -19,7 +19,6 @@ import argparse
 import os
 import select
 import shutil
-import socket
 import statistics
 import subprocess
 import sys
@@ -34,6 +33,7 @@ from pymodbus.client import ModbusSerialClient, ModbusTcpClient  # noqa: E402
 from pymodbus.framer.rtu import FramerRTU  # noqa: E402
 
 from station.plc.master import PlcSimulator, dry_run_expectation  # noqa: E402
+from tests.serve_process import free_port  # noqa: E402
 
 
 def _vmrss_kib(pid: int) -> int:
@@ -67,12 +67,6 @@ def _descendants(pid: int) -> list[int]:
 def rss_kib(pid: int) -> int:
     """Resident memory of the station: its process and every process below it (KiB)."""
     return _vmrss_kib(pid) + sum(_vmrss_kib(c) for c in _descendants(pid)) if Path(f"/proc/{pid}").exists() else -1
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def start_serve(args, transport: str, tmp: Path):
