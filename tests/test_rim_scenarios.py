@@ -276,3 +276,14 @@ def test_refused_and_silently_wrong_wheels_are_told_apart():
     other = Measurement("s", valid=False, failure=Failure(401, "cam1: no closed rim contour"))
     refused, silent, judged, withheld = _refused_and_silent(other, truth)
     assert refused == {w: "401 RimNotFound, cycle" for w in ("FL", "FR", "RL", "RR")} and judged == 0
+
+
+def test_a_black_rims_refusal_says_the_station_cannot_find_a_rim_no_brighter_than_its_tyre(station):
+    from station.measure import measure_frames
+    from station.rim.choice import DARK_RIM_NOTE
+
+    cfg, world = station
+    world.set_scene(rim_scenarios.scene_for(world, "matt-black", SEED, cfg.nominal_vehicle))
+    result = measure_frames(world.render_all(np.random.default_rng(SEED)), world.cameras, cfg)
+    assert not result.valid and result.failure.code in (400, 401)  # a wrong contour taken, or none
+    assert result.failure.hint.endswith(DARK_RIM_NOTE)

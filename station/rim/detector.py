@@ -28,7 +28,7 @@ from station.compute.bounded_cache import BoundedCache
 from station.errors import RimNotFound
 from station.rim import edges as edges_mod
 from station.rim import hough
-from station.rim.choice import choose
+from station.rim.choice import DARK_RIM_NOTE, choose
 from station.rim.ellipse import Ellipse
 from station.rim.ellipse_fit import fit_direct, fit_geometric, ransac_ellipse
 from station.rim.exposure import check_exposure
@@ -546,11 +546,11 @@ def _result(fit, samples, mask, info: dict, clock: _Clock, camera, pmap: PixelMa
     if fit is None:
         raise RimNotFound(f"{tag}: no closed rim contour (the sub-pixel edge was found at only "
                           f"{int(mask.sum())} points of the candidate ellipse)",
-                          hint="check focus and lighting of the rim flange")
+                          hint=f"check focus and lighting of the rim flange; {DARK_RIM_NOTE}")
     coverage = _coverage(samples, mask)
     if coverage < MIN_REFINED_COVERAGE:
         raise RimNotFound(f"{tag}: no closed rim contour (sub-pixel edge on {coverage:.0%} of the perimeter)",
-                          hint="check that the whole rim is in view and evenly lit")
+                          hint=f"check that the whole rim is in view and evenly lit; {DARK_RIM_NOTE}")
     pts = rows(samples.points_px, mask)
     ring = info.get("ring", 1.0)
     outer = info.get("outer", 1.0)

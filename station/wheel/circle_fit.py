@@ -20,6 +20,7 @@ from calibration.camera_model import CameraModel
 from calibration.triangulation import homogeneous, triangulate_paper_full
 from station.compute.blas_threads import single_thread_blas
 from station.errors import MeasurementError
+from station.rim.choice import DARK_RIM_NOTE
 from station.wheel.arcs import (MIN_KEPT_FRACTION, edge_visibility, hidden_arcs, not_grazing_xy, rim_angles,
                                 stray_arcs, stray_floor_px)
 from station.wheel.conics import circle_conic, circle_conics, sampson_jacobian, sampson_px
@@ -303,7 +304,7 @@ def _gross_outliers_left_out(model: _CircleModel, views: list[View], sol):
     for cam, xy, *_ in views:  # a view with (almost) nothing on the circle: no 3-D rim
         if len(xy) < MIN_VIEW_POINTS:
             raise MeasurementError(f"{cam.name}: only {len(xy)} of its rim points lie on the 3-D circle "
-                                   "the pair's points agree on", hint="the two cameras may have found different rims")
+                                   "the pair's points agree on", hint=f"the two cameras may have found different rims; {DARK_RIM_NOTE}")
     return views, model.solve(sol.x, views)
 
 

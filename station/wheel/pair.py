@@ -16,6 +16,7 @@ from calibration.camera_model import CameraModel
 from station.wheel.calibration_share import calibration_covariance, pair_perturbation_covariance
 from station.config import StationConfig
 from station.errors import MeasurementError, StationError
+from station.rim.choice import DARK_RIM_NOTE
 from station.compute.frame_handoff import resolve as resolve_frame
 from station.wheel.other_contour import refit_other_contour
 from station.wheel.rim_size import AXLE_RIM_TOLERANCE
@@ -178,7 +179,7 @@ def check_same_rim(o: WheelObservation, config: StationConfig, allow_unchecked: 
         raise MeasurementError(
             f"{o.cams[0]} and {o.cams[1]} found a rim {offset:.2f} m from where the {o.wheel} wheel "
             f"should be (limit {config.measurement.max_wheel_offset_m} m): not this wheel's rim",
-            hint="check the vehicle's position on the lift and both cameras' images")
+            hint=f"check the vehicle's position on the lift and both cameras' images; {DARK_RIM_NOTE}")
     lo, hi = config.measurement.min_rim_radius_m, config.measurement.max_rim_radius_m
     if not lo <= o.circle.radius_m <= hi:
         raise MeasurementError(
@@ -186,7 +187,7 @@ def check_same_rim(o: WheelObservation, config: StationConfig, allow_unchecked: 
             f"not a rim flange ({lo * 1000:.0f}-{hi * 1000:.0f} mm): the hub, the disc or the tyre, "
             "or each camera another contour",
             hint="look at both cameras' images of this wheel (station review); rims outside this "
-                 "range need measurement.min_rim_radius_m / max_rim_radius_m")
+                 f"range need measurement.min_rim_radius_m / max_rim_radius_m; {DARK_RIM_NOTE}")
     worst_view = max(o.circle.view_median_px)
     unchecked = allow_unchecked and unverifiable_epipolar(o, config)
     # (unchecked: one circle fits both views, the same rim, its tangents extrapolated; a warning says so)
@@ -195,7 +196,8 @@ def check_same_rim(o: WheelObservation, config: StationConfig, allow_unchecked: 
             f"{o.cams[0]} and {o.cams[1]} did not find the same rim (epipolar residual "
             f"{o.circle.epipolar_rms_px:.1f} px, circle fit median {worst_view:.1f} px, "
             f"limit {limit} px)", hint="look at both cameras' images of this wheel (station review); if both "
-                                       "show this wheel's rim, a camera may have moved since calibration: recalibrate")
+                                       "show this wheel's rim, a camera may have moved since calibration: recalibrate; "
+                                       f"{DARK_RIM_NOTE}")
     if images is not None and cameras is not None:
         check_face_behind(o, images, cameras)
 
