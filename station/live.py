@@ -120,7 +120,8 @@ class LiveSession:
                                 workers=self.workers)
         if not result.valid:
             raise MeasurementError(f"the first full measurement failed: {result.failure.message}",
-                                   hint="check the vehicle's position and the cameras' images (station measure)")
+                                   hint=result.failure.hint
+                                   or "check the vehicle's position and the cameras' images (station measure)")
         if self.job_id:
             result = self._apply_kept_runout(result, {c: f.image for c, f in frames.items()})
         for w in WHEELS:

@@ -148,3 +148,18 @@ def test_ctrl_c_exits_cleanly(station, session_run):
     assert p.returncode in (0, 130), err
     assert "Traceback" not in err
     assert "stopped by Ctrl-C" in out or "stopped" in err
+
+
+def test_a_failed_first_measurement_keeps_its_own_hint(station, monkeypatch):
+    import station.live as live
+    from station.errors import MeasurementError
+    from station.result import Failure, Measurement
+
+    config, cache = station
+    refused = Measurement(station=config.name, failure=Failure(404, "FL less certain than the limit",
+                                                               "light the wheel with diffuse panels", "FL"))
+    monkeypatch.setattr(live, "measure_frames", lambda *a, **k: refused)
+    with LiveSession(config, axle="front", seed=SEED, cache_dir=cache, progress=lambda s: None) as s:
+        with pytest.raises(MeasurementError, match="FL less certain") as e:
+            s.baseline()
+    assert e.value.hint == "light the wheel with diffuse panels"
