@@ -304,7 +304,8 @@ def _gross_outliers_left_out(model: _CircleModel, views: list[View], sol):
     for cam, xy, *_ in views:  # a view with (almost) nothing on the circle: no 3-D rim
         if len(xy) < MIN_VIEW_POINTS:
             raise MeasurementError(f"{cam.name}: only {len(xy)} of its rim points lie on the 3-D circle "
-                                   "the pair's points agree on", hint=f"the two cameras may have found different rims; {DARK_RIM_NOTE}")
+                                   "the pair's points agree on",
+                                   hint=f"the two cameras may have found different rims; {DARK_RIM_NOTE}")
     return views, model.solve(sol.x, views)
 
 
