@@ -41,6 +41,7 @@ from __future__ import annotations
 import numpy as np
 
 from station.errors import RimNotFound
+from station.rim.choice import DARK_RIM_NOTE
 from station.rim import photo_candidates as pc
 from station.rim.ellipse import Ellipse
 from station.rim.exposure import check_exposure
@@ -179,7 +180,8 @@ def detect_in_photo(image: np.ndarray, camera_id: str = ""):
     cands = pc.candidates(L, 0.8 * a_min, 0.5 * max(L.shape), 0.8 * MIN_AXIS_RATIO)
     if not cands:
         raise RimNotFound(f"{tag}: no rim-like ellipse (no bright region with an elliptical outline of "
-                          f"{MIN_RIM_PX:.0f} px or more)", hint="check that a wheel is in view and in focus")
+                          f"{MIN_RIM_PX:.0f} px or more)",
+                          hint=f"check that a wheel is in view and in focus; {DARK_RIM_NOTE}")
     passed, refused = [], []
     for c in cands:
         e = c["ellipse"]
@@ -218,14 +220,16 @@ def detect_in_photo(image: np.ndarray, camera_id: str = ""):
     accepted = kept
     if not accepted:
         if not refused:
-            raise RimNotFound(f"{tag}: no rim taken", hint="photograph the wheel from nearer its front")
+            raise RimNotFound(f"{tag}: no rim taken",
+                              hint=f"photograph the wheel from nearer its front; {DARK_RIM_NOTE}")
         # the candidate that came furthest (geometry, tyre, lip edge), then the most stable
         c, why, _ = max(refused, key=lambda r: (r[2], r[0]["support"], r[0]["cover"]))
         blur = edge_blur_px(grey, c["ellipse"].scaled(s))
         if blur > BLURRED_PX:
             why += f"; the photograph is blurred there (edge blur {blur:.1f} px > {BLURRED_PX:.0f})"
         raise RimNotFound(f"{tag}: no rim taken; the best candidate {_where(c['ellipse'].scaled(s))}: {why}",
-                          hint="photograph the wheel in focus, from nearer its front, the rim 100 px or more high")
+                          hint="photograph the wheel in focus, from nearer its front, the rim 100 px or more high; "
+                               f"{DARK_RIM_NOTE}")
     accepted.sort(key=lambda t: -t[0].ellipse.axes_px[0])
     det, c = accepted[0]
     for d2, _ in accepted[1:]:  # a different ellipse over the same wheel: which is the lip is not known
