@@ -17,10 +17,8 @@ from station.rim.ellipse import Ellipse
 from station.rim.npfast import percentile
 
 # Added to the hints of the failures a rim the detector cannot see ends in (no rim contour, a
-# wrong contour taken). The rim is found by a lip brighter than the tyre round it; a black lip
-# is as dark as the tyre or darker (matt black on every wheel, gloss black on 15-74 % of its
-# turn): 79-80 of 80 such wheels were refused, for reasons that named a camera, the vehicle's
-# position or the rim's size (docs/accuracy.md, "Outside the envelope").
+# wrong contour taken): the rim is found by a lip brighter than the tyre round it, and a black
+# lip is as dark as the tyre or darker (docs/accuracy.md, "Outside the envelope").
 DARK_RIM_NOTE = ("if the rim is black, or no brighter than its tyre, the station cannot find it: "
                  "it looks for a rim lip brighter than the tyre")
 
