@@ -282,25 +282,54 @@ def refuse_uncertain_wheels(result: Measurement, observations: dict, config: Sta
 
 def _why_uncertain(o: WheelObservation, std_deg: float, config: StationConfig) -> tuple[str, str]:
     """(why the wheel is uncertain, what to do): the views' disagreement when it makes up most
-    of the stated ``std_deg`` (naming the camera whose edge is fainter), else the share of a
-    camera's edge points the 3-D rim rests on."""
+    of the stated ``std_deg``, naming the camera whose edge is off (:func:`_edge_off`), else the
+    share of a camera's edge points the 3-D rim rests on."""
     views = o.views
     # the views' share is the same in every direction across the axis: half the trace each
     if np.degrees(np.sqrt(np.trace(views_covariance(o, config)) / 2)) ** 2 > std_deg ** 2 / 2:
-        steps = [float(np.median(d.points_contrast)) if d.points_contrast is not None and len(d.points_contrast)
-                 else float("nan") for d in o.detections]
-        faint = o.cams[int(np.nanargmin(steps))] if not np.all(np.isnan(steps)) else o.cams[0]
+        why, hint = _edge_off(o, config)
         return (f"its cameras {o.cams[0]} and {o.cams[1]} each see the rim's axis differently, by "
-                f"{views.angle_deg:.2f} deg: one of them sees the rim's edge off on part of the rim "
-                f"(the fainter edge is {faint}'s)",
-                f"Look at {faint}'s image of the rim's lip: clean the lip (brake dust, dirt), shade it from direct "
-                f"sun, light it, or give {faint} a longer exposure if the rim is dark. On a glossy lip (clear-coated "
-                f"dark paint, polish, chrome) the lamps it mirrors move its edge: dim or move the lamps whose "
-                f"reflections sit on the lip, or light the wheel with a diffuse panel.")
+                f"{views.angle_deg:.2f} deg: one of them sees the rim's edge off on part of the rim ({why})", hint)
     kept = kept_fractions(o)
     weak = o.cams[int(np.argmin(kept))]
     return (f"the 3-D rim rests on {min(kept):.0%} of {weak}'s edge points",
             f"Check that {weak} sees the whole rim (wheel position, tyre, arch) and that its lip is clean and lit.")
+
+
+def _edge_off(o: WheelObservation, config: StationConfig) -> tuple[str, str]:
+    """(why, what to do) for a disagreeing pair, naming the cameras whose edge is likely off
+    from what each detection measured of its own edge: those whose lip is at the sensor's
+    white on more than ``measurement.white_edge_limit`` of the rim (the edge read toward the
+    tyre), else those with arcs whose bright side is not the rim's metal (a tyre lit past a
+    shaded or dirty lip, station/rim/metal_side.py), else the one with the fainter edge. Where
+    both cameras show it, both are named, the larger share first."""
+    white = {c: float(d.details.get("white_share", 0.0)) for c, d in zip(o.cams, o.detections)}
+    dark = {c: float(d.details.get("metal_side_dark_share", 0.0)) for c, d in zip(o.cams, o.detections)}
+    limit = config.measurement.white_edge_limit
+    if max(white.values()) > limit:
+        cams = sorted((c for c in o.cams if white[c] > limit), key=lambda c: -white[c])
+        shares = " and ".join(f"{white[c]:.0%} of {c}'s" for c in cams)
+        names = " and ".join(cams)
+        return (f"the lip is at the sensor's white on {shares} rim, which moves the edge toward the tyre",
+                f"Shorten the exposure (or the gain) of {names}, or shade the wheel from the sun or the lamp that "
+                f"drives the lip to white.")
+    if max(dark.values()) > 0.0:
+        cams = sorted((c for c in o.cams if dark[c] > 0.0), key=lambda c: -dark[c])
+        shares = " and ".join(f"{dark[c]:.0%} of {c}'s" for c in cams)
+        names = " and ".join(cams)
+        return (f"on {shares} rim the lip is no brighter than the tyre beside it, so the edge found there is not "
+                f"the rim's",
+                f"Look at the rim in {names}: a lamp or the sun at the side lights the tyre past a shaded lip, the "
+                f"lip is dirty there, or a glossy lip mirrors something dark. Shade the wheel from that light or "
+                f"light it evenly (a diffuse panel), and clean the lip.")
+    steps = [float(np.median(d.points_contrast)) if d.points_contrast is not None and len(d.points_contrast)
+             else float("nan") for d in o.detections]
+    cam = o.cams[int(np.nanargmin(steps))] if not np.all(np.isnan(steps)) else o.cams[0]
+    return (f"the fainter edge is {cam}'s",
+            f"Look at {cam}'s image of the rim's lip: clean the lip (brake dust, dirt), shade it from direct "
+            f"sun, light it, or give {cam} a longer exposure if the rim is dark. On a glossy lip (clear-coated "
+            f"dark paint, polish, chrome) the lamps it mirrors move its edge: dim or move the lamps whose "
+            f"reflections sit on the lip, or light the wheel with a diffuse panel.")
 
 
 def _pair_warnings(result: Measurement, observations: dict, config: StationConfig) -> None:
@@ -396,5 +425,6 @@ def _detection_summary(detections: dict) -> dict[str, CameraDetection]:
             out[cid] = CameraDetection(ok=True, center_px=np.asarray(e.center_px).tolist(),
                                        axes_px=np.asarray(e.axes_px).tolist(), angle_deg=float(np.degrees(e.angle_rad)),
                                        score=float(d.score), coverage=float(d.coverage), points=int(len(d.points_px)),
-                                       white_share=float(d.details.get("white_share", 0.0)))
+                                       white_share=float(d.details.get("white_share", 0.0)),
+                                       metal_side_dark_share=float(d.details.get("metal_side_dark_share", 0.0)))
     return out

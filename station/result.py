@@ -129,6 +129,7 @@ class CameraDetection:
     coverage: float | None = None
     points: int | None = None
     white_share: float | None = None
+    metal_side_dark_share: float | None = None  # station/rim/metal_side.py
 
     def to_json(self) -> dict:
         if not self.ok:

@@ -237,6 +237,11 @@ def run(args) -> int:
     if white > 0:
         print(f"  at the white  {white:9.0%}      of the rim edge reaches the sensor's white: the edge found lies "
               f"toward the tyre there; shorten the exposure")
+    dark = det.details.get("metal_side_dark_share", 0.0)
+    if dark > 0:
+        print(f"  dark lip      {dark:9.0%}      of the rim edge has a lip no brighter than the tyre beside it: the "
+              f"edge found there is not the rim's (a tyre lit past a shaded lip, a dirty lip, a glossy lip mirroring "
+              f"something dark)")
     print(f"  time          {sum(det.timing_s.values()) * 1e3:9.1f} ms")
     if args.json:
         doc = {"image": str(args.image), "width": int(image.shape[1]), "height": int(image.shape[0]),

@@ -35,6 +35,7 @@ from station.rim.exposure import check_exposure
 from station.rim.npfast import finite_rows, median, rows, sector_medians
 from station.rim.preprocess import PixelMap, detection_scale, downscale, equalize, noise_grey, to_grey
 from station.rim.subpixel import WIDE_BLUR_PX, edge_points, repositioned, window_scale
+from station.rim.metal_side import dark_side_share
 from station.rim.white_edge import white_share
 
 
@@ -81,6 +82,7 @@ class RimDetection:
             "n_points": int(len(self.points_px)),
             "point_sigma_px": float(self.point_sigma_px),
             "white_share": round(float(self.details.get("white_share", 0.0)), 4),
+            "metal_side_dark_share": round(float(self.details.get("metal_side_dark_share", 0.0)), 4),
             "ellipse_std": dict(zip(("cx_px", "cy_px", "a_px", "b_px", "angle_deg"),
                                     [float(x) for x in np.sqrt(np.maximum(np.diag(self.ellipse_cov), 0))
                                      * np.array([1, 1, 1, 1, 180 / np.pi])])),
@@ -316,7 +318,7 @@ def detect_rim(image: np.ndarray, *, camera=None, prior: Ellipse | None = None, 
     fit, samples, mask = _repositioned(grey, fit, samples, mask, pmap, blur, info)
     clock.lap("refine")
     info["blur_px"] = blur
-    return _with_white_share(_result(fit, samples, mask, info, clock, camera, pmap, camera_id), grey)
+    return _with_edge_checks(_result(fit, samples, mask, info, clock, camera, pmap, camera_id), grey, pmap)
 
 
 REFIT_ITERATIONS = 4
@@ -394,8 +396,12 @@ def _repositioned(grey: np.ndarray, fit, samples, mask, pmap: PixelMap, blur: fl
     return refit, replace(samples, points_px=points_px, ok=kept), kept
 
 
-def _with_white_share(det: RimDetection, grey: np.ndarray) -> RimDetection:
+def _with_edge_checks(det: RimDetection, grey: np.ndarray, pmap: PixelMap) -> RimDetection:
+    """``det`` with the shares of its rim whose edge is at the sensor's white
+    (``details["white_share"]``, station/rim/white_edge.py) and whose bright side is not the
+    rim's metal (``details["metal_side_dark_share"]``, station/rim/metal_side.py)."""
     det.details["white_share"] = white_share(grey, det.points_px)
+    det.details["metal_side_dark_share"] = round(dark_side_share(grey, det.ellipse, det.points_px, pmap), 4)
     return det
 
 
@@ -435,7 +441,7 @@ def _finer_of(grey: np.ndarray, coarse_ellipse: Ellipse, s: int, full, info: dic
         if c.point_sigma_px < best.point_sigma_px and c.coverage >= best.coverage - 0.05:
             best = c
     best.timing_s = dict(clock.stages)
-    return _with_white_share(best, grey)
+    return _with_edge_checks(best, grey, pmap)
 
 
 def _rescaled(det: RimDetection, r: int) -> RimDetection:
@@ -537,8 +543,8 @@ def refine_candidate(image: np.ndarray, ellipse: Ellipse, *, camera=None, camera
     pmap = PixelMap(camera)
     fit, samples, mask, blur = _refine(grey, ellipse, pmap)
     clock.lap("refine")
-    return _with_white_share(_result(fit, samples, mask, {"path": "candidate", "blur_px": blur}, clock, camera, pmap,
-                                     camera_id), grey)
+    return _with_edge_checks(_result(fit, samples, mask, {"path": "candidate", "blur_px": blur}, clock, camera, pmap,
+                                     camera_id), grey, pmap)
 
 
 def _result(fit, samples, mask, info: dict, clock: _Clock, camera, pmap: PixelMap, camera_id: str) -> RimDetection:

@@ -1,0 +1,99 @@
+"""Does a refused wheel's message name the camera whose edge is off?
+
+When a pair's two views see the rim's axis differently the cycle is refused (code 404) and the
+message names the camera whose edge is likely off, with what to do about it
+(station.measure._edge_off: a lip at the sensor's white, else arcs whose lip is no brighter
+than the tyre beside it, else the fainter edge). This bench measures the simulated vehicles
+of a scenario (the images of bench/accuracy.py, from its --cache when there) with the
+station's calibration, and for every such refused wheel compares the camera(s) named with
+the camera whose detected rim points lie farther off the true rim (the larger share beyond
+0.3 px).
+
+    STATION_DATA_DIR=<station calibrate> .venv/bin/python bench/refusal_naming.py --scenario sun-auto-exposure \\
+        --n 20 --seed 7000 --cache /tmp/acc/cache
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from bench import outside_envelope, rim_scenarios  # noqa: E402
+from bench.accuracy import SCENARIOS, _images  # noqa: E402
+from calibration.calib_file import load_calibration  # noqa: E402
+from calibration.station_frame import WHEELS  # noqa: E402
+from station.config import load_config  # noqa: E402
+from station.measure import measure_frames  # noqa: E402
+from station.rim.ellipse_fit import fit_direct  # noqa: E402
+from station.rim.preprocess import PixelMap  # noqa: E402
+
+OFF_PX = 0.3           # a detected point farther than this from the true rim is off it
+NAMED = re.compile(r"part of the rim \((.*)\)$")
+
+
+def off_shares(world, vehicle, wheel: str, cams: tuple[str, str], detections) -> dict[str, float]:
+    """Per camera of the pair, the share of its detected rim points more than OFF_PX from the
+    true rim's image (the true camera's, ideal pixels)."""
+    centre, R_wheel = vehicle.wheel_frame_station(wheel)
+    a = np.linspace(0, 2 * np.pi, 4000, endpoint=False)
+    rim = centre + vehicle.wheel.rim_radius_m * (np.cos(a)[:, None] * R_wheel[:, 0] + np.sin(a)[:, None] * R_wheel[:, 1])
+    out = {}
+    for cid, det in zip(cams, detections):
+        cam = world.cameras[cid]
+        pmap = PixelMap(cam)
+        d, _ = fit_direct(pmap.undistort(cam.project(rim))).distance(pmap.undistort(det.points_px))
+        out[cid] = float(np.mean(np.abs(d) > OFF_PX))
+    return out
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--scenario", choices=list(rim_scenarios.KINDS), required=True)
+    ap.add_argument("--n", type=int, default=20)
+    ap.add_argument("--seed", type=int, default=7000)
+    ap.add_argument("--cache", type=Path, default=None, help="bench/accuracy.py's image cache")
+    args = ap.parse_args()
+    config = load_config()
+    if not config.calibration_file.exists():
+        print(f"no calibration at {config.calibration_file}: run `station calibrate` first", file=sys.stderr)
+        return 2
+    from simulators.world import SimWorld
+
+    calib = load_calibration(config.calibration_file, config)
+    cams = {cid: calib.model(cid) for cid in config.cameras}
+    world = SimWorld.from_config(config, noise_sigma=SCENARIOS[args.scenario][0])
+    measured = outside_envelope.configured(args.scenario, config)
+    total = named_right = both = first_right = 0
+    for seed in range(args.seed, args.seed + args.n):
+        scene = rim_scenarios.scene_for(world, args.scenario, seed, config.nominal_vehicle)
+        world.set_scene(scene)
+        images = _images(world, scene, args.scenario, seed, args.cache, frames=config.capture.frames_averaged)
+        res = measure_frames(images, cams, measured, calibration_cov=calib.pair_covariance)
+        for flag in res.warning_flags:
+            m = NAMED.search(flag.text or "") if flag.kind == "uncertain" else None
+            if m is None or flag.wheel not in WHEELS:
+                continue
+            named = re.findall(r"cam\d+", m.group(1))
+            o = res.observations[flag.wheel]
+            off = off_shares(world, scene.vehicle, flag.wheel, o.cams, o.detections)
+            truly = max(off, key=off.get)
+            total += 1
+            named_right += truly in named
+            both += len(set(named)) > 1
+            first_right += bool(named) and named[0] == truly
+            print(f"  {seed} {flag.wheel}: named {', '.join(named)}; share off the rim "
+                  + ", ".join(f"{c} {v:.2f}" for c, v in off.items()), file=sys.stderr)
+    print(f"| scenario | refusals | the camera off named | (both named) | the first named |")
+    print(f"|---|---|---|---|---|")
+    print(f"| {args.scenario} | {total} | {named_right} | ({both}) | {first_right} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
