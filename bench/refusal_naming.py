@@ -42,7 +42,8 @@ def off_shares(world, vehicle, wheel: str, cams: tuple[str, str], detections) ->
     true rim's image (the true camera's, ideal pixels)."""
     centre, R_wheel = vehicle.wheel_frame_station(wheel)
     a = np.linspace(0, 2 * np.pi, 4000, endpoint=False)
-    rim = centre + vehicle.wheel.rim_radius_m * (np.cos(a)[:, None] * R_wheel[:, 0] + np.sin(a)[:, None] * R_wheel[:, 1])
+    rim = centre + vehicle.wheel.rim_radius_m * (np.cos(a)[:, None] * R_wheel[:, 0]
+                                                 + np.sin(a)[:, None] * R_wheel[:, 1])
     out = {}
     for cid, det in zip(cams, detections):
         cam = world.cameras[cid]
@@ -89,8 +90,8 @@ def main() -> int:
             first_right += bool(named) and named[0] == truly
             print(f"  {seed} {flag.wheel}: named {', '.join(named)}; share off the rim "
                   + ", ".join(f"{c} {v:.2f}" for c, v in off.items()), file=sys.stderr)
-    print(f"| scenario | refusals | the camera off named | (both named) | the first named |")
-    print(f"|---|---|---|---|---|")
+    print("| scenario | refused wheels | the camera off among those named | (both named) | the first named |")
+    print("|---|---|---|---|---|")
     print(f"| {args.scenario} | {total} | {named_right} | ({both}) | {first_right} |")
     return 0
 

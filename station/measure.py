@@ -301,8 +301,9 @@ def _edge_off(o: WheelObservation, config: StationConfig) -> tuple[str, str]:
     from what each detection measured of its own edge: those whose lip is at the sensor's
     white on more than ``measurement.white_edge_limit`` of the rim (the edge read toward the
     tyre), else those with arcs whose bright side is not the rim's metal (a tyre lit past a
-    shaded or dirty lip, station/rim/metal_side.py), else the one with the fainter edge. Where
-    both cameras show it, both are named, the larger share first."""
+    shaded lip, a dirty lip, a glossy lip mirroring something dark: station/rim/metal_side.py),
+    else the one with the fainter edge. Where both cameras show it, both are named, the
+    larger share first."""
     white = {c: float(d.details.get("white_share", 0.0)) for c, d in zip(o.cams, o.detections)}
     dark = {c: float(d.details.get("metal_side_dark_share", 0.0)) for c, d in zip(o.cams, o.detections)}
     limit = config.measurement.white_edge_limit

@@ -32,10 +32,10 @@ from station.rim.choice import DARK_RIM_NOTE, choose
 from station.rim.ellipse import Ellipse
 from station.rim.ellipse_fit import fit_direct, fit_geometric, ransac_ellipse
 from station.rim.exposure import check_exposure
+from station.rim.metal_side import dark_side_share
 from station.rim.npfast import finite_rows, median, rows, sector_medians
 from station.rim.preprocess import PixelMap, detection_scale, downscale, equalize, noise_grey, to_grey
 from station.rim.subpixel import WIDE_BLUR_PX, edge_points, repositioned, window_scale
-from station.rim.metal_side import dark_side_share
 from station.rim.white_edge import white_share
 
 

@@ -5,9 +5,9 @@ bright side is the lip's metal, brighter than the tyre for some pixels inward. U
 lamp that need not hold: where the light strikes the tyre's shoulder and grazes the lip (the
 arch's shadow, a low sun), the tyre just outside the flange is lit brighter than the lip, and
 the step the detector finds is the lit shoulder's outer fall, 1-5 px beyond the flange. A lip
-dirty or shaded as dark as the tyre does the same. Such a profile is a bright line, not an
-edge: a few pixels inward the image drops to the lip's shade, no brighter than the tyre beyond
-the step.
+dirty or shaded as dark as the tyre, or a glossy lip mirroring something dark, does the same.
+Such a profile is a bright line, not an edge: a few pixels inward the image drops to the lip's
+shade, no brighter than the tyre beyond the step.
 
 The test, per edge point: somewhere ``INNER_REACH_PX`` inside the edge the image is no brighter
 than the mean of ``TYRE_SIDE_PX`` outside it. An arc of ``ARC_DEG`` where ``WRONG_SHARE`` of the
