@@ -6,8 +6,9 @@ message names the camera whose edge is likely off, with what to do about it
 than the tyre beside it, else the fainter edge). This bench measures the simulated vehicles
 of a scenario (the images of bench/accuracy.py, from its --cache when there) with the
 station's calibration, and for every such refused wheel compares the camera(s) named with
-the camera whose detected rim points lie farther off the true rim (the larger share beyond
-0.3 px).
+the camera whose own rim axis (station/wheel/view_agreement.py: the circle that camera's
+edge points alone fit best) lies farther from the true axis, and with the camera whose
+detected points lie farther off the true rim (the larger share beyond 0.3 px).
 
     STATION_DATA_DIR=<station calibrate> .venv/bin/python bench/refusal_naming.py --scenario sun-auto-exposure \\
         --n 20 --seed 7000 --cache /tmp/acc/cache
@@ -53,6 +54,13 @@ def off_shares(world, vehicle, wheel: str, cams: tuple[str, str], detections) ->
     return out
 
 
+def axis_off_deg(vehicle, wheel: str, cams: tuple[str, str], views) -> dict[str, float]:
+    """Per camera of the pair, the angle (deg) between its own rim axis and the true one."""
+    _, R_wheel = vehicle.wheel_frame_station(wheel)
+    return {c: float(np.degrees(np.arccos(min(abs(float(a @ R_wheel[:, 2])), 1.0))))
+            for c, a in zip(cams, views.axes_station)}
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scenario", choices=list(rim_scenarios.KINDS), required=True)
@@ -70,7 +78,7 @@ def main() -> int:
     cams = {cid: calib.model(cid) for cid in config.cameras}
     world = SimWorld.from_config(config, noise_sigma=SCENARIOS[args.scenario][0])
     measured = outside_envelope.configured(args.scenario, config)
-    total = named_right = both = first_right = 0
+    total = named_right = both = first_right = axis_named = axis_first = 0
     for seed in range(args.seed, args.seed + args.n):
         scene = rim_scenarios.scene_for(world, args.scenario, seed, config.nominal_vehicle)
         world.set_scene(scene)
@@ -84,15 +92,21 @@ def main() -> int:
             o = res.observations[flag.wheel]
             off = off_shares(world, scene.vehicle, flag.wheel, o.cams, o.detections)
             truly = max(off, key=off.get)
+            tilt = axis_off_deg(scene.vehicle, flag.wheel, o.cams, o.views)
+            turned = max(tilt, key=tilt.get)
             total += 1
-            named_right += truly in named
             both += len(set(named)) > 1
+            named_right += truly in named
             first_right += bool(named) and named[0] == truly
+            axis_named += turned in named
+            axis_first += bool(named) and named[0] == turned
             print(f"  {seed} {flag.wheel}: named {', '.join(named)}; share off the rim "
-                  + ", ".join(f"{c} {v:.2f}" for c, v in off.items()), file=sys.stderr)
-    print("| scenario | refused wheels | the camera off among those named | (both named) | the first named |")
+                  + ", ".join(f"{c} {v:.2f}" for c, v in off.items()) + "; own axis off the true one "
+                  + ", ".join(f"{c} {v:.3f} deg" for c, v in tilt.items()), file=sys.stderr)
+    print("| scenario | refused wheels | (both named) | axis farther off: named / named first "
+          "| points farther off: named / named first |")
     print("|---|---|---|---|---|")
-    print(f"| {args.scenario} | {total} | {named_right} | ({both}) | {first_right} |")
+    print(f"| {args.scenario} | {total} | ({both}) | {axis_named} / {axis_first} | {named_right} / {first_right} |")
     return 0
 
 

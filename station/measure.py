@@ -298,22 +298,20 @@ def _why_uncertain(o: WheelObservation, std_deg: float, config: StationConfig) -
 
 def _edge_off(o: WheelObservation, config: StationConfig) -> tuple[str, str]:
     """(why, what to do) for a disagreeing pair, naming the cameras whose edge is likely off
-    from what each detection measured of its own edge: those whose lip is at the sensor's
-    white on more than ``measurement.white_edge_limit`` of the rim (the edge read toward the
-    tyre), else those with arcs whose bright side is not the rim's metal (a tyre lit past a
-    shaded lip, a dirty lip, a glossy lip mirroring something dark: station/rim/metal_side.py),
-    else the one with the fainter edge. Where both cameras show it, both are named, the
-    larger share first."""
+    from what each detection measured of its own edge: the one whose lip is at the sensor's
+    white on more of the rim than its partner's by ``measurement.white_edge_limit`` (the edge
+    read toward the tyre; a polished lip mirroring lamps puts both at the white in spots),
+    else those with arcs whose bright side is not the rim's metal (a tyre lit past a shaded
+    lip, a dirty lip, a glossy lip mirroring something dark: station/rim/metal_side.py; both
+    where both show it, the larger share first), else the one with the fainter edge."""
     white = {c: float(d.details.get("white_share", 0.0)) for c, d in zip(o.cams, o.detections)}
     dark = {c: float(d.details.get("metal_side_dark_share", 0.0)) for c, d in zip(o.cams, o.detections)}
-    limit = config.measurement.white_edge_limit
-    if max(white.values()) > limit:
-        cams = sorted((c for c in o.cams if white[c] > limit), key=lambda c: -white[c])
-        shares = " and ".join(f"{white[c]:.0%} of {c}'s" for c in cams)
-        names = " and ".join(cams)
-        return (f"the lip is at the sensor's white on {shares} rim, which moves the edge toward the tyre",
-                f"Shorten the exposure (or the gain) of {names}, or shade the wheel from the sun or the lamp that "
-                f"drives the lip to white.")
+    whiter, other = sorted(o.cams, key=lambda c: -white[c])
+    if white[whiter] - white[other] > config.measurement.white_edge_limit:
+        return (f"the lip is at the sensor's white on {white[whiter]:.0%} of {whiter}'s rim, which moves the edge "
+                f"toward the tyre",
+                f"Shorten {whiter}'s exposure (or its gain), or shade the wheel from the sun or the lamp that drives "
+                f"the lip to white.")
     if max(dark.values()) > 0.0:
         cams = sorted((c for c in o.cams if dark[c] > 0.0), key=lambda c: -dark[c])
         shares = " and ".join(f"{dark[c]:.0%} of {c}'s" for c in cams)

@@ -24,7 +24,13 @@ CONFIG = load_config()
 def test_a_lip_at_the_white_names_its_camera_and_the_exposure():
     why, hint = _edge_off(_pair(white=(0.05, 0.73), dark=(0.3, 0.0)), CONFIG)
     assert "73% of cam4's" in why and "white" in why and "cam3" not in why
-    assert "Shorten the exposure (or the gain) of cam4" in hint
+    assert "Shorten cam4's exposure (or its gain)" in hint
+
+
+def test_lips_at_the_white_in_both_views_alike_are_not_the_cause_named():
+    # a polished lip mirroring lamps: both cameras at the white in spots
+    why, _ = _edge_off(_pair(white=(0.30, 0.20), dark=(0.0, 0.12)), CONFIG)
+    assert "white" not in why and "12% of cam4's rim the lip is no brighter" in why
 
 
 def test_a_lip_no_brighter_than_the_tyre_names_its_camera_and_the_light():
@@ -39,5 +45,5 @@ def test_both_cameras_are_named_where_both_show_it_the_larger_share_first():
 
 
 def test_without_either_the_fainter_edge_is_named():
-    why, hint = _edge_off(_pair(white=(0.1, 0.2)), CONFIG)  # both under the white-edge limit
+    why, hint = _edge_off(_pair(white=(0.1, 0.3)), CONFIG)  # apart by less than the white-edge limit
     assert why == "the fainter edge is cam4's" and "cam4 a longer exposure" in hint
