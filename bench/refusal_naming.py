@@ -33,32 +33,26 @@ from station.config import load_config  # noqa: E402
 from station.measure import measure_frames  # noqa: E402
 from station.rim.ellipse_fit import fit_direct  # noqa: E402
 from station.rim.preprocess import PixelMap  # noqa: E402
+from tests.wheel_fixtures import angle_deg, rim_points  # noqa: E402
 
 OFF_PX = 0.3           # a detected point farther than this from the true rim is off it
 NAMED = re.compile(r"part of the rim \((.*)\)$")
 
 
-def off_shares(world, vehicle, wheel: str, cams: tuple[str, str], detections) -> dict[str, float]:
-    """Per camera of the pair, the share of its detected rim points more than OFF_PX from the
-    true rim's image (the true camera's, ideal pixels)."""
-    centre, R_wheel = vehicle.wheel_frame_station(wheel)
-    a = np.linspace(0, 2 * np.pi, 4000, endpoint=False)
-    rim = centre + vehicle.wheel.rim_radius_m * (np.cos(a)[:, None] * R_wheel[:, 0]
-                                                 + np.sin(a)[:, None] * R_wheel[:, 1])
-    out = {}
-    for cid, det in zip(cams, detections):
+def how_far_off(world, vehicle, wheel: str, observation) -> tuple[dict[str, float], dict[str, float]]:
+    """Per camera of the pair: the share of its detected rim points more than OFF_PX from the
+    true rim's image (the true camera's, ideal pixels), and the angle (deg) between its own rim
+    axis (``observation.views``) and the true one."""
+    _, axis, rim = rim_points(vehicle, wheel, n=4000)
+    shares, tilts = {}, {}
+    for cid, det, own in zip(observation.cams, observation.detections, observation.views.axes_station):
         cam = world.cameras[cid]
         pmap = PixelMap(cam)
         d, _ = fit_direct(pmap.undistort(cam.project(rim))).distance(pmap.undistort(det.points_px))
-        out[cid] = float(np.mean(np.abs(d) > OFF_PX))
-    return out
-
-
-def axis_off_deg(vehicle, wheel: str, cams: tuple[str, str], views) -> dict[str, float]:
-    """Per camera of the pair, the angle (deg) between its own rim axis and the true one."""
-    _, R_wheel = vehicle.wheel_frame_station(wheel)
-    return {c: float(np.degrees(np.arccos(min(abs(float(a @ R_wheel[:, 2])), 1.0))))
-            for c, a in zip(cams, views.axes_station)}
+        shares[cid] = float(np.mean(np.abs(d) > OFF_PX))
+        tilt = float(angle_deg(own, axis))
+        tilts[cid] = min(tilt, 180.0 - tilt)
+    return shares, tilts
 
 
 def main() -> int:
@@ -90,10 +84,8 @@ def main() -> int:
                 continue
             named = re.findall(r"cam\d+", m.group(1))
             o = res.observations[flag.wheel]
-            off = off_shares(world, scene.vehicle, flag.wheel, o.cams, o.detections)
-            truly = max(off, key=off.get)
-            tilt = axis_off_deg(scene.vehicle, flag.wheel, o.cams, o.views)
-            turned = max(tilt, key=tilt.get)
+            off, tilt = how_far_off(world, scene.vehicle, flag.wheel, o)
+            truly, turned = max(off, key=off.get), max(tilt, key=tilt.get)
             total += 1
             both += len(set(named)) > 1
             named_right += truly in named
