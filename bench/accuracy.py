@@ -45,6 +45,7 @@ from bench import outside_envelope, rim_scenarios  # noqa: E402
 from simulators import image_cache  # noqa: E402
 from calibration.station_frame import WHEELS  # noqa: E402
 from station.config import load_config
+from station.capture.exposure_bracket import measure_bracketed  # noqa: E402
 from station.capture.frame_average import mean_image  # noqa: E402
 from station.measure import measure_frames  # noqa: E402
 from station.result import Measurement  # noqa: E402
@@ -171,6 +172,20 @@ def _images(world, scene, scenario: str, seed: int, cache: Path | None, capture:
     return images
 
 
+def _reexposed(world, scenario: str, seed: int, cams: list[str], factor: float, frames: int) -> dict:
+    """The cameras ``cams`` of the world's scene taken again at ``factor`` times their exposure,
+    as the station's cycle does for a lip at the white (station/capture/exposure_bracket.py):
+    ``frames`` fresh frames each, averaged. Rendered (not cached): only such cameras need them."""
+    index = {c: i for i, c in enumerate(world.cameras)}
+    out = {}
+    for c in cams:
+        shots = [outside_envelope.encode(scenario, {c: world.render(
+            c, np.random.default_rng([20_000 + seed, index[c], round(factor * 1000), k]), exposure=factor)})[c]
+            for k in range(frames)]
+        out[c] = shots[0] if frames == 1 else mean_image(shots)
+    return out
+
+
 def run(config, cameras_by_source: dict, n: int, scenario: str, seed0: int, methods,
         covariance_by_source: dict | None = None, cache: Path | None = None, repeat: int = 0,
         frames: int = 1) -> dict:
@@ -182,7 +197,7 @@ def run(config, cameras_by_source: dict, n: int, scenario: str, seed0: int, meth
     sigma, dark, albedo = SCENARIOS[scenario]
     world = SimWorld.from_config(config, noise_sigma=sigma, gain_override={dark: 0.8} if dark else None)
     rows = {(src, m): {"err": [], "std": [], "failed": 0, "time": [], "warnings": Counter(), "captures": [],
-                       "refused": Counter(), "silent": [], "judged": 0, "withheld": []}
+                       "refused": Counter(), "silent": [], "judged": 0, "withheld": [], "exposures": Counter()}
             for src in cameras_by_source for m in methods}
     first = (next(iter(cameras_by_source)), methods[0])
     config = outside_envelope.configured(scenario, config)
@@ -201,9 +216,13 @@ def run(config, cameras_by_source: dict, n: int, scenario: str, seed0: int, meth
         for src, cams in cameras_by_source.items():
             for m in methods:
                 t0 = time.perf_counter()
-                res = measure_frames(images, cams, config, method=m,
-                                     calibration_cov=(covariance_by_source or {}).get(src))
+                res, _, exposures = measure_bracketed(
+                    images, lambda ims: measure_frames(ims, cams, config, method=m,
+                                                       calibration_cov=(covariance_by_source or {}).get(src)),
+                    lambda ids, factor: _reexposed(world, scenario, seed, ids, factor, frames),
+                    config.capture.exposure_steps)
                 rows[(src, m)]["time"].append(time.perf_counter() - t0)
+                rows[(src, m)]["exposures"].update(exposures.values())
                 res.add_truth(truth)
                 refused, silent, judged, withheld = _refused_and_silent(res, truth)
                 rows[(src, m)]["refused"].update(refused.values())
@@ -347,6 +366,9 @@ def print_table(scenario: str, rows: dict, n: int) -> None:
         print(f"\nrefused, {src}/{m}: {refused} of {4 * n} wheels ({reasons}); silent wrong (> 3 stated, no warning): "
               f"{len(r['silent'])} of {r['judged']} wheels of valid cycles" + (f" ({', '.join(r['silent'])})" if r["silent"] else "")
               + (f"; beyond 3 stated but withheld with their refused cycle: {', '.join(r['withheld'])}" if r["withheld"] else ""))
+        if r["exposures"]:
+            print(f"\ncameras taken again at a shorter exposure (their lip at the white), {src}/{m}: "
+                  + ", ".join(f"{v} at {k:g}x" for k, v in sorted(r["exposures"].items(), reverse=True)))
     print_reliability(rows)
     print_repeatability(rows)
     times = [t for r in rows.values() for t in r["time"]]

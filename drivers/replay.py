@@ -11,6 +11,11 @@ The image is returned exactly as saved (same dtype, same bytes). ``timestamp_ns`
 host's monotonic clock at the grab, so the capture's timestamp checks work as with live
 cameras; the recorded values are in ``metadata["recorded_timestamp_ns"]`` and
 ``metadata["recorded_frame_id"]``.
+
+Configured to another exposure than the one it was opened with, the camera serves the frame
+the station took again at that exposure in the cycle it served last (the cycle's
+``exposure-<factor>`` folder, station/capture/exposure_bracket.py), so a replay repeats the
+cycle's second take as well.
 """
 
 from __future__ import annotations
@@ -69,6 +74,7 @@ class ReplayCamera(Camera):
             raise CameraMissing(f"{self.camera_id}: the saved cycle {cycles[0]} has no frame of "
                                 f"{self.source_id} (it has {', '.join(sorted(cams)) or 'none'})")
         self._cycles, self._next = cycles, 0
+        self._exposure_us = self.settings.exposure_us
 
     def _arm(self) -> None:
         self._triggered.clear()
@@ -82,6 +88,8 @@ class ReplayCamera(Camera):
         if self.settings.trigger == "software" and not self._triggered.wait(timeout_s):
             return None
         self._triggered.clear()
+        if self.settings.exposure_us != self._exposure_us:
+            return self._retaken(self.settings.exposure_us / self._exposure_us)
         with self._lock:
             if self._next >= len(self._cycles):
                 if not self.loop or not self._cycles:
@@ -90,6 +98,20 @@ class ReplayCamera(Camera):
                 self._next = 0
             cycle = self._cycles[self._next]
             self._next += 1
+        return self._frame(cycle)
+
+    def _retaken(self, factor: float) -> Frame:
+        """The frame the station took again at ``factor`` times the exposure in the cycle
+        served last (its ``exposure-<factor>`` folder: station/capture/exposure_bracket.py)."""
+        if not self._next:
+            raise FrameError(f"{self.camera_id}: no cycle served yet to take again at {factor:g}x the exposure")
+        folder = self._cycles[self._next - 1] / f"exposure-{factor:g}"
+        if not (folder / "cycle.json").exists() or self.source_id not in _cycle_meta(folder).get("cameras", {}):
+            raise FrameError(f"{self.camera_id}: the saved cycle holds no frame of {self.source_id} at {factor:g}x "
+                             f"the exposure ({folder})")
+        return self._frame(folder)
+
+    def _frame(self, cycle: Path) -> Frame:
         info = _cycle_meta(cycle).get("cameras", {}).get(self.source_id)
         if info is None:
             raise FrameError(f"{self.camera_id}: saved cycle {cycle} has no frame of {self.source_id}")

@@ -110,12 +110,13 @@ class AdjustmentWorld:
         i = (n // self.hold) % (2 * k - 2)
         return i if i < k else 2 * k - 2 - i
 
-    def render(self, cam_id: str, rng: np.random.Generator | None = None, scene=None) -> np.ndarray:
+    def render(self, cam_id: str, rng: np.random.Generator | None = None, scene=None,
+               exposure: float = 1.0) -> np.ndarray:
         n = self._calls.get(cam_id, 0)
         self._calls[cam_id] = n + 1
         step = self.step_of(n)
         frames = self.steps[step] if cam_id in self.steps[step] else self.steps[0]
-        clean = frames[cam_id]
+        clean = frames[cam_id] if exposure == 1.0 else frames[cam_id] * exposure
         rng = rng or np.random.default_rng(n)
         bank = self._noise[cam_id]
         noise = np.roll(bank[int(rng.integers(len(bank)))], int(rng.integers(clean.size)))

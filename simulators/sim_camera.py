@@ -9,6 +9,9 @@ URI: ``sim://camN[?line=K&fps=F]``. The simulated station comes from the driver 
   (simulators.trigger_board_sim.TriggerLines, driven by the simulated trigger board);
 - free-run: a frame every 1/F s (default 10 fps), stamped on that grid.
 
+The exposure the camera was opened with sees the world's lighting; a later ``configure
+(exposure_us=...)`` scales the light by the ratio (the read noise stays).
+
 Frames are deterministic: frame n of camera camN is rendered with the noise stream
 ``default_rng([seed, N, n])``, seed = the simulated station's (default the station seed),
 so the same world, scene and seed give bit-identical frames.
@@ -61,6 +64,7 @@ class SimCamera(Camera):
                                 f"(it has {', '.join(world.cameras)})")
         self.world = world
         self.seed = sim.seed
+        self._exposure_us = self.settings.exposure_us  # the world's lighting is what this exposure sees
         self._n = 0
         self._t_open_ns = time.monotonic_ns()
 
@@ -113,8 +117,8 @@ class SimCamera(Camera):
     def render(self, n: int) -> np.ndarray:
         """Frame ``n`` of this camera: (H, W) uint8 (Mono8) or uint16 (Mono16, 8 bits shifted up)."""
         rng = np.random.default_rng([self.seed, self.index, n])
-        image = self.world.render(self.sim_id, rng)
         s = self.settings
+        image = self.world.render(self.sim_id, rng, exposure=s.exposure_us / self._exposure_us)
         if s.roi:
             x, y, w, h = s.roi
             image = image[y:y + h, x:x + w]

@@ -161,17 +161,21 @@ class SimWorld:
                      lighting=s_over.get("lighting", lighting), appearance=s_over.get("appearance", Appearance()))
 
     # --- images -----------------------------------------------------------------------------
-    def render(self, cam_id: str, rng: np.random.Generator | None = None, scene: Scene | None = None) -> np.ndarray:
+    def render(self, cam_id: str, rng: np.random.Generator | None = None, scene: Scene | None = None,
+               exposure: float = 1.0) -> np.ndarray:
         """(H,W) uint8 image of the current scene (or ``scene``) from camera ``cam_id``.
 
         rng: the sensor-noise stream; default one seeded by (station_seed, camera index).
+        exposure: the exposure time as a factor of the camera's own (the light scales with it,
+        the read noise does not).
         """
         if cam_id not in self.cameras:
             raise KeyError(f"no camera {cam_id!r} in this station; cameras: {', '.join(self.cameras)}")
         scene = scene or self.scene
         if rng is None:
             rng = np.random.default_rng([self.config.simulation.station_seed, list(self.cameras).index(cam_id)])
-        return sensor_frame(self.clean_image(cam_id, scene), rng, self.noise_sigma)
+        clean = self.clean_image(cam_id, scene)
+        return sensor_frame(clean if exposure == 1.0 else clean * np.float32(exposure), rng, self.noise_sigma)
 
     def clean_image(self, cam_id: str, scene: Scene | None = None) -> np.ndarray:
         """(H,W) float32: what camera ``cam_id`` receives of the scene before read noise and

@@ -87,6 +87,16 @@ def _string_list(v, key):
     return tuple(v)
 
 
+def _exposure_steps(v, key):
+    """Factors of the configured exposure, each in (0, 1), falling: [] turns the re-take off."""
+    if not isinstance(v, (list, tuple)) or len(v) > 4:
+        raise _Bad(f"expected a list of up to 4 exposure factors such as [0.5, 0.25], got {v!r}"[:200])
+    out = tuple(_number(lo=0.01, hi=0.99)(x, key) for x in v)
+    if any(b >= a for a, b in zip(out, out[1:])):
+        raise _Bad(f"expected falling factors such as [0.5, 0.25], got {list(out)}")
+    return out
+
+
 def _history_url(v, key):
     """null, or a PostgreSQL URL with a host and a database (its password never repeated in errors)."""
     if v is None:
@@ -275,6 +285,7 @@ SCHEMA = {
         "timeout_s": Field(_number(0.01, 600), default=3.0),
         "keep_captures": Field(_bool, default=True),
         "frames_averaged": Field(_number(1, 64, integer=True), default=1),
+        "exposure_steps": Field(_exposure_steps, default=(0.5, 0.25)),  # station/capture/exposure_bracket.py
     }), default={}),
     "trigger_board": Field(_section({
         "port": Field(_string(nullable=True), default=None),

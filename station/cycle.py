@@ -23,7 +23,8 @@ from calibration.errors import CalibrationMismatch
 from drivers.context import DriverContext
 from drivers.registry import build_context
 from station.capture.cameras import close_cameras, open_station_cameras, open_trigger_board
-from station.capture.saving import capture_and_keep, new_cycle_id, remove_unfinished_captures
+from station.capture.exposure_bracket import measure_bracketed
+from station.capture.saving import capture_and_keep, keep_capture, new_cycle_id, remove_unfinished_captures
 from station.capture.sync import capture_averaged
 from station.compute.workers import WorkerPool, default_workers
 from station.config import StationConfig
@@ -157,6 +158,40 @@ class Station:
             cycle.not_kept = cycle.not_kept or kept.warning
         return frames
 
+    def _retake(self, cycle: _Cycle, ids: list[str], factor: float, failed: list[str]) -> dict:
+        """The cameras ``ids`` taken again at ``factor`` times their configured exposure (with
+        the others where a trigger board fires every camera, and their frames left):
+        {camera id: image} of ``ids``, kept in the cycle's ``exposure-<factor>`` folder. A
+        capture or camera that fails leaves {} and a sentence in ``failed``: the cycle goes on
+        with the frames it has."""
+        cfg = self.config
+        n = cfg.capture.frames_averaged
+        self.progress(f"cycle {cycle.cycle_id}: the rim's lip is at the sensor's white in {', '.join(ids)}: "
+                      f"taking {'them' if len(ids) > 1 else 'it'} again at {factor:g}x the exposure")
+        configured = {c: self.cameras[c].settings.exposure_us for c in ids}
+        frames = {}
+        try:
+            for c in ids:
+                self.cameras[c].configure(exposure_us=configured[c] * factor)
+            cameras = self.cameras if self.trigger_board is not None else {c: self.cameras[c] for c in ids}
+            frames = capture_averaged(cameras, self.timeout_s, self.trigger_board, frames=n)
+        except CODED_ERRORS as e:
+            failed.append(f"{', '.join(ids)} could not be taken again at {factor:g}x the exposure ({e}); measured "
+                          "on the frames taken before")
+        finally:
+            for c in ids:
+                try:
+                    self.cameras[c].configure(exposure_us=configured[c])
+                except CODED_ERRORS as e:
+                    failed.append(f"{c}: its exposure could not be set back to {configured[c]:g} us ({e}): "
+                                  f"restart the station before the next cycle")
+        frames = {c: frames[c] for c in ids if c in frames}
+        if frames and cfg.capture.keep_captures and cycle.captures_dir:
+            kept = keep_capture(frames, Path(cycle.captures_dir) / f"exposure-{factor:g}", truth=cycle.truth,
+                                extra={"job_id": cycle.job_id, "exposure_factor": factor})
+            cycle.not_kept = cycle.not_kept or kept.warning
+        return {c: f.image for c, f in frames.items()}
+
     def _keep_failure(self, cycle: _Cycle, error, kept=None) -> None:
         """A cycle that ends before it is measured (a capture, a roll not confirmed): its invalid
         result is kept in the history (``cycle.failed``), with where its frames are."""
@@ -284,9 +319,18 @@ class Station:
                  refuse_uncertain: bool = True) -> Measurement:
         t_capture = time.perf_counter() - cycle.t0
         self.progress(f"cycle {cycle.cycle_id}: detecting rims and rebuilding the wheels")
-        cycle.images = {cid: f.image for cid, f in frames.items()}
-        result = measure_frames(cycle.images, self.models, self.config, method=method, workers=self.workers,
-                                calibration_cov=self.calibration.pair_covariance, refuse_uncertain=refuse_uncertain)
+
+        def measure(images: dict) -> Measurement:
+            return measure_frames(images, self.models, self.config, method=method, workers=self.workers,
+                                  calibration_cov=self.calibration.pair_covariance, refuse_uncertain=refuse_uncertain)
+
+        # a procedure's positions are measured as taken: its captures are compared with each other
+        steps = self.config.capture.exposure_steps if refuse_uncertain else ()
+        retake_failed: list[str] = []
+        result, cycle.images, _ = measure_bracketed({cid: f.image for cid, f in frames.items()}, measure,
+                                                    lambda ids, factor: self._retake(cycle, ids, factor, retake_failed),
+                                                    steps)
+        result.warnings += retake_failed
         self._stamp(result, cycle)
         result.timing_s["capture"] = t_capture
         result.captures_dir = cycle.captures_dir

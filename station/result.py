@@ -226,6 +226,7 @@ class Measurement:
     job_id: str | None = None
     vehicle_spec: str | None = None
     captures_dir: str | None = None
+    exposures: dict[str, float] | None = None  # cameras taken again shorter: factor of the configured exposure
     truth: dict | None = None
     errors: dict[str, Any] | None = None
     verdicts: dict[str, bool | None] | None = None
@@ -292,7 +293,7 @@ class Measurement:
         out.update(_present({"thrust_std_deg": self.thrust_std_deg, "wheelbase_m": self.wheelbase_m,
                              "centreline_deg": self.centreline_deg,
                              "paper_front_angles_deg": self.paper_front_angles_deg,
-                             "alignment_frame": self.alignment_frame}))
+                             "alignment_frame": self.alignment_frame, "exposures": self.exposures}))
         out["timing_s"] = dict(self.timing_s)
         if self.method is not None:
             out["method"] = self.method
@@ -339,7 +340,8 @@ class Measurement:
         plain = {k: d.get(k) for k in ("station", "thrust_deg", "thrust_std_deg", "wheelbase_m", "centreline_deg",
                                        "paper_front_angles_deg", "alignment_frame", "method", "cycle_id", "time_utc",
                                        "software_version", "calibration_id", "job_id", "vehicle_spec",
-                                       "captures_dir", "truth", "errors", "recording", "simulation_seed")}
+                                       "captures_dir", "exposures", "truth", "errors", "recording",
+                                       "simulation_seed")}
         detections = d.get("detections")
         return cls(**plain, valid=bool(d.get("valid", False)), runout_compensated=bool(d.get("runout_compensated", False)),
                    failure=Failure.from_json(d["failure"]) if isinstance(d.get("failure"), dict) else None,

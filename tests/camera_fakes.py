@@ -27,7 +27,7 @@ class FakeWorld:
         self.dead: set[str] = set()
         self.renders = 0
 
-    def render(self, cam_id, rng=None):
+    def render(self, cam_id, rng=None, exposure=1.0):
         if cam_id in self.dead:
             raise RuntimeError("sensor fault")
         time.sleep(self.delay.get(cam_id, 0.0))

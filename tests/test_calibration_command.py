@@ -28,7 +28,7 @@ def _config_copy(tmp_path, edit=None) -> Path:
 def test_box_not_seen_refuses_and_keeps_the_saved_file(tmp_path, monkeypatch, capsys):
     from simulators import world as world_mod
     monkeypatch.setattr(world_mod.SimWorld, "render",
-                        lambda self, cam_id, rng=None, scene=None: np.full((1024, 1280), 90, np.uint8))
+                        lambda self, cam_id, rng=None, scene=None, exposure=1.0: np.full((1024, 1280), 90, np.uint8))
     cfg = _config_copy(tmp_path)
     saved = tmp_path / "var" / "calibration" / "station.calib.json"
     saved.parent.mkdir(parents=True)
@@ -45,7 +45,7 @@ def test_every_box_image_is_the_mean_of_a_burst(tmp_path, monkeypatch, capsys):
     from simulators import world as world_mod
     renders: dict[str, int] = {}
 
-    def render(self, cam_id, rng=None, scene=None):
+    def render(self, cam_id, rng=None, scene=None, exposure=1.0):
         renders[cam_id] = renders.get(cam_id, 0) + 1
         return np.full((1024, 1280), 90, np.uint8)
     monkeypatch.setattr(world_mod.SimWorld, "render", render)

@@ -30,7 +30,7 @@ class CleanWorld:
         self.clean = np.tile(np.linspace(40, 200, width, dtype=np.float32), (height, 1))
         self.sigma = sigma
 
-    def render(self, cam_id, rng=None):
+    def render(self, cam_id, rng=None, exposure=1.0):
         noisy = self.clean + rng.standard_normal(self.clean.shape, dtype=np.float32) * np.float32(self.sigma)
         return np.clip(np.rint(noisy), 0, 255).astype(np.uint8)
 
