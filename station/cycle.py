@@ -160,7 +160,7 @@ class Station:
 
     def _retake(self, cycle: _Cycle, ids: list[str], factor: float, failed: list[str]) -> dict:
         """The cameras ``ids`` taken again at ``factor`` times their configured exposure (with
-        the others where a trigger board fires every camera, and their frames left):
+        the hardware-triggered others where a trigger board fires them all; their frames left):
         {camera id: image} of ``ids``, kept in the cycle's ``exposure-<factor>`` folder. A
         capture or camera that fails leaves {} and a sentence in ``failed``: the cycle goes on
         with the frames it has."""
@@ -173,7 +173,8 @@ class Station:
         try:
             for c in ids:
                 self.cameras[c].configure(exposure_us=configured[c] * factor)
-            cameras = self.cameras if self.trigger_board is not None else {c: self.cameras[c] for c in ids}
+            cameras = {c: cam for c, cam in self.cameras.items()  # and those the board's pulse reaches
+                       if c in ids or (self.trigger_board is not None and cam.settings.trigger == "hardware")}
             frames = capture_averaged(cameras, self.timeout_s, self.trigger_board, frames=n)
         except CODED_ERRORS as e:
             failed.append(f"{', '.join(ids)} could not be taken again at {factor:g}x the exposure ({e}); measured "

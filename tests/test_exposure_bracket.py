@@ -140,3 +140,24 @@ def _config_variant(folder: Path, data: dict, uris: dict | None = None, **captur
     folder.mkdir(parents=True)
     (folder / "station.yaml").write_text(yaml.safe_dump(data))
     return load_config(folder / "station.yaml")
+
+
+@pytest.mark.slow
+def test_a_board_fired_station_takes_every_hardware_camera_again_and_the_next_cycle_runs(tmp_path):
+    from station.cycle import Station
+
+    config = small_station_config(tmp_path, capture__frames_averaged=1, recording__enabled=False)
+    truth_calibration(config)
+    data = yaml.safe_load(Path(config.path).read_text())
+    data["trigger_board"]["port"] = "sim"
+    data["camera_defaults"]["trigger"] = "hardware"
+    board = _config_variant(tmp_path / "board", data)
+    with Station(board, seed=3, progress=lambda msg: None, workers=0) as station:
+        assert station.trigger_board is not None
+        cam = station.cameras["cam5"]
+        cam.configure(exposure_us=3 * cam.settings.exposure_us)
+        first = station.measure()
+        second = station.measure()  # the other cameras' frames of the second take left no stale frame
+    for result in (first, second):
+        assert result.valid, result.failure
+        assert result.exposures == {"cam5": 0.5}
