@@ -125,6 +125,10 @@ def scenario_basic(fakes: FakeCameras) -> dict:
     out["exposure_range"] = _err(lambda: cam.configure(exposure_us=1e9))
     cam.configure(exposure_us=5000)
     out["after_error"] = ramp_ok(cam.snap(2.0).image)
+    cam.configure(exposure_us=2500)  # a second take at half the exposure (station/capture/exposure_bracket.py)
+    out["half"] = [cam.get_feature("ExposureTimeAbs"), ramp_ok(cam.snap(2.0).image)]
+    cam.configure(exposure_us=5000)
+    out["restored"] = [cam.get_feature("ExposureTimeAbs"), ramp_ok(cam.snap(2.0).image)]
     cam.close()
     return out
 

@@ -37,6 +37,7 @@ def test_open_configure_snap_and_deadline():
     assert "NoSuchFeature" in r["bad_feature"]["msg"] and "cam1" in r["bad_feature"]["msg"]
     assert "outside the camera's range" in r["exposure_range"]["msg"]
     assert r["after_error"]
+    assert r["half"] == [2500.0, True] and r["restored"] == [5000.0, True]  # re-exposed between frames
 
 
 def test_pixel_formats_roi_and_trigger_modes():
