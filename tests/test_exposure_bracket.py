@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -128,6 +129,15 @@ def test_an_overexposed_camera_is_measured_on_a_shorter_take_and_a_replay_repeat
     for w in ("FL", "FR", "RL", "RR"):
         assert replayed.wheels[w].toe_deg == result.wheels[w].toe_deg
         assert replayed.wheels[w].camber_deg == result.wheels[w].camber_deg
+
+    # a kept cycle without its second take (kept before there was one): measured as kept, and said
+    shutil.rmtree(kept)
+    with Station(replay, progress=lambda msg: None, workers=0) as station:
+        old = station.measure()
+    assert old.exposures is None
+    assert [f.camera for f in old.warning_flags if f.kind == "exposure"] == ["cam1"]
+    assert any("cam1 could not be taken again at 0.5x" in w and "measured on the frames taken before" in w
+               for w in old.warnings)
 
 
 def _config_variant(folder: Path, data: dict, uris: dict | None = None, **capture):
