@@ -175,7 +175,7 @@ def _images(world, scene, scenario: str, seed: int, cache: Path | None, capture:
 def _reexposed(world, scenario: str, seed: int, cams: list[str], factor: float, frames: int) -> dict:
     """The cameras ``cams`` of the world's scene taken again at ``factor`` times their exposure,
     as the station's cycle does for a lip at the white (station/capture/exposure_bracket.py):
-    ``frames`` fresh frames each, averaged. Rendered (not cached): only such cameras need them."""
+    ``frames`` fresh frames each, averaged. Rendered for each run, not kept in ``cache``."""
     index = {c: i for i, c in enumerate(world.cameras)}
     out = {}
     for c in cams:

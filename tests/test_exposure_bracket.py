@@ -64,6 +64,15 @@ def test_nothing_is_taken_again_without_a_white_camera_or_without_steps():
     assert taken == [] and exposures == {} and [f.camera for f in result.warning_flags] == ["cam1"]
 
 
+def test_a_second_take_that_fails_ends_the_steps_without_measuring_again():
+    images = {"cam1": np.full((2, 2), 300.0)}
+    measure, calls = _measure_by_brightness(white_above=120.0)
+    tries = []
+    result, used, exposures = measure_bracketed(images, measure, lambda ids, f: tries.append(f) or {}, (0.5, 0.25))
+    assert tries == [0.5] and len(calls) == 1 and exposures == {} and used is images
+    assert [f.camera for f in result.warning_flags] == ["cam1"]
+
+
 def test_a_camera_that_loses_its_rim_at_the_shorter_exposure_keeps_the_longer_frame():
     levels = {"cam1": 300.0, "cam2": 130.0}
     images = {c: np.full((2, 2), v) for c, v in levels.items()}

@@ -45,6 +45,8 @@ def measure_bracketed(images: dict[str, np.ndarray], measure: Callable[[dict], M
         if not white:
             break
         taken = recapture(white, step)
+        if not taken:  # the cameras could not be taken again (the recapture says why)
+            break
         trial = measure({**images, **taken})
         lost = [c for c in taken if _found(result, c) and not _found(trial, c)]
         if lost:  # too dark there now (a shaded half): those keep the longer frame
