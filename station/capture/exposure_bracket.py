@@ -22,12 +22,10 @@ import numpy as np
 
 from station.result import Measurement
 
-EXPOSURE_FLAG = "exposure"  # the warning kind of a camera whose edge is at the white (station/measure.py)
-
-
 def white_cameras(result: Measurement) -> list[str]:
-    """The cameras the result flags as having their rim edge at the sensor's white, in order."""
-    return list(dict.fromkeys(f.camera for f in result.warning_flags if f.kind == EXPOSURE_FLAG and f.camera))
+    """The cameras the result flags as having their rim edge at the sensor's white (warning kind
+    ``exposure``, station/measure.py), in order."""
+    return list(dict.fromkeys(f.camera for f in result.warning_flags if f.kind == "exposure" and f.camera))
 
 
 def measure_bracketed(images: dict[str, np.ndarray], measure: Callable[[dict], Measurement],
