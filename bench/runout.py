@@ -103,7 +103,7 @@ def main() -> int:
         cams, cov = {c: calib.model(c) for c in config.cameras}, calib.pair_covariance
     frames = config.capture.frames_averaged if args.frames is None else args.frames
     comp_err, comp_std, rim_err, runout_err, failed, seconds = [], [], [], [], [], []
-    turn_err, frame_tilt, face_points = [], [], []
+    turn_err, face_points = [], []
     for i in range(args.n):
         seed = args.seed + i
         base = world.vehicle_scene(seed)
@@ -143,8 +143,6 @@ def main() -> int:
         truths = [world.truth(replace(base, vehicle=replace(vehicle, roll_m=p * args.distance))) for p in ROLL_PLAN]
         turn_err += [rolls[w].roll_deg[k] - (truths[k]["wheels"][w]["roll_deg"] - truth["wheels"][w]["roll_deg"])
                      for w in WHEELS for k in range(len(ROLL_PLAN) - 1)]
-        frame_tilt.append([np.degrees(np.arcsin(np.hypot(*np.asarray(r.alignment_frame["R_station_align"])[:2, 2])))
-                           for r in (result, results[-1])])
         print(f"  vehicle {i + 1}/{args.n} done", file=sys.stderr, flush=True)
     print(f"# Runout compensation: {args.n} vehicles from seed {args.seed}, runout U(0, {args.runout}) deg, "
           f"rolled {args.distance * 100:.0f} cm each way ({len(ROLL_PLAN)} captures, {frames} frame(s) each), "
@@ -168,9 +166,6 @@ def main() -> int:
         te = np.abs(turn_err)
         print(f"wheel turns from the face: error median {np.median(te):.4f} deg, RMS {np.sqrt(np.mean(te ** 2)):.4f}, "
               f"max {te.max():.3f} ({len(te)} turns)")
-        hub_tilt, lip_tilt = np.sqrt(np.mean(np.square(frame_tilt), axis=0))
-        print(f"the car frame's up against the true up: {hub_tilt:.4f} deg RMS through the four hubs found "
-              f"(compensated), {lip_tilt:.4f} through the lip centres (rim plane)")
     if face_points:
         fp = np.array(face_points)
         print(f"the face's motion joined the lip's axis on {np.sum(fp > 0)} of {len(fp)} wheels "

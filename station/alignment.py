@@ -27,17 +27,24 @@ def paper_car_frame(centers: dict[str, np.ndarray]) -> np.ndarray:
     return np.stack([x, y, z], axis=1)
 
 
-def alignment_frames(C: np.ndarray) -> np.ndarray:
-    """Frames of the signed angles for K sets of wheel centres C (K,4,3) (WHEELS order): z as
-    the paper's, y along the geometric centreline. Returns R_station_align (K,3,3), columns
-    x_a (right), y_a (forward), z_a (up)."""
-    def unit(v):
-        return v / np.linalg.norm(v, axis=-1, keepdims=True)
+RUNWAY_UP = np.array([0.0, 0.0, 1.0])  # the station frame's z: normal to the runways the wheels stand on
 
+
+def alignment_frames(C: np.ndarray) -> np.ndarray:
+    """Frames of the signed angles for K sets of wheel centres C (K,4,3) (WHEELS order): z the
+    runways' normal (the station frame's z, as the calibration box on its fixtures defines it),
+    y along the geometric centreline laid on the runways. Returns R_station_align (K,3,3),
+    columns x_a (right), y_a (forward), z_a (up).
+
+    Camber is read against the plane the wheels stand on. The paper's z' (normal to the plane
+    of the wheel centres) moves with each centre's height: a lip centred 0.5 mm off its hub, or
+    one tyre a few millimetres lower, rolls that plane and shifts the left and right cambers
+    apart (bench/camber_reference.py)."""
     FL, FR, RL, RR = (C[:, i] for i in range(4))
-    z = unit(np.cross(unit(RR - RL), FL - RL))                       # the paper's z'
+    z = np.broadcast_to(RUNWAY_UP, FL.shape)
     line = (FL + FR) / 2 - (RL + RR) / 2                             # the geometric centreline
-    y = unit(line - z * np.einsum("ki,ki->k", z, line)[:, None])
+    y = line - z * np.einsum("ki,ki->k", z, line)[:, None]
+    y = y / np.linalg.norm(y, axis=-1, keepdims=True)
     return np.stack([np.cross(y, z), y, z], axis=2)
 
 

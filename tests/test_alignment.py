@@ -1,5 +1,7 @@
 """Signed alignment angles recover a simulated vehicle's toe and camber exactly."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -55,6 +57,31 @@ def test_setback_sign():
     centers["FR"] = centers["FR"] + np.array([0, 0.01, 0])
     a = compute_angles(centers, axes)
     assert a["axles"]["front"]["setback_m"] == pytest.approx(0.01, abs=1e-6)
+
+
+@pytest.mark.parametrize("wheel", WHEELS)
+def test_camber_is_read_against_the_runways_not_the_wheel_centres(wheel):
+    # one tyre 4 mm lower (less air), or a lip centred off its hub: the wheels still stand on
+    # the same runways, and no wheel's camber or toe moves; through the plane of the wheel
+    # centres the left and right cambers would move apart by about 0.15 deg
+    v = random_vehicle(np.random.default_rng(3))
+    centers, axes = _wheels(v)
+    before = compute_angles(centers, axes)
+    centers[wheel] = centers[wheel] + np.array([0.0, 0.0, -0.004])
+    after = compute_angles(centers, axes)
+    for w in WHEELS:
+        assert after["wheels"][w]["camber_deg"] == pytest.approx(before["wheels"][w]["camber_deg"], abs=1e-9)
+        assert after["wheels"][w]["toe_deg"] == pytest.approx(before["wheels"][w]["toe_deg"], abs=1e-9)
+    np.testing.assert_allclose(after["R_station_align"][:, 2], [0.0, 0.0, 1.0], atol=1e-12)
+
+
+def test_a_yawed_car_keeps_its_angles_and_the_runways_up():
+    v = random_vehicle(np.random.default_rng(4))
+    for yaw in (0.0, 3.0, -2.0):
+        a = compute_angles(*_wheels(replace(v, yaw_deg=yaw)))
+        for w in WHEELS:
+            assert a["wheels"][w]["camber_deg"] == pytest.approx(v.camber_deg[w], abs=1e-9)
+            assert a["wheels"][w]["toe_deg"] == pytest.approx(v.toe_deg[w], abs=1e-9)
 
 
 @pytest.mark.parametrize("seed", range(5))
