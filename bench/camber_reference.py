@@ -25,13 +25,17 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
+sys.path.append(str(ROOT / "bench"))
+
+from accuracy import _images  # noqa: E402
 
 from calibration.station_frame import WHEELS  # noqa: E402
-from simulators import image_cache  # noqa: E402
 from station.alignment import paper_car_frame, toe_camber_rad  # noqa: E402
-from station.capture.frame_average import mean_image  # noqa: E402
 from station.config import load_config  # noqa: E402
 from station.measure import measure_frames  # noqa: E402
+
+
+AS_DRAWN = "as-drawn"  # the cache's name for these vehicles' images (runout kept, unlike sigma2's)
 
 
 def centre_plane_frame(centers: dict) -> np.ndarray:
@@ -42,19 +46,6 @@ def centre_plane_frame(centers: dict) -> np.ndarray:
     y = line - z * (z @ line)
     y /= np.linalg.norm(y)
     return np.stack([np.cross(y, z), y, z], axis=1)
-
-
-def images(world, seed: int, frames: int, cache: Path | None) -> dict:
-    """The eight images of vehicle ``seed`` as the station's capture averages them."""
-    path = cache / f"vehicle-{seed}-f{frames}.npz" if cache is not None else None
-    kept = image_cache.load(path, world) if path is not None else None
-    if kept is not None:
-        return kept
-    bursts = [world.render_all(np.random.default_rng([seed, k])) for k in range(frames)]
-    out = {c: mean_image([b[c] for b in bursts]) for c in bursts[0]}
-    if path is not None:
-        image_cache.save(path, out, world)
-    return out
 
 
 def main() -> int:
@@ -86,8 +77,8 @@ def main() -> int:
         seed = args.seed + i
         scene = world.vehicle_scene(seed)
         world.set_scene(scene)
-        res = measure_frames(images(world, seed, frames, args.cache), cameras, config, method="circle",
-                             calibration_cov=cov)
+        images = _images(world, scene, AS_DRAWN, seed, args.cache, frames=frames)  # bench/accuracy.py's rendering
+        res = measure_frames(images, cameras, config, method="circle", calibration_cov=cov)
         if not res.valid:
             refused += 1
             print(f"  seed {seed}: refused ({res.failure.code})", file=sys.stderr)

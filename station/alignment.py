@@ -40,12 +40,10 @@ def alignment_frames(C: np.ndarray) -> np.ndarray:
     of the wheel centres) moves with each centre's height: a lip centred 0.5 mm off its hub, or
     one tyre a few millimetres lower, rolls that plane and shifts the left and right cambers
     apart (bench/camber_reference.py)."""
-    FL, FR, RL, RR = (C[:, i] for i in range(4))
-    z = np.broadcast_to(RUNWAY_UP, FL.shape)
-    line = (FL + FR) / 2 - (RL + RR) / 2                             # the geometric centreline
-    y = line - z * np.einsum("ki,ki->k", z, line)[:, None]
-    y = y / np.linalg.norm(y, axis=-1, keepdims=True)
-    return np.stack([np.cross(y, z), y, z], axis=2)
+    line = (C[:, 0] + C[:, 1]) / 2 - (C[:, 2] + C[:, 3]) / 2          # the geometric centreline (K,3)
+    y = line - np.outer(line @ RUNWAY_UP, RUNWAY_UP)                   # laid on the runways
+    y /= np.linalg.norm(y, axis=-1, keepdims=True)
+    return np.stack([np.cross(y, RUNWAY_UP), y, np.broadcast_to(RUNWAY_UP, y.shape)], axis=2)
 
 
 def alignment_frame(centers: dict[str, np.ndarray]) -> np.ndarray:
