@@ -120,7 +120,14 @@ def disagreement_covariance(agreement: ViewAgreement | None, edge_bias_px: float
     (``measurement.view_edge_bias_px``) explain, as a standard deviation in every direction
     across the axis. The pair's fit errs toward the wrong view's arc, whose bias tilts it in a
     direction of its own (on the simulated station's dark rims mostly in camber where the views
-    disagreed in toe): the disagreement says how much, not which way. Zero when they agree."""
+    disagreed in toe): the disagreement says how much, not which way. Zero when they agree.
+
+    What is subtracted from the squared disagreement (two directions) is one direction's
+    expected variance, half its expected square: on gunmetal and polished rims a disagreement
+    just beyond its expected size already marks a biased arc (subtracting the whole expected
+    square took wheels 0.1-0.2 deg off: docs/history/accuracy.md, "Why held-out B states toe
+    1.7 times its error"), while on clean rims it states a few wheels' toe more cautiously
+    than their error."""
     if agreement is None:
         return np.zeros((3, 3))
     size = float(np.linalg.norm(agreement.disagreement_station))
