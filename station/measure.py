@@ -22,6 +22,7 @@ from station.errors import MeasurementError, StationError, WheelUncertain
 from station.result import (ANGLE_NAMES, AxleResult, CameraDetection, Failure, Measurement, WarningFlag, WheelQuality,
                             WheelResult)
 from station.rim.camera_response import linear_images
+from station.rim.choice import DARK_RIM_NOTE
 from station.wheel.axle_rims import settle_axles
 from station.wheel.fit import WheelFit
 from station.wheel.pair import (FULL_VIEW_COVERAGE, TANGENT_GAP_DEG, WheelObservation, kept_fractions, measure_wheel,
@@ -376,17 +377,36 @@ def _detections_where(detections: dict, test) -> list[tuple[str, object]]:
     return [(cid, d) for cid, d in detections.items() if not isinstance(d, StationError) and test(d)]
 
 
+SMALLER_THAN_OTHERS = 0.6  # a rim this share of the other cameras' (median) is another contour, not a far rim
+
+
 def _small_rim_warnings(detections: dict, config: StationConfig) -> list[tuple[str, str]]:
     """A warning per camera whose rim ellipse is smaller than ``measurement.min_rim_axis_px``
     (semi-major axis, px). The edge model's windows are in pixels, made for a flange a few
     pixels wide: on the simulator, rims of 125-175 px (640x512 cameras) gave toe errors of
     0.78 deg RMS, rims of 190-260 px 0.08, of 250-350 px 0.03-0.04 (docs/rim-detection.md,
-    "Known limits"; the figures in docs/history/rim-detection.md)."""
+    "Known limits"; the figures in docs/history/rim-detection.md). The station's cameras see
+    their wheels from about the same distance: a "rim" under ``SMALLER_THAN_OTHERS`` of the
+    other cameras' (their median, three or more) is more likely the hub, a hubcap's ring or the
+    lip's inner edge than a rim too far away (on black rims, which the detector does not find,
+    83-90 px against 250-300), and the warning says so instead of asking for a longer lens."""
     limit = config.measurement.min_rim_axis_px
-    return [(cid, f"{config.cameras[cid].wheel} {cid}: the rim spans only {d.ellipse.axes_px[0]:.0f} px "
-                  f"(semi-major axis; limit {limit:.0f} px, 250 or more measure best): its toe and camber are "
-                  f"less accurate; use a longer lens or a higher resolution, or bring {cid} closer to the wheel")
-            for cid, d in _detections_where(detections, lambda d: d.ellipse.axes_px[0] < limit)]
+    sizes = {cid: float(d.ellipse.axes_px[0]) for cid, d in _detections_where(detections, lambda d: True)}
+    out = []
+    for cid, a in sizes.items():
+        if a >= limit:
+            continue
+        others = [v for c, v in sizes.items() if c != cid]
+        typical = float(np.median(others)) if len(others) >= 3 else 0.0
+        head = f"{config.cameras[cid].wheel} {cid}: the rim spans only {a:.0f} px (semi-major axis; "
+        if a < SMALLER_THAN_OTHERS * typical:
+            out.append((cid, head + f"the other cameras' rims {typical:.0f} px): {cid} may have taken the hub, a "
+                                    f"hubcap's ring or the lip's inner edge instead of the rim; {DARK_RIM_NOTE}"))
+        else:
+            out.append((cid, head + f"limit {limit:.0f} px, 250 or more measure best): its toe and camber are less "
+                                    f"accurate; use a longer lens or a higher resolution, or bring {cid} closer to the "
+                                    "wheel"))
+    return out
 
 
 def _soft_focus_warnings(detections: dict, config: StationConfig) -> list[tuple[str, str]]:
