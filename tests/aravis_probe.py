@@ -238,8 +238,13 @@ def scenario_sync8(fakes: FakeCameras, cycles: str = "10") -> dict:
     out["drop"] = _err(lambda: capture_cycle(cams, 1.5))
     out["drop_s"] = round(time.monotonic() - t, 3)
     fakes.start("127.0.0.5")
-    t = time.monotonic()
-    out["back"] = _err(lambda: capture_cycle(cams, config.capture.timeout_s))
+    # back on the network: the restarted emulator and the other seven share two busy cores, and
+    # the first cycle may still miss its deadline there; try up to three, as an operator would
+    for attempt in range(3):
+        out["back"] = _err(lambda: capture_cycle(cams, config.capture.timeout_s))
+        out["back_attempts"] = attempt + 1
+        if out["back"]["type"] is None:
+            break
     close_cameras(cams)
     fakes.stop("127.0.0.7")
     out["open_missing"] = _err(lambda: open_station_cameras(config))
