@@ -389,7 +389,8 @@ def _small_rim_warnings(detections: dict, config: StationConfig) -> list[tuple[s
     their wheels from about the same distance: a "rim" under ``SMALLER_THAN_OTHERS`` of the
     other cameras' (their median, three or more) is more likely the hub, a hubcap's ring or the
     lip's inner edge than a rim too far away (on black rims, which the detector does not find,
-    83-90 px against 250-300), and the warning says so instead of asking for a longer lens."""
+    83-90 px against the other cameras' 170), and the warning says so instead of asking for a
+    longer lens."""
     limit = config.measurement.min_rim_axis_px
     sizes = {cid: float(d.ellipse.axes_px[0]) for cid, d in _detections_where(detections, lambda d: True)}
     out = []
