@@ -174,7 +174,8 @@ def _validate(values, schema: dict[str, Field], key: str) -> Section:
     if values is None:
         values = {}
     if not isinstance(values, dict):
-        raise _BadAt(key, f"expected a mapping, got {type(values).__name__}")
+        where = "" if key else f"the file's top level must be a mapping of keys ({', '.join(list(schema)[:3])}, ...); "
+        raise _BadAt(key, f"{where}expected a mapping, got {type(values).__name__}")
     out = {}
     for k in values:
         if k not in schema:
@@ -199,6 +200,11 @@ class _BadAt(Exception):
     def __init__(self, key, message):
         super().__init__(message)
         self.key = key
+
+
+def _at(e: _BadAt) -> str:
+    """A validation error's message, after its key where it has one (not at the file's top level)."""
+    return f"{e.key}: {e}" if e.key else str(e)
 
 
 def _join(a, b):
@@ -424,7 +430,7 @@ def load_config(path: str | os.PathLike | None = None) -> StationConfig:
     try:
         tree = _validate(raw, SCHEMA, "")
     except _BadAt as e:
-        raise ConfigError(f"{path}: {e.key}: {e}", hint="fix that key; docs/configuration.md lists every key") from None
+        raise ConfigError(f"{path}: {_at(e)}", hint="fix that key; docs/configuration.md lists every key") from None
     _check_station(path, tree)
     return StationConfig(path.resolve(), tree)
 
@@ -482,7 +488,7 @@ def load_box(path: str | os.PathLike) -> BoxTarget:
     try:
         box = _validate(raw, BOX_SCHEMA, "")
     except _BadAt as e:
-        raise ConfigError(f"{path}: {e.key}: {e}", hint=hint) from None
+        raise ConfigError(f"{path}: {_at(e)}", hint=hint) from None
     faces = {name: {"squares": f.squares, "first_id": f.first_id} for name, f in box.faces.items()}
     try:
         return BoxTarget(box.size_m, box.dictionary, box.square_m, box.marker_m, faces, box.texel_m, source=str(path))

@@ -70,6 +70,9 @@ def test_missing_and_broken_files(tmp_path):
     (b"version: 1\nname: st\x00ation\n", "not valid YAML"),
     (b"[" * 50_000, "not valid YAML"),
     (b"", "missing required key"),
+    (b"[1, 2]\n", r"station\.yaml: the file's top level must be a mapping of keys \(version, name, data_dir, \.\.\.\); "
+                 "expected a mapping, got list"),
+    (b"just a sentence\n", "top level must be a mapping of keys .*got str"),
 ])
 def test_files_that_are_not_a_configuration(tmp_path, content, expected):
     path = tmp_path / "station.yaml"
