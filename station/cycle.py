@@ -55,6 +55,17 @@ def open_capture(config: StationConfig, context: DriverContext):
     return cameras, board, max(config.capture.timeout_s, context.capture_timeout_s)
 
 
+def close_capture(workers: WorkerPool | None, cameras: dict, board, context: DriverContext) -> None:
+    """Release what a station or a live session holds: its worker processes (or None), the
+    cameras and trigger board of ``open_capture`` and the driver context."""
+    if workers is not None:
+        workers.close()
+    close_cameras(cameras)
+    if board is not None:
+        board.close()
+    context.close()
+
+
 class Station:
     """Cameras + calibration of one configured station. Use as a context manager."""
 
@@ -83,12 +94,7 @@ class Station:
         self.close()
 
     def close(self) -> None:
-        if self.workers is not None:
-            self.workers.close()
-        close_cameras(self.cameras)
-        if self.trigger_board is not None:
-            self.trigger_board.close()
-        self.context.close()
+        close_capture(self.workers, self.cameras, self.trigger_board, self.context)
 
     # --- one cycle --------------------------------------------------------------------------
     def measure(self, *, job_id: str | None = None, vehicle_spec: str | None = None,

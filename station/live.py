@@ -24,12 +24,11 @@ from typing import Callable
 import numpy as np
 
 from station import alignment
-from station.capture.cameras import close_cameras
 from station.capture.sync import capture_cycle
 from calibration.station_frame import WHEELS
 from station.config import StationConfig
 from station.errors import MeasurementError, StationError
-from station.cycle import open_capture
+from station.cycle import close_capture, open_capture
 from station.compute.workers import WorkerPool, default_workers
 from station.rim.camera_response import linear_images
 from station.measure import measure_frames
@@ -105,12 +104,7 @@ class LiveSession:
 
     def close(self) -> None:
         self._pool.shutdown(wait=True)
-        if self.workers is not None:
-            self.workers.close()
-        close_cameras(self.cameras)
-        if self.trigger_board is not None:
-            self.trigger_board.close()
-        self.context.close()
+        close_capture(self.workers, self.cameras, self.trigger_board, self.context)
 
     # --- the car frame: one full cycle --------------------------------------------------------
     def baseline(self) -> Measurement:

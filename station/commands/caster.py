@@ -28,9 +28,8 @@ def add_arguments(parser):
 
 
 def run(args) -> int:
-    from station.commands.measure import EXIT_ERROR, exit_status, print_result
-    from station.cycle import Station, write_json
-    from station.errors import StorageError, user_message
+    from station.commands.measure import EXIT_ERROR, print_result, written
+    from station.cycle import Station
     from station.procedures.steer_guide import GuidedSteering
     from station.procedures.steering import DEFAULT_SWEEP_DEG, MIN_SWEEP_DEG
 
@@ -52,14 +51,7 @@ def run(args) -> int:
     print_result(result)
     if result.valid and result.steering is not None:
         print_steering(result)
-    if args.json:
-        try:
-            write_json(result, args.json)
-        except StorageError as e:
-            print(user_message(e) + "\n  the result is printed above", file=sys.stderr)
-            return EXIT_ERROR
-        print(f"result written to {args.json}")
-    return exit_status(result)
+    return written(result, args.json)
 
 
 def print_steering(result, out=sys.stdout) -> None:

@@ -46,7 +46,7 @@ def add_arguments(parser):
 
 
 def run(args) -> int:
-    from station.cycle import Station, write_json
+    from station.cycle import Station
 
     config = load_config(args.config)
     if args.vehicle:  # a typo in the vehicle name is found before the cameras are opened
@@ -63,13 +63,21 @@ def run(args) -> int:
     if result.truth is not None:
         result.simulation_seed = seed
     print_result(result)
-    if args.json:
+    return written(result, args.json)
+
+
+def written(result: Measurement, json_path: str | None) -> int:
+    """The exit status of a cycle whose result was printed, after writing it to ``json_path``
+    when given (EXIT_ERROR, the result still printed, when that file cannot be written)."""
+    from station.cycle import write_json
+
+    if json_path:
         try:
-            write_json(result, args.json)
+            write_json(result, json_path)
         except StorageError as e:
             print(user_message(e) + "\n  the result is printed above", file=sys.stderr)
             return EXIT_ERROR
-        print(f"result written to {args.json}")
+        print(f"result written to {json_path}")
     return exit_status(result)
 
 
