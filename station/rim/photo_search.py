@@ -30,6 +30,10 @@ wheel's physical structure is there round it, and refuses, naming what it saw, o
    edge came out as this very ellipse (one rim found twice: the larger was the lip and the
    tyre's bead together). Judged after step 4, so that a larger candidate whose edge moved
    onto the rim does not hide it.
+6. **Stretched**, where no candidate was taken: the station's own search on the photograph
+   warped round each candidate of a wheel's shape until it is a circle (``photo_stretch``:
+   a spoke star, a disc or the lip's inner edge tells where the wheel is and how it is seen),
+   its rim refined and judged as in steps 2-5, with the tyre's far outline on half the turn.
 
 Of the wheels that pass, the largest (the nearest, the most pixels) is returned;
 ``details["other_wheels"]`` counts the rest. Two different accepted ellipses on one wheel
@@ -45,6 +49,7 @@ from station.rim.choice import DARK_RIM_NOTE
 from station.rim import photo_candidates as pc
 from station.rim.ellipse import Ellipse
 from station.rim.exposure import check_exposure
+from station.rim.photo_stretch import MAX_STRETCHED, MIN_OUTLINE_SHARE, stretched_search
 
 MIN_AXIS_RATIO = 0.2      # b/a: steeper views leave a semi-minor axis of a few search pixels
 MAX_TILT_DEG = 30.0       # the major axis off the image's vertical (upright wheel, level-ish camera)
@@ -217,7 +222,7 @@ def detect_in_photo(image: np.ndarray, camera_id: str = ""):
         else:
             refused.append((c, f"inside a larger candidate with a tyre round it ({_where(o)}; "
                                "a hub, a disc or the lip's inner edge)", 3))
-    accepted = kept
+    accepted = kept or _stretched(grey, cands, s, L, rubber_level, camera_id, larger, refused)
     if not accepted:
         if not refused:
             raise RimNotFound(f"{tag}: no rim taken",
@@ -241,6 +246,50 @@ def detect_in_photo(image: np.ndarray, camera_id: str = ""):
     det.details.update({"path": "photo", "dark_share": c["dark"], "outside_share": c["outside"],
                         "support": c["support"], "other_wheels": int(others)})
     return det
+
+
+def _stretched(grey: np.ndarray, cands: list, s: int, L: np.ndarray, rubber_level: float, camera_id: str,
+               larger: list, refused: list) -> list:
+    """Where no candidate was taken: the rims the station's search finds on the photograph
+    stretched round the candidates of a wheel's shape (``photo_stretch``), each refined and
+    judged as a candidate is, with the tyre's far outline on ``MIN_OUTLINE_SHARE`` of the turn
+    and not inside a larger candidate with a tyre round it: [(RimDetection, record)] as
+    ``detect_in_photo`` takes them; the others go to ``refused``."""
+    shaped = [c for c in cands if geometry_verdict(c["ellipse"].scaled(s)) is None][:MAX_STRETCHED]
+    tried: list[Ellipse] = []
+    out = []
+    for c in shaped:
+        for e in stretched_search(grey, c["ellipse"].scaled(s)):
+            if geometry_verdict(e) is not None or any(pc.same_ellipse(e, t, SAME_RIM) for t in tried):
+                continue
+            tried.append(e)
+            record = {**c, "ellipse": e.scaled(1 / s), "stretched": True}
+            try:
+                det, why = _refined(grey, e, camera_id, lambda d: _after_stretch(d, e, L, s, rubber_level))
+            except RimNotFound as ex:
+                refused.append((record, f"no sub-pixel lip edge ({str(ex).split(': ', 1)[-1]})", 2))
+                continue
+            o = hidden_by(det.ellipse, larger) if why is None else None
+            if o is not None:
+                why = f"inside a larger candidate with a tyre round it ({_where(o)}; a hub, a disc or the lip's inner edge)"
+            if why is None:
+                out.append((det, {**record, **structure(L, det.ellipse.scaled(1 / s), rubber_level)}))
+            else:
+                refused.append((record, why, 2))
+    return out
+
+
+def _after_stretch(det, e: Ellipse, L: np.ndarray, s: int, rubber_level: float) -> str | None:
+    """Why a rim of the stretched search, refined, is not the rim (``_after_refinement``, and
+    the tyre's far outline on ``MIN_OUTLINE_SHARE`` of the turn), or None."""
+    why = _after_refinement(det, e, L, s, rubber_level)
+    if why is not None:
+        return why
+    outside = structure(L, det.ellipse.scaled(1 / s), rubber_level)["outside"]
+    if outside < MIN_OUTLINE_SHARE:
+        return (f"a wheel's inner contour, no tyre outline round most of it (the light rises beyond its dark band "
+                f"on {outside:.0%} of the turn < {MIN_OUTLINE_SHARE:.0%})")
+    return None
 
 
 def edge_blur_px(grey: np.ndarray, e: Ellipse) -> float:

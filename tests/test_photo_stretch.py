@@ -1,0 +1,81 @@
+"""The station's search on a photograph stretched round a candidate (station/rim/photo_stretch.py,
+the photograph search's second route): the affine map makes the candidate a circle and carries
+ellipses back exactly; from an inner contour of a steep wheel the rim itself is found; a rim
+larger than its canvas can judge is not taken. Synthetic images only."""
+
+import numpy as np
+import pytest
+
+from station.rim import photo_candidates as pc
+from station.rim import photo_search as ps
+from station.rim.ellipse import Ellipse
+from station.rim.ellipse_fit import fit_direct
+from station.rim.photo_stretch import CANVAS_PX, REACHES, TYRE_ROOM, back_to_photo, stretched_search, to_canvas
+from tests.synthetic_wheel import WheelSpec, render_wheel
+
+UPRIGHT = np.pi / 2
+
+
+def _steep_wheel(seed=5):
+    spec = WheelSpec(axis_ratio=0.32, rim_a_px=210.0, center_px=(430.4, 350.2), angle_rad=UPRIGHT - 0.05,
+                     tyre_scale=1.45, background_level=170.0, clutter=8, glare=False)
+    return render_wheel(spec, shape=(720, 900), seed=seed)
+
+
+def _about_centre(e: Ellipse, k: float) -> Ellipse:
+    return Ellipse(e.center_px, e.axes_px * k, e.angle_rad)
+
+
+@pytest.mark.parametrize("reach", REACHES)
+def test_the_candidate_becomes_a_circle_and_ellipses_come_back_exactly(reach):
+    e = Ellipse((431.7, 352.9), (205.0, 61.0), UPRIGHT + 0.2)
+    affine = to_canvas(e, reach)
+    pts = e.points(64)                                                   # (64,2) on the candidate
+    on_canvas = pts @ affine[:, :2].T + affine[:, 2]
+    radius = np.linalg.norm(on_canvas - CANVAS_PX / 2, axis=1)
+    np.testing.assert_allclose(radius, CANVAS_PX / (2 * reach), rtol=1e-9)  # a circle at the centre
+    for k in (0.6, 1.0, 1.7):                                             # any concentric ellipse, and off centre
+        other = Ellipse(e.center_px + [3.0, -7.0], e.axes_px * k, e.angle_rad - 0.1)
+        q = other.points(32) @ affine[:, :2].T + affine[:, 2]
+        back = back_to_photo(fit_direct(q), affine)
+        np.testing.assert_allclose(back.params, other.params, atol=1e-6)
+
+
+def test_from_an_inner_contour_the_rim_itself_is_found():
+    img, truth = _steep_wheel()
+    grey = img.astype(np.float32)
+    found = stretched_search(grey, _about_centre(truth, 0.7))          # a disc or the lip's inner edge
+    assert found, "the station's search found nothing on the stretched wheel"
+    best = min(found, key=lambda f: np.linalg.norm(f.center_px - truth.center_px))
+    assert np.linalg.norm(best.center_px - truth.center_px) < 3.0
+    np.testing.assert_allclose(best.axes_px, truth.axes_px, rtol=0.03)   # the lip, not the tyre (x1.45)
+
+
+def test_a_rim_too_large_for_its_canvas_to_judge_is_not_taken():
+    img, truth = _steep_wheel()
+    candidate = _about_centre(truth, 0.9 * TYRE_ROOM / max(REACHES))   # the rim 1.8x its candidate: on the
+    assert stretched_search(img.astype(np.float32), candidate) == []   # canvas, but its tyre's outline is not
+
+
+def test_the_photograph_search_takes_the_stretched_rim_when_no_candidate_is_the_lip(monkeypatch):
+    """With an inner contour for its only candidate (as round a spoke star or a dark barrel),
+    the photograph search returns the rim, refined on the photograph and judged as any rim."""
+    img, truth = _steep_wheel(seed=6)
+    L, s = pc.search_image(img.astype(np.float32))
+    inner = _about_centre(truth, 0.7).scaled(1 / s)
+    monkeypatch.setattr(pc, "candidates", lambda *a, **k: [{"ellipse": inner, "cover": 0.9, "support": 3,
+                                                             "level": 0.0}])
+    monkeypatch.setattr(ps, "structure", _inner_fails(ps.structure, inner))
+    det = ps.detect_in_photo(img, camera_id="steep")
+    assert np.linalg.norm(det.ellipse.center_px - truth.center_px) < 1.5
+    np.testing.assert_allclose(det.ellipse.axes_px, truth.axes_px, atol=1.5)
+    assert det.details["path"] == "photo" and det.details["outside_share"] >= 0.5
+
+
+def _inner_fails(structure, inner: Ellipse):
+    """``structure`` as it is, but for the inner candidate: no tyre round it (a disc's dark
+    surround is the rim's face, not rubber), so that only the stretched route can take the rim."""
+    def wrapped(L, e, rubber_level):
+        st = structure(L, e, rubber_level)
+        return {**st, "dark": 0.0} if pc.same_ellipse(e, inner, 0.02) else st
+    return wrapped
