@@ -79,3 +79,21 @@ def _inner_fails(structure, inner: Ellipse):
         st = structure(L, e, rubber_level)
         return {**st, "dark": 0.0} if pc.same_ellipse(e, inner, 0.02) else st
     return wrapped
+
+
+def test_an_accepted_inner_contour_gives_way_to_the_rim_round_it():
+    """A hubcap or a disc taken for the rim: the station's search round it sees the whole wheel
+    and the rim round it, which then replaces it; a rim taken is kept as it is."""
+    from types import SimpleNamespace
+
+    img, truth = _steep_wheel(seed=7)
+    grey = img.astype(np.float32)
+    L, s = pc.search_image(grey)
+    rubber = float(np.percentile(L[::2, ::2], ps.RUBBER_PERCENTILE))
+    hubcap = SimpleNamespace(ellipse=_about_centre(truth, 0.65))
+    det, record = ps._outer_rim(grey, hubcap, {"support": 2}, L, s, rubber, "steep")
+    assert det is not hubcap and record["stretched"] and record["support"] == 2
+    assert np.linalg.norm(det.ellipse.center_px - truth.center_px) < 1.5
+    np.testing.assert_allclose(det.ellipse.axes_px, truth.axes_px, atol=1.5)
+    rim = SimpleNamespace(ellipse=truth)
+    assert ps._outer_rim(grey, rim, {}, L, s, rubber, "steep") == (rim, {})

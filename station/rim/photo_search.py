@@ -30,10 +30,12 @@ wheel's physical structure is there round it, and refuses, naming what it saw, o
    edge came out as this very ellipse (one rim found twice: the larger was the lip and the
    tyre's bead together). Judged after step 4, so that a larger candidate whose edge moved
    onto the rim does not hide it.
-6. **Stretched**, where no candidate was taken: the station's own search on the photograph
-   warped round each candidate of a wheel's shape until it is a circle (``photo_stretch``:
-   a spoke star, a disc or the lip's inner edge tells where the wheel is and how it is seen),
-   its rim refined and judged as in steps 2-5, with the tyre's far outline on half the turn.
+6. **Stretched**: the station's own search on the photograph warped round a candidate until
+   it is a circle (``photo_stretch``: a spoke star, a disc or the lip's inner edge tells
+   where the wheel is and how it is seen), its rim refined and judged as in steps 2-5, with
+   the tyre's far outline on half the turn. Round each rim taken: a larger rim round it that
+   passes replaces it (it was a hubcap or a disc). Where none was taken: round each
+   candidate of a wheel's shape.
 
 Of the wheels that pass, the largest (the nearest, the most pixels) is returned;
 ``details["other_wheels"]`` counts the rest. Two different accepted ellipses on one wheel
@@ -222,7 +224,8 @@ def detect_in_photo(image: np.ndarray, camera_id: str = ""):
         else:
             refused.append((c, f"inside a larger candidate with a tyre round it ({_where(o)}; "
                                "a hub, a disc or the lip's inner edge)", 3))
-    accepted = kept or _stretched(grey, cands, s, L, rubber_level, camera_id, larger, refused)
+    accepted = ([_outer_rim(grey, det, c, L, s, rubber_level, camera_id) for det, c in kept]
+                or _stretched(grey, cands, s, L, rubber_level, camera_id, larger, refused))
     if not accepted:
         if not refused:
             raise RimNotFound(f"{tag}: no rim taken",
@@ -277,6 +280,24 @@ def _stretched(grey: np.ndarray, cands: list, s: int, L: np.ndarray, rubber_leve
             else:
                 refused.append((record, why, 2))
     return out
+
+
+def _outer_rim(grey: np.ndarray, det, record: dict, L: np.ndarray, s: int, rubber_level: float, camera_id: str):
+    """(det, record), or the rim round it: the station's search, run on the photograph
+    stretched round an accepted rim (``photo_stretch``), sees the whole wheel; where it takes a
+    concentric larger rim (``det`` inside it as ``_nested`` says) that passes every test of a
+    stretched rim, ``det`` was a wheel's inner contour (a hubcap, a disc) and that rim is
+    returned with its record."""
+    for e in stretched_search(grey, det.ellipse):
+        if not _nested(det.ellipse, e):
+            continue
+        try:
+            outer, why = _refined(grey, e, camera_id, lambda d: _after_stretch(d, e, L, s, rubber_level))
+        except RimNotFound:
+            continue
+        if why is None and _nested(det.ellipse, outer.ellipse):
+            return outer, {**record, **structure(L, outer.ellipse.scaled(1 / s), rubber_level), "stretched": True}
+    return det, record
 
 
 def _after_stretch(det, e: Ellipse, L: np.ndarray, s: int, rubber_level: float) -> str | None:
