@@ -81,9 +81,10 @@ def _inner_fails(structure, inner: Ellipse):
     return wrapped
 
 
-def test_an_accepted_inner_contour_gives_way_to_the_rim_round_it():
-    """A hubcap or a disc taken for the rim: the station's search round it sees the whole wheel
-    and the rim round it, which then replaces it; a rim taken is kept as it is."""
+def test_an_accepted_rim_is_looked_round_by_the_stations_search():
+    """A hubcap or a disc taken for the rim gives way to the rim round it, which the station's
+    search sees on the wheel stretched round it; the rim itself is refined again from there
+    where that covers more of its perimeter, and kept as it is where nothing does."""
     from types import SimpleNamespace
 
     img, truth = _steep_wheel(seed=7)
@@ -91,9 +92,13 @@ def test_an_accepted_inner_contour_gives_way_to_the_rim_round_it():
     L, s = pc.search_image(grey)
     rubber = float(np.percentile(L[::2, ::2], ps.RUBBER_PERCENTILE))
     hubcap = SimpleNamespace(ellipse=_about_centre(truth, 0.65))
-    det, record = ps._outer_rim(grey, hubcap, {"support": 2}, L, s, rubber, "steep")
+    det, record = ps._looked_round(grey, hubcap, {"support": 2}, L, s, rubber, "steep")
     assert det is not hubcap and record["stretched"] and record["support"] == 2
     assert np.linalg.norm(det.ellipse.center_px - truth.center_px) < 1.5
     np.testing.assert_allclose(det.ellipse.axes_px, truth.axes_px, atol=1.5)
-    rim = SimpleNamespace(ellipse=truth)
-    assert ps._outer_rim(grey, rim, {}, L, s, rubber, "steep") == (rim, {})
+    rim = SimpleNamespace(ellipse=truth, coverage=1.0)                   # nothing covers more of it
+    assert ps._looked_round(grey, rim, {}, L, s, rubber, "steep") == (rim, {})
+    off = SimpleNamespace(ellipse=_about_centre(truth, 1.04), coverage=0.4)  # the rim, its edge found on 40 %
+    det, record = ps._looked_round(grey, off, {}, L, s, rubber, "steep")
+    assert det is not off and det.coverage > 0.4 and record["stretched"]
+    np.testing.assert_allclose(det.ellipse.axes_px, truth.axes_px, atol=1.5)

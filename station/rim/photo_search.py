@@ -34,8 +34,9 @@ wheel's physical structure is there round it, and refuses, naming what it saw, o
    it is a circle (``photo_stretch``: a spoke star, a disc or the lip's inner edge tells
    where the wheel is and how it is seen), its rim refined and judged as in steps 2-5, with
    the tyre's far outline on half the turn. Round each rim taken: a larger rim round it that
-   passes replaces it (it was a hubcap or a disc). Where none was taken: round each
-   candidate of a wheel's shape.
+   passes replaces it (it was a hubcap or a disc), else the same rim refined from there where
+   its edge covers more of the perimeter. Where none was taken: round each candidate of a
+   wheel's shape.
 
 Of the wheels that pass, the largest (the nearest, the most pixels) is returned;
 ``details["other_wheels"]`` counts the rest. Two different accepted ellipses on one wheel
@@ -224,7 +225,7 @@ def detect_in_photo(image: np.ndarray, camera_id: str = ""):
         else:
             refused.append((c, f"inside a larger candidate with a tyre round it ({_where(o)}; "
                                "a hub, a disc or the lip's inner edge)", 3))
-    accepted = ([_outer_rim(grey, det, c, L, s, rubber_level, camera_id) for det, c in kept]
+    accepted = ([_looked_round(grey, det, c, L, s, rubber_level, camera_id) for det, c in kept]
                 or _stretched(grey, cands, s, L, rubber_level, camera_id, larger, refused))
     if not accepted:
         if not refused:
@@ -282,22 +283,33 @@ def _stretched(grey: np.ndarray, cands: list, s: int, L: np.ndarray, rubber_leve
     return out
 
 
-def _outer_rim(grey: np.ndarray, det, record: dict, L: np.ndarray, s: int, rubber_level: float, camera_id: str):
-    """(det, record), or the rim round it: the station's search, run on the photograph
-    stretched round an accepted rim (``photo_stretch``), sees the whole wheel; where it takes a
-    concentric larger rim (``det`` inside it as ``_nested`` says) that passes every test of a
-    stretched rim, ``det`` was a wheel's inner contour (a hubcap, a disc) and that rim is
-    returned with its record."""
+def _looked_round(grey: np.ndarray, det, record: dict, L: np.ndarray, s: int, rubber_level: float,
+                  camera_id: str):
+    """(det, record) as the station's search sees it on the photograph stretched round an
+    accepted rim (``photo_stretch``), where it sees the whole wheel. A concentric rim round
+    ``det`` (``_nested``) that passes every test of a stretched rim replaces it: ``det`` was a
+    wheel's inner contour (a hubcap, a disc). Else the same rim refined again from the
+    station search's ellipse replaces it where that edge covers more of the perimeter: the
+    refinement's consensus depends on where it starts (a region's outline at one grey level
+    against the station's ellipse of the stretched wheel), as at the scales of ``_refined``."""
+    best = (det, record)
     for e in stretched_search(grey, det.ellipse):
-        if not _nested(det.ellipse, e):
+        outer = _nested(det.ellipse, e)
+        if not (outer or pc.same_ellipse(e, det.ellipse, SAME_RIM)):
             continue
         try:
-            outer, why = _refined(grey, e, camera_id, lambda d: _after_stretch(d, e, L, s, rubber_level))
+            found, why = _refined(grey, e, camera_id, lambda d: _after_stretch(d, e, L, s, rubber_level))
         except RimNotFound:
             continue
-        if why is None and _nested(det.ellipse, outer.ellipse):
-            return outer, {**record, **structure(L, outer.ellipse.scaled(1 / s), rubber_level), "stretched": True}
-    return det, record
+        if why is not None:
+            continue
+        taken = (found, {**record, **structure(L, found.ellipse.scaled(1 / s), rubber_level), "stretched": True})
+        if outer and _nested(det.ellipse, found.ellipse):
+            return taken
+        if (not outer and pc.same_ellipse(found.ellipse, det.ellipse, SAME_RIM)
+                and found.coverage > best[0].coverage):
+            best = taken
+    return best
 
 
 def _after_stretch(det, e: Ellipse, L: np.ndarray, s: int, rubber_level: float) -> str | None:
