@@ -70,9 +70,9 @@ def back_to_photo(e_canvas: Ellipse, affine: np.ndarray) -> Ellipse:
 
 def stretched_search(grey: np.ndarray, e: Ellipse) -> list[Ellipse]:
     """The station search's rim (photograph px) on the photograph stretched round the
-    candidate ``e`` at each of ``REACHES``, those it found with the band of their tyre on the
-    canvas (``TYRE_ROOM``: a larger ellipse, its surroundings cut off, was chosen without the
-    tyre outline and hub tests that tell a rim from a tyre's contour)."""
+    candidate ``e`` at each of ``REACHES``, those it found with room for their tyre's outline
+    on the canvas (``TYRE_ROOM``: a larger ellipse, its surroundings cut off, was chosen
+    without the tyre outline and hub tests that tell a rim from a contour on the tyre)."""
     from station.rim.detector import detect_rim
 
     found = []
@@ -84,6 +84,6 @@ def stretched_search(grey: np.ndarray, e: Ellipse) -> list[Ellipse]:
             rim = back_to_photo(detect_rim(canvas).ellipse, affine)
         except (StationError, ValueError):
             continue
-        if rim.axes_px[0] * TYRE_ROOM <= reach * e.axes_px[0]:  # its tyre in view: the search could judge it
+        if rim.axes_px[0] * TYRE_ROOM <= reach * e.axes_px[0]:  # its tyre's outline in view: judged as a rim
             found.append(rim)
     return found
