@@ -28,6 +28,8 @@ def test_detect_png_prints_and_writes_json_and_drawing(wheel, capsys):
     out = capsys.readouterr().out
     assert code == 0
     assert "centre" in out and "semi-axes" in out and "score" in out
+    shown = float(out.split("  time")[1].split("ms")[0])  # the whole search, not one stage's clock
+    assert shown >= sum(json.loads((d / "out.json").read_text())["timing_ms"].values())
     doc = json.loads((d / "out.json").read_text())
     np.testing.assert_allclose(doc["ellipse"]["center_px"], truth.center_px, atol=0.05)
     np.testing.assert_allclose(doc["ellipse"]["axes_px"], truth.axes_px, atol=0.05)
