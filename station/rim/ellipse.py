@@ -102,6 +102,18 @@ class Ellipse:
         q = np.array([A, B, C, D, E, F])
         return q / np.linalg.norm(q)
 
+    def conic_matrix(self) -> np.ndarray:
+        """(3,3) the symmetric conic C of :meth:`to_conic`: x^T C x = 0 for homogeneous points
+        x = (u, v, 1) on the ellipse."""
+        A, B, C, D, E, F = self.to_conic()
+        return np.array([[A, B / 2, D / 2], [B / 2, C, E / 2], [D / 2, E / 2, F]])
+
+    @classmethod
+    def from_conic_matrix(cls, Q) -> "Ellipse":
+        """Inverse of :meth:`conic_matrix` (any scale); ValueError if ``Q`` is not a real ellipse."""
+        Q = np.asarray(Q, float)
+        return cls.from_conic([Q[0, 0], 2 * Q[0, 1], Q[1, 1], 2 * Q[0, 2], 2 * Q[1, 2], Q[2, 2]])
+
     @classmethod
     def from_conic(cls, q) -> "Ellipse":
         """Inverse of :meth:`to_conic`; raises ValueError if ``q`` is not a real ellipse."""

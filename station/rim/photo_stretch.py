@@ -55,17 +55,11 @@ def to_canvas(e: Ellipse, reach: float) -> np.ndarray:
     return np.column_stack([M, t])
 
 
-def _conic_matrix(q: np.ndarray) -> np.ndarray:
-    A, B, C, D, E, F = q
-    return np.array([[A, B / 2, D / 2], [B / 2, C, E / 2], [D / 2, E / 2, F]])
-
-
 def back_to_photo(e_canvas: Ellipse, affine: np.ndarray) -> Ellipse:
     """The ellipse ``e_canvas`` (canvas px) in photograph pixels: the conic Q pulled back
     through the affine map H (photo -> canvas) is H^T Q H."""
     H = np.vstack([affine, [0.0, 0.0, 1.0]])
-    Q = H.T @ _conic_matrix(e_canvas.to_conic()) @ H
-    return Ellipse.from_conic(np.array([Q[0, 0], 2 * Q[0, 1], Q[1, 1], 2 * Q[0, 2], 2 * Q[1, 2], Q[2, 2]]))
+    return Ellipse.from_conic_matrix(H.T @ e_canvas.conic_matrix() @ H)
 
 
 def stretched_search(grey: np.ndarray, e: Ellipse) -> list[Ellipse]:

@@ -28,8 +28,7 @@ def pair_relation(cam_l: CameraModel, cam_r: CameraModel) -> tuple[np.ndarray, n
 def fit_conic(xy: np.ndarray) -> np.ndarray:
     """Direct least-squares ellipse (Fitzgibbon, the rim detector's) through (N,2) points, as
     the (3,3) conic C with x^T C x = 0 for homogeneous points on it (unit norm)."""
-    A, B, C, D, E, F = fit_direct(xy).to_conic()
-    M = np.array([[A, B / 2, D / 2], [B / 2, C, E / 2], [D / 2, E / 2, F]])
+    M = fit_direct(xy).conic_matrix()
     return M / np.linalg.norm(M)
 
 
@@ -55,8 +54,7 @@ def epipolar_tangent_points(xy: np.ndarray, epipole: np.ndarray):
     coordinates) touch the ellipse through normalised points xy (N,2), and that ellipse; None
     when the epipole is not outside it. They lie on the epipole's polar line C e."""
     e = fit_direct(xy)
-    A, B, Cc, D, E, F = e.to_conic()
-    C = np.array([[A, B / 2, D / 2], [B / 2, Cc, E / 2], [D / 2, E / 2, F]])
+    C = e.conic_matrix()
     a, b, c = C @ epipole
     n2 = a * a + b * b
     p0 = np.array([-a * c / n2, -b * c / n2, 1.0])                   # the polar's point nearest the origin
