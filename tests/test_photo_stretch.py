@@ -102,3 +102,19 @@ def test_an_accepted_rim_is_looked_round_by_the_stations_search():
     det, record = ps._looked_round(grey, off, {}, L, s, rubber, "steep")
     assert det is not off and det.coverage > 0.4 and record["stretched"]
     np.testing.assert_allclose(det.ellipse.axes_px, truth.axes_px, atol=1.5)
+
+
+def test_an_accepted_contour_with_a_larger_rim_round_it_is_refused():
+    """A disc half the rim's size, taken for the rim: on the wheel stretched round it the
+    station's search sees the rim, but too large for its canvas to judge (its tyre's outline
+    cut off), so the rim cannot replace it; the disc is refused rather than returned, since a
+    closed contour holds it."""
+    from types import SimpleNamespace
+
+    img, truth = _steep_wheel(seed=7)
+    grey = img.astype(np.float32)
+    L, s = pc.search_image(grey)
+    rubber = float(np.percentile(L[::2, ::2], ps.RUBBER_PERCENTILE))
+    disc = SimpleNamespace(ellipse=_about_centre(truth, 0.5), coverage=0.9)
+    why = ps._looked_round(grey, disc, {}, L, s, rubber, "steep")
+    assert isinstance(why, str) and why.startswith("a larger contour round it")

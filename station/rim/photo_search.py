@@ -35,7 +35,9 @@ wheel's physical structure is there round it, and refuses, naming what it saw, o
    where the wheel is and how it is seen), its rim refined and judged as in steps 2-5, with
    the tyre's far outline on half the turn. Round each rim taken: a larger rim round it that
    passes replaces it (it was a hubcap or a disc), else the same rim refined from there where
-   its edge covers more of the perimeter. Where none was taken: round each candidate of a
+   its edge covers more of the perimeter; where neither, a closed contour round it that the
+   canvas cut off refuses it (a disc or a hubcap inside its rim, or the rim inside its tyre's
+   outline: which is the rim cannot be told). Where none was taken: round each candidate of a
    wheel's shape.
 
 Of the wheels that pass, the largest (the nearest, the most pixels) is returned;
@@ -225,7 +227,11 @@ def detect_in_photo(image: np.ndarray, camera_id: str = ""):
         else:
             refused.append((c, f"inside a larger candidate with a tyre round it ({_where(o)}; "
                                "a hub, a disc or the lip's inner edge)", 3))
-    accepted = ([_looked_round(grey, det, c, L, s, rubber_level, camera_id) for det, c in kept]
+    looked = [(_looked_round(grey, det, c, L, s, rubber_level, camera_id), c) for det, c in kept]
+    for got, c in looked:
+        if isinstance(got, str):
+            refused.append((c, got, 3))
+    accepted = ([got for got, c in looked if not isinstance(got, str)]
                 or _stretched(grey, cands, s, L, rubber_level, camera_id, larger, refused))
     if not accepted:
         if not refused:
@@ -291,9 +297,12 @@ def _looked_round(grey: np.ndarray, det, record: dict, L: np.ndarray, s: int, ru
     wheel's inner contour (a hubcap, a disc). Else the same rim refined again from the
     station search's ellipse replaces it where that edge covers more of the perimeter: the
     refinement's consensus depends on where it starts (a region's outline at one grey level
-    against the station's ellipse of the stretched wheel), as at the scales of ``_refined``."""
+    against the station's ellipse of the stretched wheel), as at the scales of ``_refined``.
+    Where neither replaces it, a closed contour the station's search found round it, too large
+    for its canvas to judge, refuses it (``_held_by_larger``: the reason, a str, is returned)."""
     best = (det, record)
-    for e in stretched_search(grey, det.ellipse):
+    cut: list = []
+    for e in stretched_search(grey, det.ellipse, cut):
         outer = _nested(det.ellipse, e)
         if not (outer or pc.same_ellipse(e, det.ellipse, SAME_RIM)):
             continue
@@ -309,7 +318,28 @@ def _looked_round(grey: np.ndarray, det, record: dict, L: np.ndarray, s: int, ru
         if (not outer and pc.same_ellipse(found.ellipse, det.ellipse, SAME_RIM)
                 and found.coverage > best[0].coverage):
             best = taken
+    if best[0] is det:
+        return _held_by_larger(grey, det, cut, camera_id) or best
     return best
+
+
+def _held_by_larger(grey: np.ndarray, det, cut: list, camera_id: str) -> str | None:
+    """Why ``det`` is refused (str), or None: of the ellipses the station's search found round
+    it too large for their canvas to judge (``cut``, photograph px), one holds it
+    (``_encloses``) and its sub-pixel edge on the photograph holds it too and closes over
+    ``MIN_COVERAGE`` of its perimeter. Which of the two is the rim cannot be told there: a disc
+    or a hubcap inside its rim, or a rim inside its tyre's outline."""
+    for e in cut:
+        if not _encloses(e, det.ellipse):
+            continue
+        try:
+            found, _ = _refined(grey, e, camera_id, lambda d: None)
+        except RimNotFound:
+            continue
+        if found.coverage >= MIN_COVERAGE and _encloses(found.ellipse, det.ellipse):
+            return (f"a larger contour round it ({_where(found.ellipse)}): a hubcap, a disc or the lip's "
+                    "inner edge, or the rim and its tyre's outline")
+    return None
 
 
 def _after_stretch(det, e: Ellipse, L: np.ndarray, s: int, rubber_level: float) -> str | None:
@@ -338,6 +368,11 @@ def edge_blur_px(grey: np.ndarray, e: Ellipse) -> float:
 def _nested(e: Ellipse, o: Ellipse) -> bool:
     """``e`` lies inside the larger ``o``: centre within half of ``o``, ``o`` 15 % larger."""
     return bool(o.axes_px[0] > 1.15 * e.axes_px[0] and o.radius_ratio(e.center_px[None])[0] < 0.5)
+
+
+def _encloses(o: Ellipse, e: Ellipse) -> bool:
+    """``o`` is 15 % larger than ``e`` and holds it (within a tenth of its size)."""
+    return bool(o.axes_px[0] > 1.15 * e.axes_px[0] and o.radius_ratio(e.points(36)).max() <= 1.1)
 
 
 def hidden_by(e: Ellipse, larger: list) -> Ellipse | None:

@@ -62,11 +62,12 @@ def back_to_photo(e_canvas: Ellipse, affine: np.ndarray) -> Ellipse:
     return Ellipse.from_conic_matrix(H.T @ e_canvas.conic_matrix() @ H)
 
 
-def stretched_search(grey: np.ndarray, e: Ellipse) -> list[Ellipse]:
+def stretched_search(grey: np.ndarray, e: Ellipse, cut: list | None = None) -> list[Ellipse]:
     """The station search's rim (photograph px) on the photograph stretched round the
     candidate ``e`` at each of ``REACHES``, those it found with room for their tyre's outline
     on the canvas (``TYRE_ROOM``: a larger ellipse, its surroundings cut off, was chosen
-    without the tyre outline and hub tests that tell a rim from a contour on the tyre)."""
+    without the tyre outline and hub tests that tell a rim from a contour on the tyre). Those
+    too large are appended to ``cut`` where it is given."""
     from station.rim.detector import detect_rim
 
     found = []
@@ -80,4 +81,6 @@ def stretched_search(grey: np.ndarray, e: Ellipse) -> list[Ellipse]:
             continue
         if rim.axes_px[0] * TYRE_ROOM <= reach * e.axes_px[0]:  # its tyre's outline in view: judged as a rim
             found.append(rim)
+        elif cut is not None:
+            cut.append(rim)
     return found
