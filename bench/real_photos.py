@@ -3,7 +3,7 @@
     .venv/bin/python bench/real_photos.py                     # all photos, markdown table
     .venv/bin/python bench/real_photos.py --split dev --per-photo
     .venv/bin/python bench/real_photos.py --data DIR --json out.json
-    .venv/bin/python bench/real_photos.py --perturb mirror       # or smaller, darker, dark, blurred: as if other photos
+    .venv/bin/python bench/real_photos.py --perturb mirror       # or smaller, farther, rolled, darker, dark, blurred: as if other photos
 
 The photographs are read from ``../shared/data/real-wheels`` (``--data``; never copied into the
 repository): ``images/NAME.jpg`` and ``annotations/NAME.json`` with, per marked wheel, its box
@@ -122,13 +122,16 @@ def reason_of(message: str) -> str:
     return re.split(r"[(:]", text, maxsplit=1)[0].strip() + "".join(f", {w}" for w in named)
 
 
-PERTURBATIONS = ("none", "mirror", "smaller", "darker", "dark", "blurred")
+PERTURBATIONS = ("none", "mirror", "smaller", "farther", "rolled", "darker", "dark", "blurred")
+ROLL_DEG = 8.0      # "rolled": the camera turned about its axis
 
 
 def perturbed(image: np.ndarray, wheels: list[Wheel], kind: str) -> tuple[np.ndarray, list[Wheel]]:
     """The photograph and its marks changed as another photographer might have taken it:
     ``mirror`` (left and right swapped: the car seen from its other side), ``smaller`` (0.7 of
-    the size: from farther away, some rims then under 100 px), ``darker`` (0.6 of the grey
+    the size: from farther away, some rims then under 100 px), ``farther`` (0.5 of the size: most
+    rims under 100 px, too small to take), ``rolled`` (turned ROLL_DEG about the photo's centre:
+    the camera held askew, every rim's major axis that far off the vertical), ``darker`` (0.6 of the grey
     levels: a shorter exposure, a dull day), ``dark`` (0.15 of the grey levels: an sRGB photograph
     some five stops under-exposed, its light about 2 % of the original's), ``blurred`` (a Gaussian
     blur of 6 px: out of focus or shaken)."""
@@ -137,10 +140,26 @@ def perturbed(image: np.ndarray, wheels: list[Wheel], kind: str) -> tuple[np.nda
         flip = [Wheel((w - 1 - x2, y1, w - 1 - x1, y2), np.column_stack([w - 1 - k[:, 0], k[:, 1]]) if len(k) else k,
                       h) for (x1, y1, x2, y2), k, h in ((wh.box, wh.rim_points, wh.height_px) for wh in wheels)]
         return np.ascontiguousarray(image[:, ::-1]), flip
-    if kind == "smaller":
+    if kind == "rolled":
         import cv2
 
-        f = 0.7
+        h, w = image.shape[:2]
+        M = cv2.getRotationMatrix2D(((w - 1) / 2, (h - 1) / 2), ROLL_DEG, 1.0)   # (2,3)
+
+        def moved(p):  # (N,2) -> (N,2)
+            return p @ M[:, :2].T + M[:, 2] if len(p) else p
+
+        def box(b):
+            x1, y1, x2, y2 = b
+            c = moved(np.array([[x1, y1], [x2, y1], [x1, y2], [x2, y2]], float))
+            return (*c.min(axis=0), *c.max(axis=0))
+
+        return (cv2.warpAffine(image, M, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE),
+                [Wheel(box(wh.box), moved(wh.rim_points), wh.height_px) for wh in wheels])
+    if kind in ("smaller", "farther"):
+        import cv2
+
+        f = 0.7 if kind == "smaller" else 0.5
         return (cv2.resize(image, None, fx=f, fy=f, interpolation=cv2.INTER_AREA),
                 [Wheel(tuple(f * np.asarray(wh.box)), f * wh.rim_points, f * wh.height_px) for wh in wheels])
     if kind in ("darker", "dark"):
@@ -211,7 +230,7 @@ def main(argv=None) -> int:
     ap.add_argument("--response-gamma", type=float, help="as station detect's (default: 0.45 for a JPEG)")
     ap.add_argument("--search", choices=("auto", "station", "photo"), default="auto", help="as station detect's")
     ap.add_argument("--perturb", choices=PERTURBATIONS, default="none",
-                    help="each photo mirrored, smaller (0.7x) or darker (0.6x) first: does it hold on other photos?")
+                    help="each photo mirrored, smaller (0.7x), farther (0.5x), rolled (8 deg), darker (0.6x), dark (0.15x) or blurred first: does it hold on other photos?")
     ap.add_argument("--per-photo", action="store_true", help="one line per photo")
     ap.add_argument("--json", type=Path, help="write every outcome and the summaries here")
     args = ap.parse_args(argv)

@@ -33,12 +33,12 @@ wheel's physical structure is there round it, and refuses, naming what it saw, o
 6. **Stretched**: the station's own search on the photograph warped round a candidate until
    it is a circle (``photo_stretch``: a spoke star, a disc or the lip's inner edge tells
    where the wheel is and how it is seen), its rim refined and judged as in steps 2-5, with
-   the tyre's far outline on half the turn. Round each rim taken: a larger rim round it that
-   passes replaces it (it was a hubcap or a disc), else the same rim refined from there where
-   its edge covers more of the perimeter; where neither, a closed contour round it that the
-   canvas cut off refuses it (a disc or a hubcap inside its rim, or the rim inside its tyre's
-   outline: which is the rim cannot be told). Where none was taken: round each candidate of a
-   wheel's shape.
+   the tyre's far outline on half the turn: round each candidate of a wheel's shape, where
+   steps 1-5 took no rim. Round each rim taken (by steps 1-5, or so): a larger rim round it
+   that passes replaces it (it was a hubcap or a disc), else the same rim refined from there
+   where its edge covers more of the perimeter; where neither, a closed contour round it that
+   the canvas cut off refuses it (a disc or a hubcap inside its rim, or the rim inside its
+   tyre's outline: which is the rim cannot be told).
 
 Of the wheels that pass, the largest (the nearest, the most pixels) is returned;
 ``details["other_wheels"]`` counts the rest. Two different accepted ellipses on one wheel
@@ -67,6 +67,7 @@ MIN_DARK_SHARE = 0.5      # of the turn: rubber just outside the lip (under the 
 MIN_OUTSIDE_SHARE = 0.25  # of the turn: brighter again beyond the tyre (its far side's outline)
 RUBBER_PERCENTILE = 35.0  # the tyre band's median light at most this percentile of the photo's
 MIN_COVERAGE = 0.5        # the sub-pixel lip edge on this share of the perimeter
+HELD_COVERAGE = 0.4       # a larger contour round a rim taken, its edge on this share: which is the rim is in doubt
 MAX_EDGE_RMS_PX = 1.0     # the lip edge's points off their ellipse (robust rms): a turned lip is one
 #                           smooth curve, its edge scatters by tenths of a pixel; a contour pieced from
 #                           spokes' ends, the lip's arcs and lettering scatters by a pixel or more
@@ -227,12 +228,18 @@ def detect_in_photo(image: np.ndarray, camera_id: str = ""):
         else:
             refused.append((c, f"inside a larger candidate with a tyre round it ({_where(o)}; "
                                "a hub, a disc or the lip's inner edge)", 3))
-    looked = [(_looked_round(grey, det, c, L, s, rubber_level, camera_id), c) for det, c in kept]
-    for got, c in looked:
-        if isinstance(got, str):
-            refused.append((c, got, 3))
-    accepted = ([got for got, c in looked if not isinstance(got, str)]
-                or _stretched(grey, cands, s, L, rubber_level, camera_id, larger, refused))
+    def looked_round(taken: list) -> list:
+        out = []
+        for det, c in taken:
+            got = _looked_round(grey, det, c, L, s, rubber_level, camera_id)
+            if isinstance(got, str):
+                refused.append((c, got, 3))
+            else:
+                out.append(got)
+        return out
+
+    accepted = (looked_round(kept)
+                or looked_round(_stretched(grey, cands, s, L, rubber_level, camera_id, larger, refused)))
     if not accepted:
         if not refused:
             raise RimNotFound(f"{tag}: no rim taken",
@@ -336,7 +343,7 @@ def _held_by_larger(grey: np.ndarray, det, cut: list, camera_id: str) -> str | N
             found, _ = _refined(grey, e, camera_id, lambda d: None)
         except RimNotFound:
             continue
-        if found.coverage >= MIN_COVERAGE and _encloses(found.ellipse, det.ellipse):
+        if found.coverage >= HELD_COVERAGE and _encloses(found.ellipse, det.ellipse):
             return (f"a larger contour round it ({_where(found.ellipse)}): a hubcap, a disc or the lip's "
                     "inner edge, or the rim and its tyre's outline")
     return None

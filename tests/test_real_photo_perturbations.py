@@ -1,0 +1,21 @@
+"""bench/real_photos.py's perturbations move the marks with the photograph: a bright dot at a
+marked rim point lands where the perturbed mark says, so the bench judges the perturbed photo
+against the right wheel. Synthetic images only (the photographs stay in ../shared)."""
+
+import numpy as np
+import pytest
+
+from bench.real_photos import PERTURBATIONS, Wheel, perturbed
+
+
+@pytest.mark.parametrize("kind", [k for k in PERTURBATIONS if k not in ("darker", "dark", "blurred")])
+def test_a_marked_point_moves_with_the_photograph(kind):
+    image = np.zeros((300, 400), np.uint8)
+    mark = np.array([[250.0, 90.0]])
+    image[88:93, 248:253] = 255                                   # a 5 px dot round the mark
+    wheel = Wheel((200.0, 40.0, 300.0, 140.0), mark, 100.0)
+    out, (moved,) = perturbed(image, [wheel], kind)
+    y, x = np.nonzero(out > 127)
+    np.testing.assert_allclose([x.mean(), y.mean()], moved.rim_points[0], atol=0.6)
+    x1, y1, x2, y2 = moved.box
+    assert x1 <= moved.rim_points[0, 0] <= x2 and y1 <= moved.rim_points[0, 1] <= y2
