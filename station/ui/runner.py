@@ -47,20 +47,30 @@ class StepRun:
 
     def add(self, line: str) -> None:
         with self._lines_lock:
-            self.lines.append(line)
-            if len(self.lines) > MAX_LINES:
-                drop = len(self.lines) - MAX_LINES
-                del self.lines[:drop]
-                self.first_line += drop
+            self._append(line)
+
+    def _append(self, line: str) -> None:
+        self.lines.append(line)
+        if len(self.lines) > MAX_LINES:
+            drop = len(self.lines) - MAX_LINES
+            del self.lines[:drop]
+            self.first_line += drop
+
+    def end(self, state: str, code: int | None = None, message: str | None = None, hint: str | None = None) -> None:
+        """How the run ended, all at once with its last line: a page never sees it ended
+        without its message and hint (a crash's hint names the log, written first)."""
+        with self._lines_lock:
+            self.code, self.message, self.hint, self.finished_utc = code, message, hint, _now()
+            self.state = state
+            self._append(f"{self.title}: {state}" + (f": {message}" if message else ""))
 
     def view(self, since: int = 0) -> dict:
-        with self._lines_lock:  # the lines and their numbers of one moment (the step adds more meanwhile)
+        with self._lines_lock:  # one moment's lines, their numbers and state (the step goes on meanwhile)
             first, lines = self.first_line, self.lines[max(since - self.first_line, 0):]
-            next_line = first + len(self.lines)
-        return {"key": self.key, "title": self.title, "job_id": self.job_id, "state": self.state,
-                "started_utc": self.started_utc, "finished_utc": self.finished_utc,
-                "lines": lines, "next_line": next_line,
-                "summary": self.summary, "message": self.message, "hint": self.hint, "code": self.code}
+            return {"key": self.key, "title": self.title, "job_id": self.job_id, "state": self.state,
+                    "started_utc": self.started_utc, "finished_utc": self.finished_utc,
+                    "lines": lines, "next_line": first + len(self.lines),
+                    "summary": self.summary, "message": self.message, "hint": self.hint, "code": self.code}
 
 
 def _now() -> str:
@@ -106,25 +116,21 @@ class StepRunner:
             t.join(timeout)
 
     def _run(self, run: StepRun, work) -> None:
+        ending: tuple = ("error", None, "the step stopped without an outcome", None)
         try:
             with self.hardware.for_step():
                 run.add(f"{run.title}: opening the cameras")
                 with self.hardware.station(progress=run.add) as station:
                     run.output, run.summary = work(station, run.add)
             failure = (run.summary or {}).get("failure")
-            if failure:
-                run.state, run.code = "failed", failure.get("code")
-                run.message, run.hint = failure.get("message"), failure.get("hint")
-            else:
-                run.state = "done"
+            ending = (("failed", failure.get("code"), failure.get("message"), failure.get("hint")) if failure
+                      else ("done",))
         except CODED_ERRORS as e:
-            run.state, run.code, run.message, run.hint = "failed", e.code, str(e), e.hint
+            ending = ("failed", e.code, str(e), e.hint)
         except Exception as e:  # noqa: BLE001 - the screen and the station keep running
-            run.state, run.message = "error", f"internal error: {type(e).__name__}: {e}"
-            run.hint = self._crash_log(run, e)
+            ending = ("error", None, f"internal error: {type(e).__name__}: {e}", self._crash_log(run, e))
         finally:
-            run.finished_utc = _now()
-            run.add(f"{run.title}: {run.state}" + (f": {run.message}" if run.message else ""))
+            run.end(*ending)
 
     def _crash_log(self, run: StepRun, e: Exception) -> str:
         text = "".join(traceback.format_exception(e))
