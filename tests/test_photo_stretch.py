@@ -118,3 +118,32 @@ def test_an_accepted_contour_with_a_larger_rim_round_it_is_refused():
     disc = SimpleNamespace(ellipse=_about_centre(truth, 0.5), coverage=0.9)
     why = ps._looked_round(grey, disc, {}, L, s, rubber, "steep")
     assert isinstance(why, str) and why.startswith("a larger contour round it")
+
+
+def test_the_candidate_stretched_round_does_not_hide_the_rim_found_inside_it(monkeypatch):
+    """A region lit beyond the lip (1.2 times the rim) that passes the tyre tests but whose own
+    lip edge is not found: the station's search, round it, takes the rim inside it, and that
+    rim is returned, not refused as the region's inner contour (step 5 would refuse it)."""
+    from station.errors import RimNotFound
+
+    img, truth = _steep_wheel(seed=6)
+    L, s = pc.search_image(img.astype(np.float32))
+    region = _about_centre(truth, 1.2)
+    monkeypatch.setattr(pc, "candidates", lambda *a, **k: [{"ellipse": region.scaled(1 / s), "cover": 0.9,
+                                                             "support": 3, "level": 0.0}])
+    structure, refined = ps.structure, ps._refined
+
+    def tyre_round_region(L, e, rubber_level):
+        st = structure(L, e, rubber_level)
+        return {**st, "dark": 1.0, "outside": 1.0, "rubber": True} if pc.same_ellipse(e, region.scaled(1 / s), 0.02) else st
+
+    def no_lip_edge_on_region(grey, e, camera_id, verdict):
+        if pc.same_ellipse(e, region, 0.02):
+            raise RimNotFound("no closed rim contour")
+        return refined(grey, e, camera_id, verdict)
+
+    monkeypatch.setattr(ps, "structure", tyre_round_region)
+    monkeypatch.setattr(ps, "_refined", no_lip_edge_on_region)
+    det = ps.detect_in_photo(img, camera_id="steep")
+    assert np.linalg.norm(det.ellipse.center_px - truth.center_px) < 1.5
+    np.testing.assert_allclose(det.ellipse.axes_px, truth.axes_px, atol=1.5)

@@ -34,7 +34,8 @@ wheel's physical structure is there round it, and refuses, naming what it saw, o
    it is a circle (``photo_stretch``: a spoke star, a disc or the lip's inner edge tells
    where the wheel is and how it is seen), its rim refined and judged as in steps 2-5, with
    the tyre's far outline on half the turn: round each candidate of a wheel's shape, where
-   steps 1-5 took no rim. Round each rim taken (by steps 1-5, or so): a larger rim round it
+   steps 1-5 took no rim (the candidate stretched round does not hide the rim found inside it:
+   its own lip edge was not found, the station's search saw it whole and took the rim). Round each rim taken (by steps 1-5, or so): a larger rim round it
    that passes replaces it (it was a hubcap or a disc), else the same rim refined from there
    where its edge covers more of the perimeter; where neither, a closed contour round it that
    the canvas cut off refuses it (a disc or a hubcap inside its rim, or the rim inside its
@@ -270,8 +271,8 @@ def _stretched(grey: np.ndarray, cands: list, s: int, L: np.ndarray, rubber_leve
     """Where no candidate was taken: the rims the station's search finds on the photograph
     stretched round the candidates of a wheel's shape (``photo_stretch``), each refined and
     judged as a candidate is, with the tyre's far outline on ``MIN_OUTLINE_SHARE`` of the turn
-    and not inside a larger candidate with a tyre round it: [(RimDetection, record)] as
-    ``detect_in_photo`` takes them; the others go to ``refused``."""
+    and not inside a larger candidate with a tyre round it other than the one stretched round:
+    [(RimDetection, record)] as ``detect_in_photo`` takes them; the others go to ``refused``."""
     shaped = [c for c in cands if geometry_verdict(c["ellipse"].scaled(s)) is None][:MAX_STRETCHED]
     tried: list[Ellipse] = []
     out = []
@@ -286,7 +287,10 @@ def _stretched(grey: np.ndarray, cands: list, s: int, L: np.ndarray, rubber_leve
             except RimNotFound as ex:
                 refused.append((record, f"no sub-pixel lip edge ({str(ex).split(': ', 1)[-1]})", 2))
                 continue
-            o = hidden_by(det.ellipse, larger) if why is None else None
+            # the candidate it was found round does not hide it: the station's search, seeing that
+            # candidate whole, took this rim inside it (a candidate's lip edge not found is no rim)
+            others = [t for t in larger if not pc.same_ellipse(t[0], c["ellipse"].scaled(s), 0.02)]
+            o = hidden_by(det.ellipse, others) if why is None else None
             if o is not None:
                 why = f"inside a larger candidate with a tyre round it ({_where(o)}; a hub, a disc or the lip's inner edge)"
             if why is None:
