@@ -35,11 +35,12 @@ wheel's physical structure is there round it, and refuses, naming what it saw, o
    where the wheel is and how it is seen), its rim refined and judged as in steps 2-5, with
    the tyre's far outline on half the turn: round each candidate of a wheel's shape, where
    steps 1-5 took no rim (the candidate stretched round does not hide the rim found inside it:
-   its own lip edge was not found, the station's search saw it whole and took the rim). Round each rim taken (by steps 1-5, or so): a larger rim round it
-   that passes replaces it (it was a hubcap or a disc), else the same rim refined from there
-   where its edge covers more of the perimeter; where neither, a closed contour round it that
-   the canvas cut off refuses it (a disc or a hubcap inside its rim, or the rim inside its
-   tyre's outline: which is the rim cannot be told).
+   its own lip edge was not found, the station's search saw it whole and took the rim). Round
+   each rim taken (by steps 1-5, or so): a larger rim round it that passes replaces it (it was
+   a hubcap or a disc), else the same rim refined from there where its edge covers more of the
+   perimeter; where neither, a closed contour round it that the canvas cut off refuses it (a
+   disc or a hubcap inside its rim, or the rim inside its tyre's outline: which is the rim
+   cannot be told).
 
 Of the wheels that pass, the largest (the nearest, the most pixels) is returned;
 ``details["other_wheels"]`` counts the rest. Two different accepted ellipses on one wheel
@@ -337,8 +338,8 @@ def _looked_round(grey: np.ndarray, det, record: dict, L: np.ndarray, s: int, ru
 def _held_by_larger(grey: np.ndarray, det, cut: list, camera_id: str) -> str | None:
     """Why ``det`` is refused (str), or None: of the ellipses the station's search found round
     it too large for their canvas to judge (``cut``, photograph px), one holds it
-    (``_encloses``) and its sub-pixel edge on the photograph holds it too and closes over
-    ``MIN_COVERAGE`` of its perimeter. Which of the two is the rim cannot be told there: a disc
+    (``_encloses``) and its sub-pixel edge on the photograph holds it too and covers
+    ``HELD_COVERAGE`` of its perimeter (less than a rim must: a doubt needs less evidence). Which of the two is the rim cannot be told there: a disc
     or a hubcap inside its rim, or a rim inside its tyre's outline."""
     for e in cut:
         if not _encloses(e, det.ellipse):
