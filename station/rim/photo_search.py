@@ -278,7 +278,11 @@ def _stretched(grey: np.ndarray, cands: list, s: int, L: np.ndarray, rubber_leve
     tried: list[Ellipse] = []
     out = []
     for c in shaped:
-        for e in stretched_search(grey, c["ellipse"].scaled(s)):
+        around = c["ellipse"].scaled(s)
+        # the candidate stretched round does not hide what is found inside it: the station's
+        # search, seeing it whole, took that rim (a candidate's lip edge not found is no rim)
+        others = [t for t in larger if not pc.same_ellipse(t[0], around, 0.02)]
+        for e in stretched_search(grey, around):
             if geometry_verdict(e) is not None or any(pc.same_ellipse(e, t, SAME_RIM) for t in tried):
                 continue
             tried.append(e)
@@ -288,9 +292,6 @@ def _stretched(grey: np.ndarray, cands: list, s: int, L: np.ndarray, rubber_leve
             except RimNotFound as ex:
                 refused.append((record, f"no sub-pixel lip edge ({str(ex).split(': ', 1)[-1]})", 2))
                 continue
-            # the candidate it was found round does not hide it: the station's search, seeing that
-            # candidate whole, took this rim inside it (a candidate's lip edge not found is no rim)
-            others = [t for t in larger if not pc.same_ellipse(t[0], c["ellipse"].scaled(s), 0.02)]
             o = hidden_by(det.ellipse, others) if why is None else None
             if o is not None:
                 why = f"inside a larger candidate with a tyre round it ({_where(o)}; a hub, a disc or the lip's inner edge)"
@@ -339,8 +340,9 @@ def _held_by_larger(grey: np.ndarray, det, cut: list, camera_id: str) -> str | N
     """Why ``det`` is refused (str), or None: of the ellipses the station's search found round
     it too large for their canvas to judge (``cut``, photograph px), one holds it
     (``_encloses``) and its sub-pixel edge on the photograph holds it too and covers
-    ``HELD_COVERAGE`` of its perimeter (less than a rim must: a doubt needs less evidence). Which of the two is the rim cannot be told there: a disc
-    or a hubcap inside its rim, or a rim inside its tyre's outline."""
+    ``HELD_COVERAGE`` of its perimeter (less than a rim must: a doubt needs less evidence).
+    Which of the two is the rim cannot be told there: a disc or a hubcap inside its rim, or a
+    rim inside its tyre's outline."""
     for e in cut:
         if not _encloses(e, det.ellipse):
             continue
