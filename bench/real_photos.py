@@ -3,7 +3,7 @@
     .venv/bin/python bench/real_photos.py                     # all photos, markdown table
     .venv/bin/python bench/real_photos.py --split dev --per-photo
     .venv/bin/python bench/real_photos.py --data DIR --json out.json
-    .venv/bin/python bench/real_photos.py --perturb mirror       # or smaller, farther, rolled, darker, dark, blurred: as if other photos
+    .venv/bin/python bench/real_photos.py --perturb mirror       # or smaller, farther, rolled, frontal, darker, dark, blurred: as if other photos
 
 The photographs are read from ``../shared/data/real-wheels`` (``--data``; never copied into the
 repository): ``images/NAME.jpg`` and ``annotations/NAME.json`` with, per marked wheel, its box
@@ -118,12 +118,53 @@ def reason_of(message: str) -> str:
     text = message.split(": ", 1)[-1]
     if "; the best candidate" in text:  # the photo search: what its best candidate was refused for
         text = text.split("; the photograph is blurred", 1)[0].split(". A dark photograph", 1)[0].rsplit(": ", 1)[-1]
+    elif "; the photograph search: " in text:  # refused by both searches: the photograph search's reason
+        text = text.split("; the photograph search: ", 1)[1]
     named = [w for w, key in (("blurred", "the photograph is blurred"), ("dark", "A dark photograph")) if key in message]
     return re.split(r"[(:]", text, maxsplit=1)[0].strip() + "".join(f", {w}" for w in named)
 
 
-PERTURBATIONS = ("none", "mirror", "smaller", "farther", "rolled", "darker", "dark", "blurred")
+PERTURBATIONS = ("none", "mirror", "smaller", "farther", "rolled", "frontal", "darker", "dark", "blurred")
 ROLL_DEG = 8.0      # "rolled": the camera turned about its axis
+FRONTAL_RATIO = 0.9  # "frontal": the largest marked rim's axis ratio b/a after the stretch
+FRONTAL_MARGIN = 0.5  # "frontal": the crop reaches this share of the wheel's box height beyond its box
+FRONTAL_MAX_STRETCH = 4.0
+
+
+def _frontal(image: np.ndarray, wheels: list[Wheel]) -> tuple[np.ndarray, list[Wheel]]:
+    """The photograph cut round its largest marked wheel and stretched across so that its rim
+    looks near-frontal (b/a FRONTAL_RATIO), and the marks moved with it. The rim's half-width is
+    the near-side mark's distance from the line through the top and bottom marks; a wheel
+    without all three marks has its box's half-width instead."""
+    import cv2
+
+    wheel = max(wheels, key=lambda wh: wh.height_px)
+    x1, y1, x2, y2 = wheel.box
+    if len(wheel.rim_points) == 3:
+        top, bottom, side = wheel.rim_points
+        along = (bottom - top) / max(float(np.hypot(*(bottom - top))), 1e-9)
+        off = side - 0.5 * (top + bottom)
+        half_width = abs(float(off[0] * along[1] - off[1] * along[0]))
+    else:
+        half_width = 0.5 * (x2 - x1)
+    stretch = float(np.clip(FRONTAL_RATIO * 0.5 * wheel.height_px / max(half_width, 1.0), 1.0, FRONTAL_MAX_STRETCH))
+    margin = FRONTAL_MARGIN * (y2 - y1)
+    h, w = image.shape[:2]
+    c0, r0 = int(max(0, x1 - margin)), int(max(0, y1 - margin))
+    c1, r1 = int(min(w, x2 + margin)), int(min(h, y2 + margin))
+    crop = image[r0:r1, c0:c1]
+    out = cv2.resize(crop, (int(round(crop.shape[1] * stretch)), crop.shape[0]), interpolation=cv2.INTER_CUBIC)
+
+    def moved(p):  # (N,2) photo px -> (N,2) px of the stretched crop (pixel centres map to centres)
+        p = np.asarray(p, float).reshape(-1, 2)
+        return np.column_stack([(p[:, 0] - c0 + 0.5) * stretch - 0.5, p[:, 1] - r0])
+
+    def box(b):
+        (bx1, by1), (bx2, by2) = moved([[b[0], b[1]], [b[2], b[3]]])
+        return (bx1, by1, bx2, by2)
+
+    return out, [Wheel(box(wh.box), moved(wh.rim_points) if len(wh.rim_points) else wh.rim_points, wh.height_px)
+                 for wh in wheels]
 
 
 def perturbed(image: np.ndarray, wheels: list[Wheel], kind: str) -> tuple[np.ndarray, list[Wheel]]:
@@ -131,7 +172,9 @@ def perturbed(image: np.ndarray, wheels: list[Wheel], kind: str) -> tuple[np.nda
     ``mirror`` (left and right swapped: the car seen from its other side), ``smaller`` (0.7 of
     the size: from farther away, some rims then under 100 px), ``farther`` (0.5 of the size: most
     rims under 100 px, too small to take), ``rolled`` (turned ROLL_DEG about the photo's centre:
-    the camera held askew, every rim's major axis that far off the vertical), ``darker`` (0.6 of the grey
+    the camera held askew, every rim's major axis that far off the vertical), ``frontal`` (cut
+    round the largest marked wheel and stretched across until its rim looks near-frontal, as the
+    station's own cameras see it: :func:`_frontal`), ``darker`` (0.6 of the grey
     levels: a shorter exposure, a dull day), ``dark`` (0.15 of the grey levels: an sRGB photograph
     some five stops under-exposed, its light about 2 % of the original's), ``blurred`` (a Gaussian
     blur of 6 px: out of focus or shaken)."""
@@ -156,6 +199,8 @@ def perturbed(image: np.ndarray, wheels: list[Wheel], kind: str) -> tuple[np.nda
 
         return (cv2.warpAffine(image, M, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE),
                 [Wheel(box(wh.box), moved(wh.rim_points), wh.height_px) for wh in wheels])
+    if kind == "frontal":
+        return _frontal(image, wheels)
     if kind in ("smaller", "farther"):
         import cv2
 
@@ -230,7 +275,7 @@ def main(argv=None) -> int:
     ap.add_argument("--response-gamma", type=float, help="as station detect's (default: 0.45 for a JPEG)")
     ap.add_argument("--search", choices=("auto", "station", "photo"), default="auto", help="as station detect's")
     ap.add_argument("--perturb", choices=PERTURBATIONS, default="none",
-                    help="each photo mirrored, smaller (0.7x), farther (0.5x), rolled (8 deg), darker (0.6x), dark (0.15x) or blurred first: does it hold on other photos?")
+                    help="each photo mirrored, smaller (0.7x), farther (0.5x), rolled (8 deg), near-frontal (cut round the wheel, stretched across), darker (0.6x), dark (0.15x) or blurred first: does it hold on other photos?")
     ap.add_argument("--per-photo", action="store_true", help="one line per photo")
     ap.add_argument("--json", type=Path, help="write every outcome and the summaries here")
     args = ap.parse_args(argv)

@@ -95,6 +95,24 @@ def test_station_detect_refuses_an_oval_lying_on_its_side_found_by_the_station_s
     assert detect_photograph(upright, 1.0, "x").details["search"] == "station"
 
 
+def test_station_detect_refuses_a_ragged_contour_of_the_station_search():
+    """A near-frontal wheel whose edge wobbles 1.7 px rms about its ellipse (a contour pieced
+    from a steel wheel's disc and flange, a tyre's bead and the lip): the station's search takes
+    it, ``station detect`` does not; the same wheel with a smooth edge it takes."""
+    from station.commands.detect import detect_photograph
+
+    img, _ = render_wheel(WheelSpec(axis_ratio=0.9, rim_a_px=200, center_px=(400.2, 320.6), angle_rad=UPRIGHT),
+                          shape=(640, 800), seed=21)
+    vv, uu = np.mgrid[0:640, 0:800].astype(np.float32)
+    du, dv = uu - 400.2, vv - 320.6
+    wobble = 1 + 0.012 * np.sin(9 * np.arctan2(dv, du))     # the edge 2.4 px in and out, 9 times round
+    ragged = cv2.remap(img, 400.2 + du * wobble, 320.6 + dv * wobble, cv2.INTER_LINEAR)
+    assert detect_photograph(ragged, 1.0, "x", search="station").point_sigma_px > 1.0
+    with pytest.raises(RimNotFound, match="not one smooth contour"):
+        detect_photograph(ragged, 1.0, "x")
+    assert detect_photograph(img, 1.0, "x").details["search"] == "station"
+
+
 def test_a_bright_lamp_in_a_grey_body_is_refused():
     img = _scene(110.0)
     lamp = Ellipse((450, 350), (110, 70), UPRIGHT)  # upright, 220 px high: only the surroundings tell

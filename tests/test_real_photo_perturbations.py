@@ -19,3 +19,17 @@ def test_a_marked_point_moves_with_the_photograph(kind):
     np.testing.assert_allclose([x.mean(), y.mean()], moved.rim_points[0], atol=0.6)
     x1, y1, x2, y2 = moved.box
     assert x1 <= moved.rim_points[0, 0] <= x2 and y1 <= moved.rim_points[0, 1] <= y2
+
+
+def test_frontal_stretches_the_largest_wheel_until_its_rim_is_near_round():
+    from bench.real_photos import FRONTAL_RATIO
+
+    image = np.zeros((600, 800), np.uint8)
+    rim = np.array([[400.0, 200.0], [400.0, 400.0], [430.0, 300.0]])   # top, bottom, near side: b/a 0.3
+    wheel = Wheel((340.0, 160.0, 460.0, 440.0), rim, 200.0)
+    small = Wheel((40.0, 40.0, 80.0, 120.0), np.array([[60.0, 50.0], [60.0, 110.0], [70.0, 80.0]]), 60.0)
+    out, (moved, _) = perturbed(image, [wheel, small], "frontal")
+    top, bottom, side = moved.rim_points
+    assert abs(side[0] - 0.5 * (top[0] + bottom[0])) == pytest.approx(FRONTAL_RATIO * 100.0, rel=0.02)
+    assert bottom[1] - top[1] == pytest.approx(200.0)
+    assert out.shape[0] < image.shape[0] and out.shape[1] > 2 * out.shape[0]     # cut round it, stretched 3x

@@ -148,6 +148,7 @@ def _searched(light: np.ndarray, name: str, equalization: str, search: str):
         det = detect_rim(light, camera_id=name, equalization=equalization)
         if search == "auto":
             _stands_upright(det, name)
+            _one_smooth_contour(det, name)
         return _found_by("station", det)
     except RimNotFound as station_error:
         if search == "station":
@@ -205,6 +206,19 @@ def _stands_upright(det, name: str) -> None:
         raise RimNotFound(f"{name or 'image'}: the ellipse found lies on its side (b/a {b / a:.2f}, major axis "
                           f"{tilt:.0f} deg off the vertical): not a standing wheel seen by a camera held level",
                           hint="a camera looking down on the wheel steeply: --search station")
+
+
+def _one_smooth_contour(det, name: str) -> None:
+    """RimNotFound for an edge that is not one smooth curve: its points lie farther than
+    photo_search.MAX_EDGE_RMS_PX (robust rms) off their ellipse, as the photograph search
+    refuses. In a photograph the station's search may piece its contour from a steel wheel's
+    disc and flange or the tyre's bead and the lip; a lip's edge is one curve."""
+    from station.rim.photo_search import MAX_EDGE_RMS_PX
+
+    if det.point_sigma_px > MAX_EDGE_RMS_PX:
+        raise RimNotFound(f"{name or 'image'}: not one smooth contour (the edge points lie {det.point_sigma_px:.1f} px "
+                          f"rms off their ellipse > {MAX_EDGE_RMS_PX:.1f})",
+                          hint="photograph the wheel in focus, the rim's whole edge in view")
 
 
 def _found_by(search: str, det):
