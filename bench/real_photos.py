@@ -3,7 +3,8 @@
     .venv/bin/python bench/real_photos.py                     # all photos, markdown table
     .venv/bin/python bench/real_photos.py --split dev --per-photo
     .venv/bin/python bench/real_photos.py --data DIR --json out.json
-    .venv/bin/python bench/real_photos.py --perturb mirror       # or smaller, farther, rolled, frontal, darker, dark, blurred: as if other photos
+    .venv/bin/python bench/real_photos.py --perturb mirror       # or smaller, farther, nearer, rolled, frontal, darker, dark,
+                                                                 # contrast, flat, noisy, jpeg, blurred: as if other photos
 
 The photographs are read from ``../shared/data/real-wheels`` (``--data``; never copied into the
 repository): ``images/NAME.jpg`` and ``annotations/NAME.json`` with, per marked wheel, its box
@@ -124,11 +125,14 @@ def reason_of(message: str) -> str:
     return re.split(r"[(:]", text, maxsplit=1)[0].strip() + "".join(f", {w}" for w in named)
 
 
-PERTURBATIONS = ("none", "mirror", "smaller", "farther", "rolled", "frontal", "darker", "dark", "blurred")
+PERTURBATIONS = ("none", "mirror", "smaller", "farther", "nearer", "rolled", "frontal", "darker", "dark", "contrast",
+                 "flat", "noisy", "jpeg", "blurred")
 ROLL_DEG = 8.0      # "rolled": the camera turned about its axis
 FRONTAL_RATIO = 0.9  # "frontal": the largest marked rim's axis ratio b/a after the stretch
 FRONTAL_MARGIN = 0.5  # "frontal": the crop reaches this share of the wheel's box height beyond its box
 FRONTAL_MAX_STRETCH = 4.0
+NOISE_GREY = 8.0     # "noisy": sensor noise (grey levels, sigma) of a small sensor at a high ISO
+JPEG_QUALITY = 25    # "jpeg": saved again, strongly compressed
 
 
 def _frontal(image: np.ndarray, wheels: list[Wheel]) -> tuple[np.ndarray, list[Wheel]]:
@@ -171,13 +175,17 @@ def perturbed(image: np.ndarray, wheels: list[Wheel], kind: str) -> tuple[np.nda
     """The photograph and its marks changed as another photographer might have taken it:
     ``mirror`` (left and right swapped: the car seen from its other side), ``smaller`` (0.7 of
     the size: from farther away, some rims then under 100 px), ``farther`` (0.5 of the size: most
-    rims under 100 px, too small to take), ``rolled`` (turned ROLL_DEG about the photo's centre:
+    rims under 100 px, too small to take), ``nearer`` (1.5 times the size: rims up to 1200 px,
+    the edges spread over more pixels), ``rolled`` (turned ROLL_DEG about the photo's centre:
     the camera held askew, every rim's major axis that far off the vertical), ``frontal`` (cut
     round the largest marked wheel and stretched across until its rim looks near-frontal, as the
     station's own cameras see it: :func:`_frontal`), ``darker`` (0.6 of the grey
     levels: a shorter exposure, a dull day), ``dark`` (0.15 of the grey levels: an sRGB photograph
-    some five stops under-exposed, its light about 2 % of the original's), ``blurred`` (a Gaussian
-    blur of 6 px: out of focus or shaken)."""
+    some five stops under-exposed, its light about 2 % of the original's), ``contrast`` and
+    ``flat`` (another camera's tone curve: grey^1.5 and grey^0.7 on 0..1, read as sRGB all the
+    same), ``noisy`` (sensor noise of NOISE_GREY grey levels), ``jpeg`` (saved again at quality
+    JPEG_QUALITY: blocks and ringing at the edges), ``blurred`` (a Gaussian blur of 6 px: out
+    of focus or shaken)."""
     if kind == "mirror":
         w = image.shape[1]
         flip = [Wheel((w - 1 - x2, y1, w - 1 - x1, y2), np.column_stack([w - 1 - k[:, 0], k[:, 1]]) if len(k) else k,
@@ -201,15 +209,28 @@ def perturbed(image: np.ndarray, wheels: list[Wheel], kind: str) -> tuple[np.nda
                 [Wheel(box(wh.box), moved(wh.rim_points), wh.height_px) for wh in wheels])
     if kind == "frontal":
         return _frontal(image, wheels)
-    if kind in ("smaller", "farther"):
+    if kind in ("smaller", "farther", "nearer"):
         import cv2
 
-        f = 0.7 if kind == "smaller" else 0.5
-        return (cv2.resize(image, None, fx=f, fy=f, interpolation=cv2.INTER_AREA),
+        f = {"smaller": 0.7, "farther": 0.5, "nearer": 1.5}[kind]
+        return (cv2.resize(image, None, fx=f, fy=f, interpolation=cv2.INTER_AREA if f < 1 else cv2.INTER_CUBIC),
                 [Wheel(tuple(f * np.asarray(wh.box)), f * wh.rim_points, f * wh.height_px) for wh in wheels])
     if kind in ("darker", "dark"):
         f = 0.6 if kind == "darker" else 0.15
         return (f * image.astype(np.float32)).round().astype(image.dtype), wheels
+    if kind in ("contrast", "flat"):  # another camera's tone curve: grey' = grey^p on 0..1
+        top = 255.0 if image.dtype == np.uint8 else 65535.0
+        p = 1.5 if kind == "contrast" else 0.7
+        return np.clip(top * (image.astype(np.float32) / top) ** p + 0.5, 0, top).astype(image.dtype), wheels
+    if kind == "noisy":
+        top = 255.0 if image.dtype == np.uint8 else 65535.0
+        noise = np.random.default_rng(0).normal(0.0, NOISE_GREY * top / 255.0, image.shape)
+        return np.clip(image.astype(np.float32) + noise + 0.5, 0, top).astype(image.dtype), wheels
+    if kind == "jpeg":
+        import cv2
+
+        ok, data = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+        return cv2.imdecode(data, cv2.IMREAD_UNCHANGED), wheels
     if kind == "blurred":
         import cv2
 
@@ -275,7 +296,7 @@ def main(argv=None) -> int:
     ap.add_argument("--response-gamma", type=float, help="as station detect's (default: 0.45 for a JPEG)")
     ap.add_argument("--search", choices=("auto", "station", "photo"), default="auto", help="as station detect's")
     ap.add_argument("--perturb", choices=PERTURBATIONS, default="none",
-                    help="each photo mirrored, smaller (0.7x), farther (0.5x), rolled (8 deg), near-frontal (cut round the wheel, stretched across), darker (0.6x), dark (0.15x) or blurred first: does it hold on other photos?")
+                    help="each photo changed first, as another photographer's might be (see perturbed()): does it hold on other photos?")
     ap.add_argument("--per-photo", action="store_true", help="one line per photo")
     ap.add_argument("--json", type=Path, help="write every outcome and the summaries here")
     args = ap.parse_args(argv)

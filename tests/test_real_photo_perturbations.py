@@ -33,3 +33,12 @@ def test_frontal_stretches_the_largest_wheel_until_its_rim_is_near_round():
     assert abs(side[0] - 0.5 * (top[0] + bottom[0])) == pytest.approx(FRONTAL_RATIO * 100.0, rel=0.02)
     assert bottom[1] - top[1] == pytest.approx(200.0)
     assert out.shape[0] < image.shape[0] and out.shape[1] > 2 * out.shape[0]     # cut round it, stretched 3x
+
+
+def test_another_tone_curve_keeps_black_and_white_and_moves_the_greys():
+    image = np.array([[0, 64, 128, 255]], np.uint8)
+    wheel = Wheel((0.0, 0.0, 3.0, 0.0), np.zeros((0, 2)), 1.0)
+    contrast, _ = perturbed(image, [wheel], "contrast")
+    flat, _ = perturbed(image, [wheel], "flat")
+    assert contrast[0, 0] == flat[0, 0] == 0 and contrast[0, 3] == flat[0, 3] == 255
+    assert contrast[0, 2] == round(255 * (128 / 255) ** 1.5) and flat[0, 2] == round(255 * (128 / 255) ** 0.7)
