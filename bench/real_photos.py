@@ -53,7 +53,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from station.commands.detect import default_gamma, detect_photograph, read_image  # noqa: E402
+from station.commands.detect import SRGB_GAMMA, default_gamma, detect_photograph, read_image  # noqa: E402
 from station.errors import StationError  # noqa: E402
 from station.rim.ellipse import Ellipse  # noqa: E402
 
@@ -126,7 +126,7 @@ def reason_of(message: str) -> str:
 
 
 PERTURBATIONS = ("none", "mirror", "smaller", "farther", "nearer", "rolled", "frontal", "darker", "dark", "contrast",
-                 "flat", "noisy", "jpeg", "blurred")
+                 "flat", "noisy", "jpeg", "blurred", "linear")
 ROLL_DEG = 8.0      # "rolled": the camera turned about its axis
 FRONTAL_RATIO = 0.9  # "frontal": the largest marked rim's axis ratio b/a after the stretch
 FRONTAL_MARGIN = 0.5  # "frontal": the crop reaches this share of the wheel's box height beyond its box
@@ -185,7 +185,8 @@ def perturbed(image: np.ndarray, wheels: list[Wheel], kind: str) -> tuple[np.nda
     ``flat`` (another camera's tone curve: grey^1.5 and grey^0.7 on 0..1, read as sRGB all the
     same), ``noisy`` (sensor noise of NOISE_GREY grey levels), ``jpeg`` (saved again at quality
     JPEG_QUALITY: blocks and ringing at the edges), ``blurred`` (a Gaussian blur of 6 px: out
-    of focus or shaken)."""
+    of focus or shaken), ``linear`` (the sRGB curve undone into 16-bit grey proportional to
+    light, as a machine-vision camera's PNG: measured with response 1, a PNG's default)."""
     if kind == "mirror":
         w = image.shape[1]
         flip = [Wheel((w - 1 - x2, y1, w - 1 - x1, y2), np.column_stack([w - 1 - k[:, 0], k[:, 1]]) if len(k) else k,
@@ -226,6 +227,9 @@ def perturbed(image: np.ndarray, wheels: list[Wheel], kind: str) -> tuple[np.nda
         top = 255.0 if image.dtype == np.uint8 else 65535.0
         noise = np.random.default_rng(0).normal(0.0, NOISE_GREY * top / 255.0, image.shape)
         return np.clip(image.astype(np.float32) + noise + 0.5, 0, top).astype(image.dtype), wheels
+    if kind == "linear":  # as a machine-vision camera gives it: 16-bit grey proportional to light
+        light = (image.astype(np.float64) / 255.0) ** (1.0 / SRGB_GAMMA)
+        return np.round(65535.0 * light).astype(np.uint16), wheels
     if kind == "jpeg":
         import cv2
 
@@ -248,7 +252,9 @@ def run_photo(image_path: Path, wheels: list[Wheel], gamma: float | None = None,
     image, wheels = perturbed(image, wheels, perturbation)
     t0 = time.perf_counter()
     try:
-        det = detect_photograph(image, default_gamma(image_path) if gamma is None else gamma, name, search=search)
+        if gamma is None:
+            gamma = 1.0 if perturbation == "linear" else default_gamma(image_path)
+        det = detect_photograph(image, gamma, name, search=search)
     except StationError as e:
         return Outcome(name, "refused", time.perf_counter() - t0, reason_of(str(e)))
     seconds = time.perf_counter() - t0
