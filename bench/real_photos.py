@@ -56,6 +56,7 @@ sys.path.insert(0, str(ROOT))
 from station.commands.detect import SRGB_GAMMA, default_gamma, detect_photograph, read_image  # noqa: E402
 from station.errors import StationError  # noqa: E402
 from station.rim.ellipse import Ellipse  # noqa: E402
+from station.rim.photo_stability import LARGER  # noqa: E402
 
 DEFAULT_DATA = ROOT.parent / "shared" / "data" / "real-wheels"
 DEV_COUNT = 40
@@ -117,6 +118,9 @@ def reason_of(message: str) -> str:
     """The kind of a refusal: the sentence after the photo's name, without its figures, and
     whether it names the photograph blurred or dark."""
     text = message.split(": ", 1)[-1]
+    if " is not sure: " in text:  # found, but not found again in the photograph resized
+        return "not sure: " + ("another ellipse" if ": another ellipse" in text else "not found again") + (
+            " at a larger size" if f" {LARGER:g} times" in text else " at a smaller size")
     if "; the best candidate" in text:  # the photo search: what its best candidate was refused for
         text = text.split("; the photograph is blurred", 1)[0].split(". A dark photograph", 1)[0].rsplit(": ", 1)[-1]
     elif "; the photograph search: " in text:  # refused by both searches: the photograph search's reason

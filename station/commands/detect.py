@@ -139,6 +139,23 @@ def detect_photograph(image: np.ndarray, gamma: float, name: str = "", equalizat
 
 
 def _searched(light: np.ndarray, name: str, equalization: str, search: str):
+    """The rim ``search`` finds in ``light``; in a photograph ("auto", "photo") only where the
+    same search finds it again in the photograph resized (station/rim/photo_stability.py)."""
+    from station.rim.photo_search import where
+    from station.rim.photo_stability import why_unstable
+
+    det = _searched_once(light, name, equalization, search)
+    if search == "station":
+        return det
+    why = why_unstable(lambda image: _searched_once(image, name, equalization, search), light, det.ellipse, name)
+    if why is not None:
+        raise RimNotFound(f"{name or 'image'}: the rim {where(det.ellipse)} is not sure: {why}",
+                          hint="its tests hold only just: photograph the wheel nearer, in focus and from nearer its "
+                               "front, or crop to it")
+    return det
+
+
+def _searched_once(light: np.ndarray, name: str, equalization: str, search: str):
     from station.rim import detect_rim
     from station.rim.photo_search import detect_in_photo
 

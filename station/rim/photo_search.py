@@ -107,7 +107,7 @@ def structure(L: np.ndarray, e: Ellipse, rubber_level: float) -> dict:
             "seen": float(seen.mean())}
 
 
-def _where(e: Ellipse) -> str:
+def where(e: Ellipse) -> str:
     return (f"at ({e.center_px[0]:.0f}, {e.center_px[1]:.0f}) px, {2 * e.axes_px[0]:.0f} px high, "
             f"b/a {e.axes_px[1] / e.axes_px[0]:.2f}")
 
@@ -228,7 +228,7 @@ def detect_in_photo(image: np.ndarray, camera_id: str = ""):
         if o is None:
             kept.append((det, c))
         else:
-            refused.append((c, f"inside a larger candidate with a tyre round it ({_where(o)}; "
+            refused.append((c, f"inside a larger candidate with a tyre round it ({where(o)}; "
                                "a hub, a disc or the lip's inner edge)", 3))
     def looked_round(taken: list) -> list:
         out = []
@@ -251,7 +251,7 @@ def detect_in_photo(image: np.ndarray, camera_id: str = ""):
         blur = edge_blur_px(grey, c["ellipse"].scaled(s))
         if blur > BLURRED_PX:
             why += f"; the photograph is blurred there (edge blur {blur:.1f} px > {BLURRED_PX:.0f})"
-        raise RimNotFound(f"{tag}: no rim taken; the best candidate {_where(c['ellipse'].scaled(s))}: {why}",
+        raise RimNotFound(f"{tag}: no rim taken; the best candidate {where(c['ellipse'].scaled(s))}: {why}",
                           hint="photograph the wheel in focus, from nearer its front, the rim 100 px or more high; "
                                f"{DARK_RIM_NOTE}")
     accepted.sort(key=lambda t: -t[0].ellipse.axes_px[0])
@@ -259,7 +259,7 @@ def detect_in_photo(image: np.ndarray, camera_id: str = ""):
     for d2, _ in accepted[1:]:  # a different ellipse over the same wheel: which is the lip is not known
         e, o = det.ellipse, d2.ellipse
         if e.radius_ratio(o.center_px[None])[0] < 1.0 and not pc.same_ellipse(e, o, SAME_RIM):
-            raise RimNotFound(f"{tag}: several candidates on one wheel ({_where(e)}; {_where(o)})",
+            raise RimNotFound(f"{tag}: several candidates on one wheel ({where(e)}; {where(o)})",
                               hint="photograph the wheel nearer its front or crop to it")
     others = sum(not pc.same_ellipse(det.ellipse, d2.ellipse, SAME_RIM) for d2, _ in accepted[1:])
     det.details.update({"path": "photo", "dark_share": c["dark"], "outside_share": c["outside"],
@@ -294,7 +294,7 @@ def _stretched(grey: np.ndarray, cands: list, s: int, L: np.ndarray, rubber_leve
                 continue
             o = hidden_by(det.ellipse, others) if why is None else None
             if o is not None:
-                why = f"inside a larger candidate with a tyre round it ({_where(o)}; a hub, a disc or the lip's inner edge)"
+                why = f"inside a larger candidate with a tyre round it ({where(o)}; a hub, a disc or the lip's inner edge)"
             if why is None:
                 out.append((det, {**record, **structure(L, det.ellipse.scaled(1 / s), rubber_level)}))
             else:
@@ -351,7 +351,7 @@ def _held_by_larger(grey: np.ndarray, det, cut: list, camera_id: str) -> str | N
         except RimNotFound:
             continue
         if found.coverage >= HELD_COVERAGE and _encloses(found.ellipse, det.ellipse):
-            return (f"a larger contour round it ({_where(found.ellipse)}): a hubcap, a disc or the lip's "
+            return (f"a larger contour round it ({where(found.ellipse)}): a hubcap, a disc or the lip's "
                     "inner edge, or the rim and its tyre's outline")
     return None
 
@@ -403,7 +403,7 @@ def _after_refinement(det, e: Ellipse, L: np.ndarray, s: int, rubber_level: floa
     """Why a refined candidate is not the rim, or None: the edge left the candidate, holds on
     too little of it, or the tyre's structure fails round the refined ellipse."""
     if not pc.same_ellipse(e, det.ellipse, MAX_EDGE_MOVE):
-        return f"the sub-pixel edge left the candidate (now {_where(det.ellipse)})"
+        return f"the sub-pixel edge left the candidate (now {where(det.ellipse)})"
     if det.coverage < MIN_COVERAGE:
         return f"no closed rim contour (sub-pixel edge on {det.coverage:.0%} of the perimeter)"
     if det.point_sigma_px > MAX_EDGE_RMS_PX:

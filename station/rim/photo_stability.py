@@ -1,0 +1,55 @@
+"""Is a rim found in a photograph found again in the same photograph taken a little bigger or
+smaller? (``station detect``'s last test.)
+
+A photograph's rim passes the searches' tests (a dark tyre round it, a closed and smooth lip
+edge, no larger contour round it) by some margin. Where the margin is thin, another camera,
+another compression or another distance flips the decision, and the contours that pass so are
+mostly not rims: a steel wheel's disc whose "tyre" is the wheel's own dark barrel, an ellipse
+out on the tyre closed on just half its turn. So the same search runs again on the photograph
+resized (``resized_scale``) and the rim is kept only when the same ellipse comes back
+(centre and axes within ``SAME_RIM`` of its size). A large rim is looked for at
+``SMALLER`` of the size; a small one at ``LARGER`` (made smaller it would fall below the
+searches' smallest rim, where their edges no longer hold).
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import cv2
+import numpy as np
+
+from station.errors import StationError, sentence_without
+from station.rim.ellipse import Ellipse
+
+SMALLER = 0.75       # a rim of SMALL_RIM_PX / SMALLER or more is looked for again at this scale
+LARGER = 1.33        # a smaller rim at this one
+SMALL_RIM_PX = 200.0  # rim height 2a (photograph px) below which the photograph is enlarged instead
+SAME_RIM = 0.1       # centre and axes within this share of a: the same ellipse
+
+
+def resized_scale(ellipse: Ellipse) -> float:
+    """The scale the photograph is taken again at, for a rim ``ellipse`` (photograph px)."""
+    return SMALLER if SMALLER * 2 * ellipse.axes_px[0] >= SMALL_RIM_PX else LARGER
+
+
+def resized(image: np.ndarray, scale: float) -> np.ndarray:
+    """``image`` (H,W) or (H,W,3) resized by ``scale`` (area mean down, cubic up)."""
+    return cv2.resize(image, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA if scale < 1 else cv2.INTER_CUBIC)
+
+
+def why_unstable(search: Callable[[np.ndarray], object], image: np.ndarray, ellipse: Ellipse, name: str) -> str | None:
+    """Why the rim ``ellipse`` that ``search`` (image -> RimDetection, or StationError) found in
+    ``image`` is not trusted (the reason, a str), or None when the search finds the same
+    ellipse in the photograph resized (``resized_scale``)."""
+    scale = resized_scale(ellipse)
+    try:
+        again = search(resized(image, scale)).ellipse.scaled(1 / scale)
+    except StationError as e:  # RimNotFound; an ImageError would be the resizing's
+        return f"not found again in the photograph {scale:g} times the size ({sentence_without(name, e)})"
+    a = max(ellipse.axes_px[0], again.axes_px[0])
+    if (np.linalg.norm(ellipse.center_px - again.center_px) <= SAME_RIM * a
+            and np.all(np.abs(ellipse.axes_px - again.axes_px) <= SAME_RIM * a)):
+        return None
+    return (f"another ellipse in the photograph {scale:g} times the size (at ({again.center_px[0]:.0f}, "
+            f"{again.center_px[1]:.0f}) px, {2 * again.axes_px[0]:.0f} px high, back at this size)")
