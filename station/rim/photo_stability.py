@@ -21,11 +21,12 @@ import numpy as np
 
 from station.errors import StationError, sentence_without
 from station.rim.ellipse import Ellipse
+from station.rim.photo_candidates import same_ellipse
+from station.rim.photo_search import SAME_RIM
 
 SMALLER = 0.75       # a rim of SMALL_RIM_PX / SMALLER or more is looked for again at this scale
 LARGER = 1.33        # a smaller rim at this one
-SMALL_RIM_PX = 200.0  # rim height 2a (photograph px) below which the photograph is enlarged instead
-SAME_RIM = 0.1       # centre and axes within this share of a: the same ellipse
+SMALL_RIM_PX = 200.0  # the rim made smaller must stay this high (2a, px), else the photograph is enlarged
 
 
 def resized_scale(ellipse: Ellipse) -> float:
@@ -47,9 +48,7 @@ def why_unstable(search: Callable[[np.ndarray], object], image: np.ndarray, elli
         again = search(resized(image, scale)).ellipse.scaled(1 / scale)
     except StationError as e:  # RimNotFound; an ImageError would be the resizing's
         return f"not found again in the photograph {scale:g} times the size ({sentence_without(name, e)})"
-    a = max(ellipse.axes_px[0], again.axes_px[0])
-    if (np.linalg.norm(ellipse.center_px - again.center_px) <= SAME_RIM * a
-            and np.all(np.abs(ellipse.axes_px - again.axes_px) <= SAME_RIM * a)):
+    if same_ellipse(ellipse, again, SAME_RIM):
         return None
     return (f"another ellipse in the photograph {scale:g} times the size (at ({again.center_px[0]:.0f}, "
             f"{again.center_px[1]:.0f}) px, {2 * again.axes_px[0]:.0f} px high, back at this size)")
