@@ -171,8 +171,7 @@ def _frontal(image: np.ndarray, wheels: list[Wheel]) -> tuple[np.ndarray, list[W
         (bx1, by1), (bx2, by2) = moved([[b[0], b[1]], [b[2], b[3]]])
         return (bx1, by1, bx2, by2)
 
-    return out, [Wheel(box(wh.box), moved(wh.rim_points) if len(wh.rim_points) else wh.rim_points, wh.height_px)
-                 for wh in wheels]
+    return out, [Wheel(box(wh.box), moved(wh.rim_points), wh.height_px) for wh in wheels]
 
 
 def perturbed(image: np.ndarray, wheels: list[Wheel], kind: str) -> tuple[np.ndarray, list[Wheel]]:
@@ -223,12 +222,11 @@ def perturbed(image: np.ndarray, wheels: list[Wheel], kind: str) -> tuple[np.nda
     if kind in ("darker", "dark"):
         f = 0.6 if kind == "darker" else 0.15
         return (f * image.astype(np.float32)).round().astype(image.dtype), wheels
+    top = 255.0 if image.dtype == np.uint8 else 65535.0   # the file's white
     if kind in ("contrast", "flat"):  # another camera's tone curve: grey' = grey^p on 0..1
-        top = 255.0 if image.dtype == np.uint8 else 65535.0
         p = 1.5 if kind == "contrast" else 0.7
         return np.clip(top * (image.astype(np.float32) / top) ** p + 0.5, 0, top).astype(image.dtype), wheels
     if kind == "noisy":
-        top = 255.0 if image.dtype == np.uint8 else 65535.0
         noise = np.random.default_rng(0).normal(0.0, NOISE_GREY * top / 255.0, image.shape)
         return np.clip(image.astype(np.float32) + noise + 0.5, 0, top).astype(image.dtype), wheels
     if kind == "linear":  # as a machine-vision camera gives it: 16-bit grey proportional to light
