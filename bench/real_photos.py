@@ -63,6 +63,7 @@ DEV_COUNT = 40
 MATCH_SHARE = 0.1   # of the rim height: a matching ellipse passes this near every marked rim point
 MATCH_MIN_PX = 10.0
 RIM_KEYPOINTS = (0, 1, 2)
+FOOT_SAMPLES = 4096   # points round an ellipse to start each mark's foot from
 
 
 @dataclass
@@ -98,13 +99,25 @@ def load_wheels(path: Path) -> list[Wheel]:
     return wheels
 
 
+def exact_distance_px(ellipse: Ellipse, pts: np.ndarray) -> np.ndarray:
+    """(K,) signed distance (+ outside) of the points (K,2) to ``ellipse``, exact wherever the
+    points lie. ``Ellipse.distance`` starts Newton's method from a point's angle, which is exact
+    near the curve (the edge points it is made for) but can run off for a mark far inside a
+    steep ellipse, near its major axis: the nearest of ``FOOT_SAMPLES`` points round the
+    ellipse starts it here instead."""
+    t = np.linspace(0.0, 2 * np.pi, FOOT_SAMPLES, endpoint=False)
+    along = ellipse.point_at(t)                                                    # (S,2)
+    near = np.argmin(((pts[:, None, :] - along[None]) ** 2).sum(axis=2), axis=1)  # (K,)
+    return ellipse.distance(pts, iterations=8, t0=t[near])[0]
+
+
 def judge(ellipse: Ellipse, wheels: list[Wheel]) -> tuple[str, list[float]]:
     """("detected", distances of the matched wheel's rim points) or a wrong-object kind."""
     best = None
     for w in wheels:
         if len(w.rim_points) == 0:
             continue
-        d = np.abs(ellipse.distance(w.rim_points)[0])
+        d = np.abs(exact_distance_px(ellipse, w.rim_points))
         if w.contains(ellipse.center_px) and np.all(d <= max(MATCH_SHARE * w.height_px, MATCH_MIN_PX)):
             if best is None or np.median(d) < np.median(best):
                 best = d
