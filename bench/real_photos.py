@@ -142,21 +142,21 @@ def reason_of(message: str) -> str:
     return re.split(r"[(:]", text, maxsplit=1)[0].strip() + "".join(f", {w}" for w in named)
 
 
-PERTURBATIONS = ("none", "mirror", "smaller", "farther", "nearer", "rolled", "frontal", "darker", "dark", "contrast",
-                 "flat", "noisy", "jpeg", "blurred", "linear")
+PERTURBATIONS = ("none", "mirror", "smaller", "farther", "nearer", "rolled", "cropped", "frontal", "darker", "dark",
+                 "contrast", "flat", "noisy", "jpeg", "blurred", "linear")
 ROLL_DEG = 8.0      # "rolled": the camera turned about its axis
 FRONTAL_RATIO = 0.9  # "frontal": the largest marked rim's axis ratio b/a after the stretch
-FRONTAL_MARGIN = 0.5  # "frontal": the crop reaches this share of the wheel's box height beyond its box
+FRONTAL_MARGIN = 0.5  # "cropped", "frontal": the crop reaches this share of the wheel's box height beyond its box
 FRONTAL_MAX_STRETCH = 4.0
 NOISE_GREY = 8.0     # "noisy": sensor noise (grey levels, sigma) of a small sensor at a high ISO
 JPEG_QUALITY = 25    # "jpeg": saved again, strongly compressed
 
 
-def _frontal(image: np.ndarray, wheels: list[Wheel]) -> tuple[np.ndarray, list[Wheel]]:
-    """The photograph cut round its largest marked wheel and stretched across so that its rim
-    looks near-frontal (b/a FRONTAL_RATIO), and the marks moved with it. The rim's half-width is
-    the near-side mark's distance from the line through the top and bottom marks; a wheel
-    without all three marks has its box's half-width instead."""
+def _cut_round(image: np.ndarray, wheels: list[Wheel], frontal: bool) -> tuple[np.ndarray, list[Wheel]]:
+    """The photograph cut round its largest marked wheel (FRONTAL_MARGIN), with ``frontal``
+    stretched across so that its rim looks near-frontal (b/a FRONTAL_RATIO), and the marks moved
+    with it. The rim's half-width is the near-side mark's distance from the line through the top
+    and bottom marks; a wheel without all three marks has its box's half-width instead."""
     import cv2
 
     wheel = max(wheels, key=lambda wh: wh.height_px)
@@ -169,6 +169,7 @@ def _frontal(image: np.ndarray, wheels: list[Wheel]) -> tuple[np.ndarray, list[W
     else:
         half_width = 0.5 * (x2 - x1)
     stretch = float(np.clip(FRONTAL_RATIO * 0.5 * wheel.height_px / max(half_width, 1.0), 1.0, FRONTAL_MAX_STRETCH))
+    stretch = stretch if frontal else 1.0
     margin = FRONTAL_MARGIN * (y2 - y1)
     h, w = image.shape[:2]
     c0, r0 = int(max(0, x1 - margin)), int(max(0, y1 - margin))
@@ -193,9 +194,10 @@ def perturbed(image: np.ndarray, wheels: list[Wheel], kind: str) -> tuple[np.nda
     the size: from farther away, some rims then under 100 px), ``farther`` (0.5 of the size: most
     rims under 100 px, too small to take), ``nearer`` (1.5 times the size: rims up to 1200 px,
     the edges spread over more pixels), ``rolled`` (turned ROLL_DEG about the photo's centre:
-    the camera held askew, every rim's major axis that far off the vertical), ``frontal`` (cut
-    round the largest marked wheel and stretched across until its rim looks near-frontal, as the
-    station's own cameras see it: :func:`_frontal`), ``darker`` (0.6 of the grey
+    the camera held askew, every rim's major axis that far off the vertical), ``cropped`` (cut
+    round the largest marked wheel, as a refusal's hint asks: :func:`_cut_round`), ``frontal``
+    (cut so and stretched across until its rim looks near-frontal, as the station's own cameras
+    see it), ``darker`` (0.6 of the grey
     levels: a shorter exposure, a dull day), ``dark`` (0.15 of the grey levels: an sRGB photograph
     some five stops under-exposed, its light about 2 % of the original's), ``contrast`` and
     ``flat`` (another camera's tone curve: grey^1.5 and grey^0.7 on 0..1, read as sRGB all the
@@ -224,8 +226,8 @@ def perturbed(image: np.ndarray, wheels: list[Wheel], kind: str) -> tuple[np.nda
 
         return (cv2.warpAffine(image, M, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE),
                 [Wheel(box(wh.box), moved(wh.rim_points), wh.height_px) for wh in wheels])
-    if kind == "frontal":
-        return _frontal(image, wheels)
+    if kind in ("cropped", "frontal"):
+        return _cut_round(image, wheels, kind == "frontal")
     if kind in ("smaller", "farther", "nearer"):
         import cv2
 

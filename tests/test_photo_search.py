@@ -113,6 +113,22 @@ def test_station_detect_refuses_a_ragged_contour_of_the_station_search():
     assert detect_photograph(img, 1.0, "x").details["search"] == "station"
 
 
+def test_station_detect_refuses_a_round_contour_of_the_station_search_that_does_not_fill_the_frame():
+    """A near-round wheel-like contour 14 % of the photograph high (a round lamp beside a wheel
+    in a photograph cut round the wheel): the station's search, made for a wheel filling the
+    frame, takes it; ``station detect`` does not, and the photograph search refuses it as
+    near-frontal. The same contour filling 28 % of a smaller photograph it takes."""
+    from station.commands.detect import detect_photograph
+
+    small, _ = render_wheel(WheelSpec(axis_ratio=0.9, rim_a_px=70, center_px=(600.3, 500.6), angle_rad=UPRIGHT),
+                            shape=(1000, 1200), seed=21)
+    assert detect_photograph(small, 1.0, "x", search="station").ellipse.axes_px[0] == pytest.approx(70, abs=1)
+    with pytest.raises(RimNotFound, match="fills 14% of the photograph's 1000 px < 25%"):
+        detect_photograph(small, 1.0, "x")
+    framed = small[300:800, 350:850]
+    assert detect_photograph(framed, 1.0, "x").details["search"] == "station"
+
+
 def test_a_bright_lamp_in_a_grey_body_is_refused():
     img = _scene(110.0)
     lamp = Ellipse((450, 350), (110, 70), UPRIGHT)  # upright, 220 px high: only the surroundings tell

@@ -83,4 +83,4 @@ def test_station_detect_says_why_a_rim_found_only_once_is_not_taken(tmp_path, ca
     assert main(["detect", str(p)]) != 0
     err = capsys.readouterr().err
     assert "is not sure: not found again in the photograph 0.75 times the size" in err
-    assert "crop to it" in err and "Traceback" not in err
+    assert "from nearer its front" in err and "Traceback" not in err

@@ -151,7 +151,7 @@ def _searched(light: np.ndarray, name: str, equalization: str, search: str):
     if why is not None:
         raise RimNotFound(f"{name or 'image'}: the rim {where(det.ellipse)} is not sure: {why}",
                           hint="its tests hold only just: photograph the wheel nearer, in focus and from nearer its "
-                               "front, or crop to it")
+                               "front")
     return det
 
 
@@ -166,6 +166,7 @@ def _searched_once(light: np.ndarray, name: str, equalization: str, search: str)
         if search == "auto":
             _stands_upright(det, name)
             _one_smooth_contour(det, name)
+            _fills_the_frame(det, light.shape, name)
         return _found_by("station", det)
     except RimNotFound as station_error:
         if search == "station":
@@ -236,6 +237,26 @@ def _one_smooth_contour(det, name: str) -> None:
         raise RimNotFound(f"{name or 'image'}: not one smooth contour (the edge points lie {det.point_sigma_px:.1f} px "
                           f"rms off their ellipse > {MAX_EDGE_RMS_PX:.1f})",
                           hint="photograph the wheel in focus, the rim's whole edge in view")
+
+
+FILLED_FRAME = 0.25  # the station's search in a photograph: its rim at least this share of the smaller side
+#                     (the station's own cameras see a rim 0.5-0.65 of theirs; a near-frontal photograph
+#                     cut round its wheel, 0.33-0.42; a fog lamp beside a wheel cut round so, 0.11)
+
+
+def _fills_the_frame(det, shape: tuple, name: str) -> None:
+    """RimNotFound for a rim of the station's search that does not fill the frame
+    (``FILLED_FRAME``): that search is made for its cameras' views of one wheel filling the
+    image, and judges a closed round contour by what lies round it alone. In a photograph a
+    round lamp in its bezel passes that judgement; a wheel smaller in its photograph is the
+    photograph search's to find, which refuses near-round candidates for that reason."""
+    side = min(shape[:2])
+    height = 2 * det.ellipse.axes_px[0]
+    if height < FILLED_FRAME * side:
+        raise RimNotFound(f"{name or 'image'}: the round contour found ({height:.0f} px high) fills "
+                          f"{height / side:.0%} of the photograph's {side} px < {FILLED_FRAME:.0%}: the station's "
+                          "search is for a wheel filling the frame",
+                          hint="photograph a wheel seen from the front so that it fills the frame")
 
 
 def _found_by(search: str, det):

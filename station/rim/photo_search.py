@@ -260,7 +260,7 @@ def detect_in_photo(image: np.ndarray, camera_id: str = ""):
         e, o = det.ellipse, d2.ellipse
         if e.radius_ratio(o.center_px[None])[0] < 1.0 and not pc.same_ellipse(e, o, SAME_RIM):
             raise RimNotFound(f"{tag}: several candidates on one wheel ({where(e)}; {where(o)})",
-                              hint="photograph the wheel nearer its front or crop to it")
+                              hint="photograph the wheel nearer its front")
     others = sum(not pc.same_ellipse(det.ellipse, d2.ellipse, SAME_RIM) for d2, _ in accepted[1:])
     det.details.update({"path": "photo", "dark_share": c["dark"], "outside_share": c["outside"],
                         "support": c["support"], "other_wheels": int(others)})
