@@ -146,31 +146,37 @@ PERTURBATIONS = ("none", "mirror", "smaller", "farther", "nearer", "rolled", "cr
                  "contrast", "flat", "noisy", "jpeg", "blurred", "linear")
 ROLL_DEG = 8.0      # "rolled": the camera turned about its axis
 FRONTAL_RATIO = 0.9  # "frontal": the largest marked rim's axis ratio b/a after the stretch
-FRONTAL_MARGIN = 0.5  # "cropped", "frontal": the crop reaches this share of the wheel's box height beyond its box
+CUT_MARGIN = 0.5      # "cropped", "frontal": the cut reaches this share of the wheel's box height beyond its box
 FRONTAL_MAX_STRETCH = 4.0
 NOISE_GREY = 8.0     # "noisy": sensor noise (grey levels, sigma) of a small sensor at a high ISO
 JPEG_QUALITY = 25    # "jpeg": saved again, strongly compressed
 
 
-def _cut_round(image: np.ndarray, wheels: list[Wheel], frontal: bool) -> tuple[np.ndarray, list[Wheel]]:
-    """The photograph cut round its largest marked wheel (FRONTAL_MARGIN), with ``frontal``
-    stretched across so that its rim looks near-frontal (b/a FRONTAL_RATIO), and the marks moved
-    with it. The rim's half-width is the near-side mark's distance from the line through the top
-    and bottom marks; a wheel without all three marks has its box's half-width instead."""
-    import cv2
-
-    wheel = max(wheels, key=lambda wh: wh.height_px)
-    x1, y1, x2, y2 = wheel.box
+def _frontal_stretch(wheel: Wheel) -> float:
+    """How much ``wheel`` is stretched across for its rim to look near-frontal (b/a
+    FRONTAL_RATIO, at most FRONTAL_MAX_STRETCH). The rim's half-width is the near-side mark's
+    distance from the line through the top and bottom marks; a wheel without all three marks
+    has its box's half-width instead."""
     if len(wheel.rim_points) == 3:
         top, bottom, side = wheel.rim_points
         along = (bottom - top) / max(float(np.hypot(*(bottom - top))), 1e-9)
         off = side - 0.5 * (top + bottom)
         half_width = abs(float(off[0] * along[1] - off[1] * along[0]))
     else:
-        half_width = 0.5 * (x2 - x1)
-    stretch = float(np.clip(FRONTAL_RATIO * 0.5 * wheel.height_px / max(half_width, 1.0), 1.0, FRONTAL_MAX_STRETCH))
-    stretch = stretch if frontal else 1.0
-    margin = FRONTAL_MARGIN * (y2 - y1)
+        half_width = 0.5 * (wheel.box[2] - wheel.box[0])
+    return float(np.clip(FRONTAL_RATIO * 0.5 * wheel.height_px / max(half_width, 1.0), 1.0, FRONTAL_MAX_STRETCH))
+
+
+def _cut_round(image: np.ndarray, wheels: list[Wheel], frontal: bool) -> tuple[np.ndarray, list[Wheel]]:
+    """The photograph cut round its largest marked wheel (CUT_MARGIN), with ``frontal``
+    stretched across so that its rim looks near-frontal (:func:`_frontal_stretch`), and the marks
+    moved with it."""
+    import cv2
+
+    wheel = max(wheels, key=lambda wh: wh.height_px)
+    x1, y1, x2, y2 = wheel.box
+    stretch = _frontal_stretch(wheel) if frontal else 1.0
+    margin = CUT_MARGIN * (y2 - y1)
     h, w = image.shape[:2]
     c0, r0 = int(max(0, x1 - margin)), int(max(0, y1 - margin))
     c1, r1 = int(min(w, x2 + margin)), int(min(h, y2 + margin))
