@@ -3,8 +3,8 @@
     .venv/bin/python bench/real_photos.py                     # all photos, markdown table
     .venv/bin/python bench/real_photos.py --split dev --per-photo
     .venv/bin/python bench/real_photos.py --data DIR --json out.json
-    .venv/bin/python bench/real_photos.py --perturb mirror       # or smaller, farther, nearer, rolled, frontal, darker, dark,
-                                                                 # contrast, flat, noisy, jpeg, blurred: as if other photos
+    .venv/bin/python bench/real_photos.py --perturb mirror       # or smaller, farther, nearer, rolled, cropped, frontal, darker,
+                                                                 # dark, contrast, flat, noisy, jpeg, blurred, linear: as if other photos
 
 The photographs are read from ``../shared/data/real-wheels`` (``--data``; never copied into the
 repository): ``images/NAME.jpg`` and ``annotations/NAME.json`` with, per marked wheel, its box
@@ -251,7 +251,7 @@ def perturbed(image: np.ndarray, wheels: list[Wheel], kind: str) -> tuple[np.nda
         noise = np.random.default_rng(0).normal(0.0, NOISE_GREY * top / 255.0, image.shape)
         return np.clip(image.astype(np.float32) + noise + 0.5, 0, top).astype(image.dtype), wheels
     if kind == "linear":  # as a machine-vision camera gives it: 16-bit grey proportional to light
-        light = (image.astype(np.float64) / 255.0) ** (1.0 / SRGB_GAMMA)
+        light = (image.astype(np.float64) / top) ** (1.0 / SRGB_GAMMA)
         return np.round(65535.0 * light).astype(np.uint16), wheels
     if kind == "jpeg":
         import cv2

@@ -227,16 +227,14 @@ def _stands_upright(det, name: str) -> None:
 
 
 def _one_smooth_contour(det, name: str) -> None:
-    """RimNotFound for an edge that is not one smooth curve: its points lie farther than
-    photo_search.MAX_EDGE_RMS_PX (robust rms) off their ellipse, as the photograph search
-    refuses. In a photograph the station's search may piece its contour from a steel wheel's
-    disc and flange or the tyre's bead and the lip; a lip's edge is one curve."""
-    from station.rim.photo_search import MAX_EDGE_RMS_PX
+    """RimNotFound for an edge that is not one smooth curve, as the photograph search refuses
+    (photo_search.rough_edge_verdict). In a photograph the station's search may piece its contour
+    from a steel wheel's disc and flange or the tyre's bead and the lip; a lip's edge is one curve."""
+    from station.rim.photo_search import rough_edge_verdict
 
-    if det.point_sigma_px > MAX_EDGE_RMS_PX:
-        raise RimNotFound(f"{name or 'image'}: not one smooth contour (the edge points lie {det.point_sigma_px:.1f} px "
-                          f"rms off their ellipse > {MAX_EDGE_RMS_PX:.1f})",
-                          hint="photograph the wheel in focus, the rim's whole edge in view")
+    why = rough_edge_verdict(det)
+    if why is not None:
+        raise RimNotFound(f"{name or 'image'}: {why}", hint="photograph the wheel in focus, the rim's whole edge in view")
 
 
 FILLED_FRAME = 0.25  # the station's search in a photograph: its rim at least this share of the smaller side

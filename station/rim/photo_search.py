@@ -399,6 +399,15 @@ def hidden_by(e: Ellipse, larger: list) -> Ellipse | None:
     return None
 
 
+def rough_edge_verdict(det) -> str | None:
+    """Why a detection's edge is not one smooth curve (its points farther than
+    ``MAX_EDGE_RMS_PX`` robust rms off their ellipse: a contour pieced from several), or None."""
+    if det.point_sigma_px > MAX_EDGE_RMS_PX:
+        return (f"not one smooth contour (the edge points lie {det.point_sigma_px:.1f} px rms off their ellipse "
+                f"> {MAX_EDGE_RMS_PX:.1f})")
+    return None
+
+
 def _after_refinement(det, e: Ellipse, L: np.ndarray, s: int, rubber_level: float) -> str | None:
     """Why a refined candidate is not the rim, or None: the edge left the candidate, holds on
     too little of it, or the tyre's structure fails round the refined ellipse."""
@@ -406,8 +415,5 @@ def _after_refinement(det, e: Ellipse, L: np.ndarray, s: int, rubber_level: floa
         return f"the sub-pixel edge left the candidate (now {where(det.ellipse)})"
     if det.coverage < MIN_COVERAGE:
         return f"no closed rim contour (sub-pixel edge on {det.coverage:.0%} of the perimeter)"
-    if det.point_sigma_px > MAX_EDGE_RMS_PX:
-        return (f"not one smooth contour (the edge points lie {det.point_sigma_px:.1f} px rms off their ellipse "
-                f"> {MAX_EDGE_RMS_PX:.1f})")
-    why = geometry_verdict(det.ellipse)
+    why = rough_edge_verdict(det) or geometry_verdict(det.ellipse)
     return why or structure_verdict(structure(L, det.ellipse.scaled(1 / s), rubber_level))
