@@ -23,7 +23,7 @@ from station.result import (ANGLE_NAMES, AxleResult, CameraDetection, Failure, M
                             WheelResult)
 from station.rim.camera_response import linear_images
 from station.rim.choice import DARK_RIM_NOTE
-from station.wheel.axle_rims import settle_axles
+from station.wheel.axle_rims import pair_from_partner, settle_axles
 from station.wheel.fit import WheelFit
 from station.wheel.pair import (FULL_VIEW_COVERAGE, TANGENT_GAP_DEG, WheelObservation, kept_fractions, measure_wheel,
                                 unverifiable_epipolar)
@@ -56,6 +56,7 @@ def measure_frames(images: dict[str, np.ndarray], cameras: dict[str, CameraModel
     t0 = time.perf_counter()
     images = linear_images(images, config)  # grey proportional to light, as the edge model takes it
     outcomes = _measure_wheels(images, cameras, config, workers, calibration_cov)
+    pair_from_partner(outcomes, images, cameras, config, calibration_cov)
     timing = {"wheels": time.perf_counter() - t0,
               "detect": sum(o.timing_s["detect"] for o in outcomes),
               "reconstruct": sum(o.timing_s["reconstruct"] for o in outcomes)}

@@ -1,5 +1,7 @@
 """The rims of an axle are one size: a wheel measured at another size than its axle partner
 took another contour; it is paired again at the partner's size, or the cycle is refused.
+A wheel whose two cameras found no one rim is paired again the same way, at another measured
+wheel's size and orientation (:func:`pair_from_partner`).
 (A rim a little off its partner's size is only warned of: station/wheel/rim_size.py.)
 """
 
@@ -7,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from calibration.station_frame import AXLE_PARTNER
+from calibration.station_frame import AXLE_PARTNER, SIDE, WHEELS
 from station.config import StationConfig
 from station.errors import MeasurementError, StationError
 from station.result import Failure, Measurement, WarningFlag
@@ -40,16 +42,16 @@ def _rescued_to_size(wheel: str, observations: dict, outcomes: list, images: dic
 
 def _carried_pair(wheel: str, cams: tuple[str, str], detection_sets: list[dict], images: dict, cameras: dict,
                   config: StationConfig, calibration_cov: np.ndarray | None, axis_station: np.ndarray,
-                  radius_m: float) -> tuple[WheelObservation, str] | None:
+                  radius_m: float, reference: str = "its axle partner") -> tuple[WheelObservation, str] | None:
     """A pair made of one camera's detection and the rim searched again in the other camera
     from where that detection, at ``radius_m`` and in a plane across ``axis_station``, must
     appear there (station/wheel/rim_transfer.py): the best such pair (by the weaker score) that is one
     3-D rim of that size, with a warning saying what was done; None if there is none. Tried from
-    each camera's detection in ``detection_sets`` (the first choices, the pairing taken).
-    For when one camera's search ended between the flange and the lip's inner edge (a dark
-    rim) and none of its candidates is the flange: carried from the other camera's first
-    choice, the simulated rim was found 0.1 px from the true one and the wheel's centre 0.2 mm
-    off."""
+    each camera's detection in ``detection_sets`` (the first choices, the pairing taken);
+    ``reference`` names whose size it is, for the warning. For when one camera's search ended
+    between the flange and the lip's inner edge (a dark rim) and none of its candidates is the
+    flange: carried from the other camera's first choice, the simulated rim was found 0.1 px
+    from the true one and the wheel's centre 0.2 mm off."""
     from station.rim.detector import refine_candidate
     from station.wheel.rim_transfer import carried_prior
 
@@ -79,7 +81,47 @@ def _carried_pair(wheel: str, cams: tuple[str, str], detection_sets: list[dict],
         return None
     _, o, src, dst = best
     return o, (f"{wheel} ({cams[0]}, {cams[1]}): the first choices were not the same rim; {dst}'s rim was searched "
-               f"again where {src}'s rim, at its axle partner's size, must appear")
+               f"again where {src}'s rim, at {reference}'s size, must appear")
+
+
+MIRROR_X = np.array([-1.0, 1.0, 1.0])  # the station's x runs across the car: its sides mirror in it
+
+
+def pair_from_partner(outcomes: list, images: dict, cameras: dict, config: StationConfig,
+                      calibration_cov: dict | None) -> None:
+    """Each wheel whose cameras found no one rim (``WheelOutcome.error``; each camera found some
+    contour), paired again with one camera's rim searched again in the other where, at the
+    size of a measured wheel's rim and in a plane across that wheel's axis (mirrored from the
+    other side), it must appear (:func:`_carried_pair`): its axle partner's, else its
+    neighbour's on the same side, else the diagonal one's, each wheel paired so counting as
+    measured for the next. A pair that passes every check, the size included, replaces the
+    error (its outcome gets the detections and a warning saying what was done); else the error
+    stands. For a camera whose edge, shaded or dirty on part of the lip, settled between two
+    contours (a dirty lip: 6 of its points on the pair's circle), or took another contour."""
+    measured = {o.wheel: o.observation for o in outcomes if o.observation is not None}
+    for o in sorted((o for o in outcomes if o.error is not None), key=lambda o: AXLE_PARTNER[o.wheel] not in measured):
+        if any(isinstance(d, StationError) for d in o.first_choices.values()):
+            continue
+        for ref in _references(o.wheel):
+            if ref not in measured:
+                continue
+            axis = measured[ref].circle.axis_station * (MIRROR_X if SIDE[ref] != SIDE[o.wheel] else 1.0)
+            found = _carried_pair(o.wheel, o.cams, [o.first_choices], images, cameras, config,
+                                  (calibration_cov or {}).get(o.wheel), axis, measured[ref].circle.radius_m, ref)
+            if found is None:
+                continue
+            o.observation, o.note = found
+            o.error = None
+            o.detections.update(dict(zip(o.cams, o.observation.detections)))
+            measured[o.wheel] = o.observation
+            break
+
+
+def _references(wheel: str) -> list[str]:
+    """The wheels whose rim ``wheel``'s is carried from, nearest first: its axle partner, its
+    neighbour on the same side, the diagonal one."""
+    same_side = next(w for w in WHEELS if w != wheel and SIDE[w] == SIDE[wheel])
+    return [AXLE_PARTNER[wheel], same_side, AXLE_PARTNER[same_side]]
 
 
 def settle_axles(result: Measurement, observations: dict, outcomes: list, images: dict, cameras: dict,
