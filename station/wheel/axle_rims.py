@@ -84,9 +84,6 @@ def _carried_pair(wheel: str, cams: tuple[str, str], detection_sets: list[dict],
                f"again where {src}'s rim, at {reference}'s size, must appear")
 
 
-MIRROR_X = np.array([-1.0, 1.0, 1.0])  # the station's x runs across the car: its sides mirror in it
-
-
 def pair_from_partner(outcomes: list, images: dict, cameras: dict, config: StationConfig,
                       calibration_cov: dict | None) -> None:
     """Each wheel whose cameras found no one rim (``WheelOutcome.error``; each camera found some
@@ -99,13 +96,13 @@ def pair_from_partner(outcomes: list, images: dict, cameras: dict, config: Stati
     stands. For a camera whose edge, shaded or dirty on part of the lip, settled between two
     contours (a dirty lip: 6 of its points on the pair's circle), or took another contour."""
     measured = {o.wheel: o.observation for o in outcomes if o.observation is not None}
+    # (an outcome has an error only where both cameras found a contour: station/wheel/pair.py)
     for o in sorted((o for o in outcomes if o.error is not None), key=lambda o: AXLE_PARTNER[o.wheel] not in measured):
-        if any(isinstance(d, StationError) for d in o.first_choices.values()):
-            continue
         for ref in _references(o.wheel):
             if ref not in measured:
                 continue
-            axis = measured[ref].circle.axis_station * (MIRROR_X if SIDE[ref] != SIDE[o.wheel] else 1.0)
+            # the station's x runs across the car: the other side's axis mirrors in it
+            axis = measured[ref].circle.axis_station * np.array([SIDE[ref] * SIDE[o.wheel], 1.0, 1.0])
             found = _carried_pair(o.wheel, o.cams, [o.first_choices], images, cameras, config,
                                   (calibration_cov or {}).get(o.wheel), axis, measured[ref].circle.radius_m, ref)
             if found is None:

@@ -145,7 +145,7 @@ def unverifiable_epipolar(o: WheelObservation, config: StationConfig) -> bool:
     view's edge points, and a camera saw no rim point within ``TANGENT_GAP_DEG`` of where an
     epipolar plane touches the rim: its tangent there is extrapolated. The pair is the same
     rim, but this cycle cannot check its calibration. (A wrong candidate that a circle fits on
-    a few of its points only - 6 % on a camera whose image was flipped, tests/test_measure.py -
+    a few of its points only - 6 % on a camera whose image was flipped, tests/test_measure_pairs.py -
     is not: a true rim that one camera saw on 68 % of its perimeter kept 48 %.) Where both
     cameras saw the tangent points, a residual this large is a moved camera, whatever else they
     missed: a camera knocked 6-15 px after calibration, its pair centred on the wheel, showed
