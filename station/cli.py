@@ -30,7 +30,7 @@ COMMANDS = {
     "calibrate": ("calibrate", "calibrate the eight cameras and four pairs with the calibration box"),
     "calibration": ("calibration_files", "import the calibration from OpenCV files, or export it to them"),
     "simulate": ("simulate", "render the simulated station with a random vehicle and save it as a replay set (+ truth)"),
-    "detect": ("detect", "find the rim ellipse in one photograph of a wheel (PNG or JPEG, colour or grey, any size)"),
+    "detect": ("detect", "find the rim ellipse in a photograph of a wheel, or in each of several or a folder (PNG, JPEG, ...)"),
     "box-print": ("box_print", "write the calibration box's faces as PNG images at true scale for manufacturing"),
     "cameras": ("cameras", "list the configured cameras and their state (open, model, serial, resolution, last frame)"),
     "capture": ("capture", "capture one synchronised set from all cameras and save it (lossless PNG + metadata)"),

@@ -2,6 +2,7 @@
 a non-zero exit, never a traceback."""
 
 import json
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -149,3 +150,53 @@ def test_an_underexposed_photograph_is_measured_and_named_dark(tmp_path, capsys)
     assert main(["detect", str(tmp_path / "dark-nowheel.png"), "--response-gamma", "0.45"]) != 0
     err = capsys.readouterr().err
     assert "A dark photograph, its brightest grey level 40 of 255" in err and "longer exposure" in err
+
+
+def test_a_folder_of_photographs_is_searched_image_by_image_with_a_summary(wheel, tmp_path, capsys):
+    """Several images (here a folder): a line per image, an unreadable one among them an error
+    line that does not stop the others, one JSON with every entry and the counts, a drawing per
+    rim found (two names alike kept apart), exit code 1 as one image had no rim."""
+    d, truth = wheel
+    folder = tmp_path / "photos"
+    folder.mkdir()
+    for name in ("wheel.png", "wheel.jpg"):
+        (folder / name).write_bytes((d / name).read_bytes())
+    data = (d / "wheel.png").read_bytes()
+    (folder / "cut.png").write_bytes(data[: len(data) // 2])
+    (folder / "notes.txt").write_text("not an image")
+    drawings = tmp_path / "drawn"
+    drawings.mkdir()
+    code = main(["detect", str(folder), "--json", str(tmp_path / "all.json"), "--draw", str(drawings)])
+    out = capsys.readouterr().out
+    assert code == 1
+    assert "3 images" in out and "1/3 cut.png: error 402: the PNG file is truncated" in out
+    assert "3/3 wheel.png: rim at (400.2, 300.6) px" in out
+    assert "3 of 3 images searched: 2 rims found, 1 not (error 402 x1)" in out
+    doc = json.loads((tmp_path / "all.json").read_text())
+    assert doc["summary"] == {"images": 3, "searched": 3, "found": 2, "not_found": {"402": 1}}
+    assert doc["interrupted"] is False
+    found = [e for e in doc["images"] if e["found"]]
+    assert [Path(e["image"]).name for e in found] == ["wheel.jpg", "wheel.png"]
+    for e in found:
+        np.testing.assert_allclose(e["ellipse"]["center_px"], truth.center_px, atol=0.1)
+    assert doc["images"][0]["error"]["code"] == 402 and doc["images"][0]["error"]["hint"]
+    assert sorted(p.name for p in drawings.iterdir()) == ["wheel.3.rim.png", "wheel.rim.png"]
+
+
+def test_several_images_each_with_a_rim_exit_zero(wheel, capsys):
+    d, _ = wheel
+    assert main(["detect", str(d / "wheel.png"), str(d / "wheel.jpg")]) == 0
+    assert "2 of 2 images searched: 2 rims found" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("case", ["empty folder", "drawing file"])
+def test_a_batch_that_cannot_start_says_why(wheel, tmp_path, capsys, case):
+    d, _ = wheel
+    (tmp_path / "empty").mkdir()
+    argv = (["detect", str(tmp_path / "empty")] if case == "empty folder"
+            else ["detect", str(d / "wheel.png"), str(d / "wheel.jpg"), "--draw", str(tmp_path / "one.png")])
+    code = main(argv)
+    captured = capsys.readouterr()
+    assert code != 0 and "images searched" not in captured.out
+    assert ("the folder holds no image" if case == "empty folder" else "the drawings go to a folder") in captured.err
+    assert "Traceback" not in captured.err

@@ -1,4 +1,5 @@
-"""`station detect IMAGE`: find the rim ellipse in one photograph of a wheel."""
+"""`station detect IMAGE...`: find the rim ellipse in a photograph of a wheel (several, or a
+folder of them: station/commands/detect_batch.py)."""
 
 from __future__ import annotations
 
@@ -18,10 +19,15 @@ SEARCHES = ("auto", "station", "photo")
 
 
 def add_arguments(parser):
-    parser.add_argument("image", metavar="IMAGE", help="the photograph (PNG, JPEG, BMP, TIFF)")
-    parser.add_argument("--json", metavar="PATH", help="write the detection as JSON to PATH ('-': stdout)")
+    parser.add_argument("image", metavar="IMAGE", nargs="+",
+                        help="the photograph (PNG, JPEG, BMP, TIFF); several, or a folder of them: one line each as "
+                             "it is searched, then a summary (exit code 1 if any has no rim found)")
+    parser.add_argument("--json", metavar="PATH",
+                        help="write the detection as JSON to PATH ('-': stdout); of several images, one document "
+                             "with every image's detection or error and the summary")
     parser.add_argument("--draw", metavar="OUT.png", type=drawing_path,
-                        help="draw the rim ellipse and its edge points on the image (.png, .jpg, .bmp, .tif, ...)")
+                        help="draw the rim ellipse and its edge points on the image (.png, .jpg, .bmp, .tif, ...); "
+                             "of several images, a folder: NAME.rim.png for each rim found")
     parser.add_argument("--search", choices=SEARCHES, default="auto",
                         help="auto (default): the station's search, and where it finds no rim the photograph search; "
                              "station: only the station's own search, as station measure runs it on its cameras' "
@@ -36,10 +42,11 @@ def add_arguments(parser):
 
 
 def drawing_path(text: str) -> str:
-    """--draw's path: its suffix must name a format OpenCV writes (checked before the detection)."""
+    """--draw's path: an existing folder (the drawings of several images), or a file whose suffix
+    names a format OpenCV writes (checked before the detection)."""
     import cv2
 
-    if not cv2.haveImageWriter(text):
+    if not Path(text).is_dir() and not cv2.haveImageWriter(text):
         suffix = Path(text).suffix
         raise argparse.ArgumentTypeError(
             f"cannot write a drawing to {text!r}: " + (f"no image format has the suffix {suffix!r}" if suffix
@@ -262,20 +269,31 @@ def _found_by(search: str, det):
     return det
 
 
+def detect_file(path: str | Path, gamma: float | None, equalization: str = "clahe", search: str = "auto"):
+    """(image as read, RimDetection, the response gamma used, seconds of search) of one image
+    file; ImageError / RimNotFound as ``read_image`` and ``detect_photograph`` raise them."""
+    image = read_image(path)
+    gamma = default_gamma(path) if gamma is None else gamma
+    t0 = time.perf_counter()
+    det = detect_photograph(image, gamma, Path(path).name, equalization, search)
+    return image, det, gamma, time.perf_counter() - t0
+
+
 def run(args) -> int:
+    from station.commands import detect_batch
+
     gamma = args.response_gamma
     if gamma is not None and not 0.2 <= gamma <= 5:
         raise ImageError(f"--response-gamma {gamma}: expected a value in [0.2, 5]",
                          hint="1 for a linear camera, about 0.45 for an sRGB photograph")
-    image = read_image(args.image)
-    if gamma is None:
-        gamma = default_gamma(args.image)
-    t0 = time.perf_counter()
-    det = detect_photograph(image, gamma, Path(args.image).name, args.equalization, args.search)
-    wall_ms = (time.perf_counter() - t0) * 1e3
+    if len(args.image) > 1 or Path(args.image[0]).is_dir():
+        return detect_batch.run(args, detect_batch.image_paths(args.image))
+    path = args.image[0]
+    image, det, gamma, seconds = detect_file(path, gamma, args.equalization, args.search)
+    wall_ms = seconds * 1e3
     e = det.ellipse
     std = np.sqrt(np.maximum(np.diag(det.ellipse_cov), 0))
-    print(f"rim ellipse in {args.image} ({image.shape[1]}x{image.shape[0]} px)")
+    print(f"rim ellipse in {path} ({image.shape[1]}x{image.shape[0]} px)")
     print(f"  centre      u = {e.center_px[0]:9.3f} px   v = {e.center_px[1]:9.3f} px   (+/- {std[0]:.3f}, {std[1]:.3f})")
     print(f"  semi-axes   a = {e.axes_px[0]:9.3f} px   b = {e.axes_px[1]:9.3f} px   (+/- {std[2]:.3f}, {std[3]:.3f})")
     print(f"  angle         {np.degrees(e.angle_rad):9.3f} deg  (b/a = {e.axes_px[1] / e.axes_px[0]:.4f})")
@@ -298,16 +316,30 @@ def run(args) -> int:
     print(f"  time          {wall_ms:9.1f} ms      (the whole search; the last sub-pixel fit's stages "
           f"{sum(det.timing_s.values()) * 1e3:.1f} ms)")
     if args.json:
-        doc = {"image": str(args.image), "width": int(image.shape[1]), "height": int(image.shape[0]),
-               "search": det.details.get("search", args.search), **det.to_dict()}
-        text = json.dumps(doc, indent=1)
-        if args.json == "-":
-            print(text)
-        else:
-            try:
-                Path(args.json).write_text(text)
-            except OSError as ex:
-                raise StorageError(f"{args.json}: cannot write the JSON ({ex.strerror})") from ex
+        write_json(args.json, detection_doc(path, image, det, args.search))
     if args.draw:
-        draw(image, det, args.draw)
+        draw(image, det, Path(args.draw) / drawing_name(Path(path)) if Path(args.draw).is_dir() else args.draw)
     return 0
+
+
+def detection_doc(path: str | Path, image: np.ndarray, det, search: str) -> dict:
+    """One image's detection as the JSON output has it."""
+    return {"image": str(path), "width": int(image.shape[1]), "height": int(image.shape[0]),
+            "search": det.details.get("search", search), **det.to_dict()}
+
+
+def drawing_name(path: Path) -> str:
+    """The drawing of ``path``'s rim in a --draw folder."""
+    return f"{path.stem}.rim.png"
+
+
+def write_json(target: str, doc) -> None:
+    """``doc`` as indented JSON to the file ``target``, or to stdout for '-'."""
+    text = json.dumps(doc, indent=1)
+    if target == "-":
+        print(text)
+        return
+    try:
+        Path(target).write_text(text)
+    except OSError as ex:
+        raise StorageError(f"{target}: cannot write the JSON ({ex.strerror})") from ex

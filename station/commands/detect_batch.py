@@ -1,0 +1,111 @@
+"""`station detect` on several photographs, or a folder of them: one line per image as it is
+searched, a summary, one JSON document and a drawing per rim found. An image that cannot be
+read or has no rim found is a line and an entry like any other; the rest go on. Interrupted
+(Ctrl-C), what was searched is still summarised and written."""
+
+from __future__ import annotations
+
+import sys
+from collections import Counter
+from pathlib import Path
+
+from station.commands.detect import detect_file, detection_doc, draw, drawing_name, write_json
+from station.errors import CODED_ERRORS, ImageError, sentence_without
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
+EXIT_SOME_NOT_FOUND = 1
+EXIT_INTERRUPTED = 130
+
+
+def image_paths(args: list[str]) -> list[Path]:
+    """The images named by ``args``: files as given (a missing one is that image's error), and
+    each folder's image files (by suffix, ``IMAGE_SUFFIXES``) in name order."""
+    paths = []
+    for text in args:
+        p = Path(text)
+        if not p.is_dir():
+            paths.append(p)
+            continue
+        found = sorted(q for q in p.iterdir() if q.is_file() and q.suffix.lower() in IMAGE_SUFFIXES)
+        if not found:
+            raise ImageError(f"{p}: the folder holds no image ({', '.join(IMAGE_SUFFIXES)})",
+                             hint="name the folder with the photographs, or the files themselves")
+        paths += found
+    return paths
+
+
+def _drawings_folder(draw_arg: str | None) -> Path | None:
+    if draw_arg is None:
+        return None
+    folder = Path(draw_arg)
+    if not folder.is_dir():
+        raise ImageError(f"--draw {draw_arg}: of several images the drawings go to a folder, and this is not one",
+                         hint="create the folder first, or give one image")
+    return folder
+
+
+def _error_entry(path: Path, error) -> dict:
+    return {"image": str(path), "found": False,
+            "error": {"code": error.code, "area": error.area, "message": str(error), "hint": error.hint}}
+
+
+def _sentence(path: Path, error) -> str:
+    """The error's sentence without the image's path or name it starts with (the line names it)."""
+    text = sentence_without(str(path), error)
+    return sentence_without(path.name, error) if text == str(error) else text
+
+
+def _found_line(det, seconds: float) -> str:
+    e = det.ellipse
+    a, b = e.axes_px
+    return (f"rim at ({e.center_px[0]:.1f}, {e.center_px[1]:.1f}) px, {2 * a:.0f} px high, b/a {b / a:.2f}, "
+            f"edge on {det.coverage:.0%} of it, {det.point_sigma_px:.2f} px rms, "
+            f"{det.details.get('search', '?')} search, {seconds:.2f} s")
+
+
+def summary(entries: list[dict], total: int) -> dict:
+    """Counts of ``entries`` (of ``total`` images): found, and not found by error code."""
+    codes = Counter(str(e["error"]["code"]) for e in entries if not e["found"])
+    return {"images": total, "searched": len(entries), "found": sum(e["found"] for e in entries),
+            "not_found": dict(sorted(codes.items()))}
+
+
+def run(args, paths: list[Path]) -> int:
+    """Search every image of ``paths`` as ``station detect`` searches one; exit code 0 when a rim
+    was found in each, ``EXIT_SOME_NOT_FOUND`` otherwise, ``EXIT_INTERRUPTED`` on Ctrl-C."""
+    folder = _drawings_folder(args.draw)
+    out = sys.stderr if args.json == "-" else sys.stdout  # the JSON alone on stdout
+    entries, drawn, interrupted = [], set(), False
+    width = len(str(len(paths)))
+    print(f"{len(paths)} images", file=out, flush=True)
+    try:
+        for i, path in enumerate(paths, 1):
+            head = f"{i:>{width}}/{len(paths)} {path.name}:"
+            try:
+                image, det, gamma, seconds = detect_file(path, args.response_gamma, args.equalization, args.search)
+            except CODED_ERRORS as e:
+                entries.append(_error_entry(path, e))
+                print(f"{head} error {e.code}: {_sentence(path, e)}", file=out, flush=True)
+                continue
+            entries.append({**detection_doc(path, image, det, args.search), "found": True,
+                            "response_gamma": gamma, "seconds": round(seconds, 3)})
+            print(f"{head} {_found_line(det, seconds)}", file=out, flush=True)
+            if folder is not None:
+                name = drawing_name(path)
+                if name in drawn:  # the same name from another folder: keep both
+                    name = f"{path.stem}.{i}.rim.png"
+                drawn.add(name)
+                draw(image, det, folder / name)
+    except KeyboardInterrupt:
+        interrupted = True
+    counts = summary(entries, len(paths))
+    not_found = ", ".join(f"error {code} x{n}" for code, n in counts["not_found"].items())
+    print(("interrupted: " if interrupted else "")
+          + f"{counts['searched']} of {len(paths)} images searched: {counts['found']} "
+          + ("rim found" if counts["found"] == 1 else "rims found")
+          + (f", {counts['searched'] - counts['found']} not ({not_found})" if not_found else ""), file=out, flush=True)
+    if args.json:
+        write_json(args.json, {"images": entries, "summary": counts, "interrupted": interrupted})
+    if interrupted:
+        return EXIT_INTERRUPTED
+    return 0 if counts["found"] == len(paths) else EXIT_SOME_NOT_FOUND
