@@ -200,3 +200,39 @@ def test_a_batch_that_cannot_start_says_why(wheel, tmp_path, capsys, case):
     assert code != 0 and "images searched" not in captured.out
     assert ("the folder holds no image" if case == "empty folder" else "the drawings go to a folder") in captured.err
     assert "Traceback" not in captured.err
+
+
+def _with_chunk(png: bytes, kind: bytes, data: bytes) -> bytes:
+    """``png`` with a chunk ``kind`` inserted after its header (IHDR: 8 + 25 bytes)."""
+    import zlib
+
+    chunk = len(data).to_bytes(4, "big") + kind + data + zlib.crc32(kind + data).to_bytes(4, "big")
+    return png[:33] + chunk + png[33:]
+
+
+@pytest.mark.parametrize("kind,data,expect", [
+    (b"sRGB", b"\x00", 0.45), (b"gAMA", (45455).to_bytes(4, "big"), 0.45455), (b"gAMA", (100000).to_bytes(4, "big"), 1.0),
+    (b"cICP", bytes([1, 13, 0, 1]), 0.45), (b"cICP", bytes([1, 8, 0, 1]), 1.0), (None, b"", 1.0),
+])
+def test_a_png_is_decoded_as_its_colour_chunk_says(tmp_path, kind, data, expect):
+    """A PNG says how its grey encodes light in its sRGB, gAMA, iCCP or cICP chunk (a photograph
+    saved as PNG is sRGB); without one it is taken as a machine-vision camera's linear grey."""
+    from station.commands.detect import default_gamma
+
+    ok, png = cv2.imencode(".png", np.full((8, 8), 100, np.uint8))
+    png = png.tobytes()
+    (tmp_path / "x.png").write_bytes(png if kind is None else _with_chunk(png, kind, data))
+    assert cv2.imread(str(tmp_path / "x.png"), cv2.IMREAD_UNCHANGED) is not None
+    assert default_gamma(tmp_path / "x.png") == pytest.approx(expect)
+
+
+def test_an_srgb_png_is_measured_as_srgb_without_being_told(tmp_path, capsys):
+    img, truth = render_wheel(WheelSpec(axis_ratio=0.9, rim_a_px=220, center_px=(400.2, 300.6), blur_sigma_px=1.2),
+                              shape=(640, 800), seed=22)
+    lut = np.round(255 * (np.arange(256) / 255) ** 0.45).astype(np.uint8)
+    ok, png = cv2.imencode(".png", lut[img])
+    (tmp_path / "srgb.png").write_bytes(_with_chunk(png.tobytes(), b"sRGB", b"\x00"))
+    assert main(["detect", str(tmp_path / "srgb.png"), "--json", str(tmp_path / "d.json")]) == 0
+    assert "from the PNG's sRGB chunk" in capsys.readouterr().out
+    doc = json.loads((tmp_path / "d.json").read_text())
+    assert np.abs(np.array(doc["ellipse"]["axes_px"]) - truth.axes_px).max() < 0.06

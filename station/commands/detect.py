@@ -38,7 +38,8 @@ def add_arguments(parser):
     parser.add_argument("--response-gamma", type=float, default=None, metavar="G",
                         help="the exponent the camera applied to light (grey = light^G), undone before the "
                              "sub-pixel edges: 1 for a linear machine-vision camera, about 0.45 for sRGB; "
-                             "default: 0.45 for a JPEG (a phone's or webcam's photograph), 1 for any other file")
+                             "default: 0.45 for a JPEG (a phone's or webcam's photograph), a PNG's as its sRGB, gAMA, "
+                             "iCCP or cICP chunk says, else 1 (a machine-vision camera's linear grey)")
 
 
 def drawing_path(text: str) -> str:
@@ -117,10 +118,50 @@ def draw(image: np.ndarray, det, path: str | Path) -> None:
 
 
 def default_gamma(path: str | Path) -> float:
-    """The response a file's grey levels are taken to have: a JPEG is a photograph's format,
-    sRGB-encoded (SRGB_GAMMA); any other file (a PNG may be a camera's raw grey) linear (1)."""
+    """The response a file's grey levels are taken to have (``file_response``)."""
+    return file_response(path)[0]
+
+
+def file_response(path: str | Path) -> tuple[float, str]:
+    """(gamma, where it comes from) of a file's grey levels, grey = light^gamma: a JPEG is a
+    photograph's format, sRGB-encoded (SRGB_GAMMA); a PNG as its colour chunks say (``png_response``),
+    linear (1) without one (a machine-vision camera's grey, as `station capture` writes it);
+    any other file linear."""
     with open(path, "rb") as f:
-        return SRGB_GAMMA if f.read(len(JPEG_MAGIC)) == JPEG_MAGIC else 1.0
+        head = f.read(1 << 16)
+    if head.startswith(JPEG_MAGIC):
+        return SRGB_GAMMA, "a JPEG: sRGB"
+    if head.startswith(PNG_MAGIC):
+        said = png_response(head)
+        if said is not None:
+            return said
+    return 1.0, "linear"
+
+
+def png_response(data: bytes) -> tuple[float, str] | None:
+    """(gamma, which chunk) that a PNG's colour chunks before its image data give, in the PNG
+    standard's precedence (cICP, iCCP, sRGB, gAMA), or None without any. cICP names its transfer
+    (8: linear, else sRGB-like); an ICC profile and the sRGB chunk mean sRGB's curve; gAMA holds
+    the encoding exponent x 100000."""
+    chunks, pos = {}, len(PNG_MAGIC)
+    while pos + 8 <= len(data):
+        length = int.from_bytes(data[pos:pos + 4], "big")
+        kind = data[pos + 4:pos + 8]
+        if kind in (b"IDAT", b"IEND"):
+            break
+        chunks.setdefault(kind, data[pos + 8:pos + 8 + length])
+        pos += 12 + length
+    if b"cICP" in chunks and len(chunks[b"cICP"]) >= 2:
+        return (1.0, "the PNG's cICP chunk: linear") if chunks[b"cICP"][1] == 8 else (SRGB_GAMMA, "the PNG's cICP chunk")
+    if b"iCCP" in chunks:
+        return SRGB_GAMMA, "the PNG's ICC profile"
+    if b"sRGB" in chunks:
+        return SRGB_GAMMA, "the PNG's sRGB chunk"
+    if b"gAMA" in chunks and len(chunks[b"gAMA"]) == 4:
+        g = int.from_bytes(chunks[b"gAMA"], "big") / 100000
+        if 0.2 <= g <= 5:
+            return g, "the PNG's gAMA chunk"
+    return None
 
 
 def detect_photograph(image: np.ndarray, gamma: float, name: str = "", equalization: str = "clahe",
@@ -270,12 +311,14 @@ def _found_by(search: str, det):
 
 
 def detect_file(path: str | Path, gamma: float | None, equalization: str = "clahe", search: str = "auto"):
-    """(image as read, RimDetection, the response gamma used, seconds of search) of one image
-    file; ImageError / RimNotFound as ``read_image`` and ``detect_photograph`` raise them."""
+    """(image as read, RimDetection, the response gamma used and where it came from, seconds of
+    search) of one image file; ImageError / RimNotFound as ``read_image`` and
+    ``detect_photograph`` raise them."""
     image = read_image(path)
-    gamma = default_gamma(path) if gamma is None else gamma
+    gamma, source = file_response(path) if gamma is None else (gamma, "--response-gamma")
     t0 = time.perf_counter()
     det = detect_photograph(image, gamma, Path(path).name, equalization, search)
+    det.details.update(response_gamma=gamma, response_from=source)
     return image, det, gamma, time.perf_counter() - t0
 
 
@@ -301,7 +344,8 @@ def run(args) -> int:
           f"rms {det.point_sigma_px:.3f} px, coverage {det.coverage:.0%}")
     print(f"  edge blur     {det.details.get('blur_px', float('nan')):9.2f} px (Gaussian sigma of the rim edge)")
     print(f"  search        {det.details.get('search', args.search):>9}      (--search: {args.search})")
-    print(f"  grey response {gamma:9.2f}      (grey = light^{gamma:.2f}, undone; --response-gamma to change)")
+    print(f"  grey response {gamma:9.2f}      (grey = light^{gamma:.2f}, undone; from {det.details['response_from']}; "
+          "--response-gamma to change)")
     if "exposure_gain" in det.details:
         print(f"  exposure gain {det.details['exposure_gain']:9.1f}      (a dark photograph: its light taken this much brighter)")
     white = det.details.get("white_share", 0.0)
@@ -325,7 +369,8 @@ def run(args) -> int:
 def detection_doc(path: str | Path, image: np.ndarray, det, search: str) -> dict:
     """One image's detection as the JSON output has it."""
     return {"image": str(path), "width": int(image.shape[1]), "height": int(image.shape[0]),
-            "search": det.details.get("search", search), **det.to_dict()}
+            "search": det.details.get("search", search), "response_gamma": det.details.get("response_gamma"),
+            "response_from": det.details.get("response_from"), **det.to_dict()}
 
 
 def drawing_name(path: Path) -> str:

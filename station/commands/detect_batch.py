@@ -82,13 +82,12 @@ def run(args, paths: list[Path]) -> int:
         for i, path in enumerate(paths, 1):
             head = f"{i:>{width}}/{len(paths)} {path.name}:"
             try:
-                image, det, gamma, seconds = detect_file(path, args.response_gamma, args.equalization, args.search)
+                image, det, _, seconds = detect_file(path, args.response_gamma, args.equalization, args.search)
             except CODED_ERRORS as e:
                 entries.append(_error_entry(path, e))
                 print(f"{head} error {e.code}: {_sentence(path, e)}", file=out, flush=True)
                 continue
-            entries.append({**detection_doc(path, image, det, args.search), "found": True,
-                            "response_gamma": gamma, "seconds": round(seconds, 3)})
+            entries.append({**detection_doc(path, image, det, args.search), "found": True, "seconds": round(seconds, 3)})
             print(f"{head} {_found_line(det, seconds)}", file=out, flush=True)
             if folder is not None:
                 name = drawing_name(path)
