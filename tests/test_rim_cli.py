@@ -236,3 +236,22 @@ def test_an_srgb_png_is_measured_as_srgb_without_being_told(tmp_path, capsys):
     assert "from the PNG's sRGB chunk" in capsys.readouterr().out
     doc = json.loads((tmp_path / "d.json").read_text())
     assert np.abs(np.array(doc["ellipse"]["axes_px"]) - truth.axes_px).max() < 0.06
+
+
+def test_a_jpeg_is_read_upright_as_its_exif_orientation_says(tmp_path):
+    """A phone stores a portrait photograph sideways with an EXIF orientation; read as stored,
+    its wheel lies on its side and the photograph search refuses it as not upright."""
+    import struct
+
+    from station.commands.detect import read_image
+
+    img = np.full((60, 100), 40, np.uint8)
+    img[:10] = 220  # the stored image's top rows
+    ok, jpg = cv2.imencode(".jpg", img)
+    tiff = b"II*\x00" + struct.pack("<I", 8) + struct.pack("<H", 1) + struct.pack("<HHIHH", 0x0112, 3, 1, 6, 0) + b"\0" * 4
+    app1 = b"Exif\x00\x00" + tiff  # orientation 6: shown turned 90 deg clockwise
+    jpg = jpg.tobytes()
+    (tmp_path / "portrait.jpg").write_bytes(jpg[:2] + b"\xff\xe1" + struct.pack(">H", len(app1) + 2) + app1 + jpg[2:])
+    image = read_image(tmp_path / "portrait.jpg")
+    assert image.shape == (100, 60)
+    assert image[:, -5:].mean() > 200 and image[:, :40].mean() < 60  # the stored top is now the right side

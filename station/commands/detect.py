@@ -56,8 +56,9 @@ def drawing_path(text: str) -> str:
 
 
 def read_image(path: str | Path) -> np.ndarray:
-    """Read an image file as it is stored (grey, BGR or 16-bit); ImageError for anything unusable,
-    including a truncated PNG or JPEG (which decoders otherwise half-decode silently)."""
+    """Read an image file as it is stored (grey, BGR or 16-bit; an alpha channel dropped), turned
+    upright as its EXIF orientation says; ImageError for anything unusable, including a truncated
+    PNG or JPEG (which decoders otherwise half-decode silently)."""
     import cv2
 
     path = Path(path)
@@ -78,14 +79,13 @@ def read_image(path: str | Path) -> np.ndarray:
         raise ImageError(f"{path}: the JPEG file is truncated (no end marker)",
                          hint="copy the image again; the file was cut short")
     try:
-        image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+        # any depth and colour as stored, turned as the EXIF orientation says (a phone's portrait photograph)
+        image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_ANYDEPTH | cv2.IMREAD_ANYCOLOR)
     except cv2.error as e:
         raise ImageError(f"{path}: cannot be decoded as an image ({e.err})") from e
     if image is None:
         raise ImageError(f"{path}: not a readable image (PNG, JPEG, BMP or TIFF expected)",
                          hint="check that the file is an image and not damaged")
-    if image.ndim == 3 and image.shape[2] == 4:
-        image = image[:, :, :3]
     return image
 
 
