@@ -142,7 +142,7 @@ def reason_of(message: str) -> str:
     return re.split(r"[(:]", text, maxsplit=1)[0].strip() + "".join(f", {w}" for w in named)
 
 
-PERTURBATIONS = ("none", "mirror", "smaller", "farther", "nearer", "rolled", "cropped", "frontal", "darker", "dark",
+PERTURBATIONS = ("none", "mirror", "smaller", "farther", "nearer", "larger", "rolled", "cropped", "frontal", "darker", "dark",
                  "contrast", "flat", "noisy", "jpeg", "blurred", "linear")
 ROLL_DEG = 8.0      # "rolled": the camera turned about its axis
 FRONTAL_RATIO = 0.9  # "frontal": the largest marked rim's axis ratio b/a after the stretch
@@ -199,7 +199,8 @@ def perturbed(image: np.ndarray, wheels: list[Wheel], kind: str) -> tuple[np.nda
     ``mirror`` (left and right swapped: the car seen from its other side), ``smaller`` (0.7 of
     the size: from farther away, some rims then under 100 px), ``farther`` (0.5 of the size: most
     rims under 100 px, too small to take), ``nearer`` (1.5 times the size: rims up to 1200 px,
-    the edges spread over more pixels), ``rolled`` (turned ROLL_DEG about the photo's centre:
+    the edges spread over more pixels), ``larger`` (2.3 times: some 6000 x 4700 px, a phone's
+    28 Mpx, rims up to 1800 px high, the edges blurred over 3-6 px), ``rolled`` (turned ROLL_DEG about the photo's centre:
     the camera held askew, every rim's major axis that far off the vertical), ``cropped`` (cut
     round the largest marked wheel, as a refusal's hint asks: :func:`_cut_round`), ``frontal``
     (cut so and stretched across until its rim looks near-frontal, as the station's own cameras
@@ -234,10 +235,10 @@ def perturbed(image: np.ndarray, wheels: list[Wheel], kind: str) -> tuple[np.nda
                 [Wheel(box(wh.box), moved(wh.rim_points), wh.height_px) for wh in wheels])
     if kind in ("cropped", "frontal"):
         return _cut_round(image, wheels, kind == "frontal")
-    if kind in ("smaller", "farther", "nearer"):
+    if kind in ("smaller", "farther", "nearer", "larger"):
         import cv2
 
-        f = {"smaller": 0.7, "farther": 0.5, "nearer": 1.5}[kind]
+        f = {"smaller": 0.7, "farther": 0.5, "nearer": 1.5, "larger": 2.3}[kind]
         return (cv2.resize(image, None, fx=f, fy=f, interpolation=cv2.INTER_AREA if f < 1 else cv2.INTER_CUBIC),
                 [Wheel(tuple(f * np.asarray(wh.box)), f * wh.rim_points, f * wh.height_px) for wh in wheels])
     if kind in ("darker", "dark"):

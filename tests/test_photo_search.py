@@ -240,3 +240,37 @@ def test_a_refusal_on_a_blurred_photograph_says_so():
     with pytest.raises(RimNotFound) as ex:
         detect_in_photo(img, camera_id="soft")
     assert "the photograph is blurred there (edge blur" in str(ex.value), ex.value
+
+
+def test_a_large_photograph_with_no_rim_found_is_searched_again_smaller(monkeypatch):
+    """A photograph over SEARCH_SIDE_PX where the search finds nothing (a phone's 28 Mpx: the lip's
+    edge spread over more pixels than the photograph search's limits allow) is searched again
+    shrunk by an integer factor, its rim returned in the full photograph's pixels. Here the
+    search at full size is made to fail; a station's search is never searched again."""
+    from station.commands import detect as detect_cmd
+
+    img, truth = _steep_wheel()
+    f = 3.5  # 2450 x 3150 px: searched again at half
+    big = cv2.resize(img.astype(np.float32), None, fx=f, fy=f, interpolation=cv2.INTER_CUBIC)
+    real = detect_cmd._searched_once
+    sizes = []
+
+    def failing_at_full_size(light, name, equalization, search):
+        sizes.append(max(light.shape[:2]))
+        if max(light.shape[:2]) > detect_cmd.SEARCH_SIDE_PX:
+            raise RimNotFound(f"{name}: nothing at full size")
+        return real(light, name, equalization, search)
+
+    monkeypatch.setattr(detect_cmd, "_searched_once", failing_at_full_size)
+    det = detect_cmd.detect_photograph(big, 1.0, "big")
+    assert sizes[0] == 3150 and sizes[1] == 3150 // 2
+    expected = Ellipse(truth.scaled(f).center_px + (f - 1) / 2, truth.axes_px * f, truth.angle_rad)  # pixel centres
+    assert np.linalg.norm(det.ellipse.center_px - expected.center_px) < 2.0
+    np.testing.assert_allclose(det.ellipse.axes_px, expected.axes_px, rtol=0.01)
+    assert np.abs(det.ellipse.distance(det.points_px)[0]).mean() < 1.5  # the edge points in full-size pixels too
+    with pytest.raises(RimNotFound, match="nothing at full size"):
+        detect_cmd.detect_photograph(big, 1.0, "big", search="station")
+    monkeypatch.setattr(detect_cmd, "_searched_once", lambda light, name, *a: (_ for _ in ()).throw(
+        RimNotFound(f"{name}: nothing at {max(light.shape[:2])} px")))
+    with pytest.raises(RimNotFound, match="nothing at 3150 px"):  # the full photograph's reason is given
+        detect_cmd.detect_photograph(big, 1.0, "big")

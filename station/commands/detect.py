@@ -186,7 +186,33 @@ def detect_photograph(image: np.ndarray, gamma: float, name: str = "", equalizat
                           hint="photograph the wheel with a longer exposure or more light") from None
 
 
+SEARCH_SIDE_PX = 3000  # a photograph larger than this is searched again smaller where nothing was found
+
+
 def _searched(light: np.ndarray, name: str, equalization: str, search: str):
+    """The rim ``search`` finds in ``light``, and where it finds none in a photograph larger than
+    ``SEARCH_SIDE_PX`` ("auto", "photo"), in the photograph shrunk below it by an integer factor
+    (area averages of light), in the full photograph's pixels. The photograph search's limits
+    (an edge within 1 px of one curve, blurred under 4 px) are set in the pixels of a 5-Mpx
+    photograph: in a 28-Mpx phone photograph the same lip's edge spreads over two or three
+    times as many pixels."""
+    from station.rim.detector import _rescaled
+    from station.rim.preprocess import downscale, to_grey
+
+    try:
+        return _searched_at(light, name, equalization, search)
+    except RimNotFound as e:
+        s = -(-max(light.shape[:2]) // SEARCH_SIDE_PX)
+        if search == "station" or s == 1:
+            raise
+        try:
+            det = _searched_at(downscale(to_grey(light, name), s), name, equalization, search)
+        except RimNotFound:
+            raise e from None
+        return _rescaled(det, s)
+
+
+def _searched_at(light: np.ndarray, name: str, equalization: str, search: str):
     """The rim ``search`` finds in ``light``; in a photograph ("auto", "photo") only where the
     same search finds it again in the photograph resized (station/rim/photo_stability.py)."""
     from station.rim.photo_search import where
