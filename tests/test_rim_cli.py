@@ -189,16 +189,20 @@ def test_several_images_each_with_a_rim_exit_zero(wheel, capsys):
     assert "2 of 2 images searched: 2 rims found" in capsys.readouterr().out
 
 
-@pytest.mark.parametrize("case", ["empty folder", "drawing file"])
-def test_a_batch_that_cannot_start_says_why(wheel, tmp_path, capsys, case):
+@pytest.mark.parametrize("case,expect", [("empty folder", "the folder holds no image"),
+                                         ("drawing file", "the drawings go to a folder"),
+                                         ("json in no folder", "cannot write the JSON")])
+def test_a_batch_that_cannot_start_says_why(wheel, tmp_path, capsys, case, expect):
     d, _ = wheel
     (tmp_path / "empty").mkdir()
-    argv = (["detect", str(tmp_path / "empty")] if case == "empty folder"
-            else ["detect", str(d / "wheel.png"), str(d / "wheel.jpg"), "--draw", str(tmp_path / "one.png")])
+    two = [str(d / "wheel.png"), str(d / "wheel.jpg")]
+    argv = {"empty folder": ["detect", str(tmp_path / "empty")],
+            "drawing file": ["detect", *two, "--draw", str(tmp_path / "one.png")],
+            "json in no folder": ["detect", *two, "--json", str(tmp_path / "no" / "all.json")]}[case]
     code = main(argv)
     captured = capsys.readouterr()
     assert code != 0 and "images searched" not in captured.out
-    assert ("the folder holds no image" if case == "empty folder" else "the drawings go to a folder") in captured.err
+    assert expect in captured.err
     assert "Traceback" not in captured.err
 
 

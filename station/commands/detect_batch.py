@@ -77,6 +77,8 @@ def run(args, paths: list[Path]) -> int:
     out = sys.stderr if args.json == "-" else sys.stdout  # the JSON alone on stdout
     entries, drawn, interrupted = [], set(), False
     width = len(str(len(paths)))
+    if args.json and args.json != "-":  # a JSON path that cannot be written is said before the search
+        write_json(args.json, {"images": [], "summary": summary([], len(paths)), "interrupted": False})
     print(f"{len(paths)} images", file=out, flush=True)
     try:
         for i, path in enumerate(paths, 1):
@@ -87,14 +89,20 @@ def run(args, paths: list[Path]) -> int:
                 entries.append(_error_entry(path, e))
                 print(f"{head} error {e.code}: {_sentence(path, e)}", file=out, flush=True)
                 continue
-            entries.append({**detection_doc(path, image, det, args.search), "found": True, "seconds": round(seconds, 3)})
-            print(f"{head} {_found_line(det, seconds)}", file=out, flush=True)
+            entry = {**detection_doc(path, image, det, args.search), "found": True, "seconds": round(seconds, 3)}
+            entries.append(entry)
+            line = f"{head} {_found_line(det, seconds)}"
             if folder is not None:
                 name = drawing_name(path)
                 if name in drawn:  # the same name from another folder: keep both
                     name = f"{path.stem}.{i}.rim.png"
                 drawn.add(name)
-                draw(image, det, folder / name)
+                try:
+                    draw(image, det, folder / name)
+                except ImageError as e:  # a full disk: the detection still counts and is written
+                    entry["drawing_error"] = str(e)
+                    line += f" (no drawing: {e})"
+            print(line, file=out, flush=True)
     except KeyboardInterrupt:
         interrupted = True
     counts = summary(entries, len(paths))
