@@ -24,7 +24,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from real_photos import DEFAULT_DATA, load_wheels  # noqa: E402
-from station.commands.detect import SEARCHES, default_gamma, detect_photograph, read_image  # noqa: E402
+from station.commands.detect_photograph import SEARCHES, detect_photograph  # noqa: E402
+from station.commands.photo_files import default_gamma, read_image  # noqa: E402
 from station.errors import StationError  # noqa: E402
 
 GROW = 0.15         # each marked wheel's box grown by this share of its size on every side

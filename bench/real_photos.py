@@ -10,7 +10,7 @@ The photographs are read from ``../shared/data/real-wheels`` (``--data``; never 
 repository): ``images/NAME.jpg`` and ``annotations/NAME.json`` with, per marked wheel, its box
 and keypoints 0 (top of the rim), 1 (bottom of the rim), 2 (the rim's near side), all on the
 rim's outer edge where it meets the tyre (README there). Each photo goes through exactly what
-``station detect PHOTO`` runs (``station.commands.detect``: read, the JPEG's sRGB response
+``station detect PHOTO`` runs (``station.commands.detect_photograph``: read, the JPEG's sRGB response
 undone, the detection), one photo at a time, on this process's one core.
 
 Definitions (per photo; ``station detect`` returns at most one rim):
@@ -53,7 +53,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from station.commands.detect import SRGB_GAMMA, default_gamma, detect_photograph, read_image  # noqa: E402
+from station.commands.detect_photograph import detect_photograph  # noqa: E402
+from station.commands.photo_files import SRGB_GAMMA, default_gamma, read_image  # noqa: E402
 from station.errors import StationError  # noqa: E402
 from station.rim.ellipse import Ellipse  # noqa: E402
 from station.rim.photo_stability import LARGER  # noqa: E402

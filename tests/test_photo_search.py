@@ -47,7 +47,7 @@ def test_steep_upright_wheel_in_clutter_is_found_on_its_lip():
 
 
 def test_the_station_path_is_the_station_search():
-    from station.commands.detect import detect_photograph
+    from station.commands.detect_photograph import detect_photograph
     from station.rim import detect_rim
 
     img, _ = render_wheel(WheelSpec(axis_ratio=0.88, rim_a_px=200, center_px=(400.2, 300.6)), shape=(640, 800),
@@ -59,7 +59,7 @@ def test_the_station_path_is_the_station_search():
 
 
 def test_station_detect_takes_the_station_search_first_then_the_photograph_search(tmp_path, capsys):
-    from station.commands.detect import detect_photograph
+    from station.commands.detect_photograph import detect_photograph
 
     near, _ = render_wheel(WheelSpec(axis_ratio=0.88, rim_a_px=200, center_px=(400.2, 300.6), angle_rad=UPRIGHT),
                            shape=(640, 800), seed=21)
@@ -83,7 +83,7 @@ def test_station_detect_takes_the_station_search_first_then_the_photograph_searc
 
 
 def test_station_detect_refuses_an_oval_lying_on_its_side_found_by_the_station_search():
-    from station.commands.detect import detect_photograph
+    from station.commands.detect_photograph import detect_photograph
 
     badge, _ = render_wheel(WheelSpec(axis_ratio=0.75, rim_a_px=200, center_px=(400.2, 300.6), angle_rad=0.0),
                             shape=(640, 800), seed=21)                       # a car's badge, not a wheel
@@ -99,7 +99,7 @@ def test_station_detect_refuses_a_ragged_contour_of_the_station_search():
     """A near-frontal wheel whose edge wobbles 1.7 px rms about its ellipse (a contour pieced
     from a steel wheel's disc and flange, a tyre's bead and the lip): the station's search takes
     it, ``station detect`` does not; the same wheel with a smooth edge it takes."""
-    from station.commands.detect import detect_photograph
+    from station.commands.detect_photograph import detect_photograph
 
     img, _ = render_wheel(WheelSpec(axis_ratio=0.9, rim_a_px=200, center_px=(400.2, 320.6), angle_rad=UPRIGHT),
                           shape=(640, 800), seed=21)
@@ -118,7 +118,7 @@ def test_station_detect_refuses_a_round_contour_of_the_station_search_that_does_
     in a photograph cut round the wheel): the station's search, made for a wheel filling the
     frame, takes it; ``station detect`` does not, and the photograph search refuses it as
     near-frontal. The same contour filling 28 % of a smaller photograph it takes."""
-    from station.commands.detect import detect_photograph
+    from station.commands.detect_photograph import detect_photograph
 
     small, _ = render_wheel(WheelSpec(axis_ratio=0.9, rim_a_px=70, center_px=(600.3, 500.6), angle_rad=UPRIGHT),
                             shape=(1000, 1200), seed=21)
@@ -247,7 +247,7 @@ def test_a_large_photograph_with_no_rim_found_is_searched_again_smaller(monkeypa
     edge spread over more pixels than the photograph search's limits allow) is searched again
     shrunk by an integer factor, its rim returned in the full photograph's pixels. Here the
     search at full size is made to fail; a station's search is never searched again."""
-    from station.commands import detect as detect_cmd
+    from station.commands import detect_photograph as detect_cmd
 
     img, truth = _steep_wheel()
     f = 3.5  # 2450 x 3150 px: searched again at half

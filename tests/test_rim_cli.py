@@ -96,7 +96,7 @@ def test_a_drawing_path_without_an_image_suffix_is_refused_before_detecting(whee
 
 
 def test_a_drawing_opencv_cannot_write_is_an_image_error(wheel, tmp_path):
-    from station.commands.detect import draw, read_image
+    from station.commands.photo_files import draw, read_image
     from station.errors import ImageError
     from station.rim import detect_rim
 
@@ -221,7 +221,7 @@ def _with_chunk(png: bytes, kind: bytes, data: bytes) -> bytes:
 def test_a_png_is_decoded_as_its_colour_chunk_says(tmp_path, kind, data, expect):
     """A PNG says how its grey encodes light in its sRGB, gAMA, iCCP or cICP chunk (a photograph
     saved as PNG is sRGB); without one it is taken as a machine-vision camera's linear grey."""
-    from station.commands.detect import default_gamma
+    from station.commands.photo_files import default_gamma
 
     ok, png = cv2.imencode(".png", np.full((8, 8), 100, np.uint8))
     png = png.tobytes()
@@ -247,7 +247,7 @@ def test_a_jpeg_is_read_upright_as_its_exif_orientation_says(tmp_path):
     its wheel lies on its side and the photograph search refuses it as not upright."""
     import struct
 
-    from station.commands.detect import read_image
+    from station.commands.photo_files import read_image
 
     img = np.full((60, 100), 40, np.uint8)
     img[:10] = 220  # the stored image's top rows

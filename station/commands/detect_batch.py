@@ -9,7 +9,8 @@ import sys
 from collections import Counter
 from pathlib import Path
 
-from station.commands.detect import detect_file, detection_doc, draw, drawing_name, write_json
+from station.commands.detect_photograph import detect_file
+from station.commands.photo_files import detection_doc, draw, drawing_name, write_json
 from station.errors import CODED_ERRORS, ImageError, sentence_without
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
