@@ -39,7 +39,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import re
 import sys
 
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):  # one core
@@ -53,11 +52,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from station.commands.detect_batch import refusal_kind  # noqa: E402
 from station.commands.detect_photograph import detect_photograph  # noqa: E402
 from station.commands.photo_files import SRGB_GAMMA, default_gamma, read_image  # noqa: E402
 from station.errors import StationError  # noqa: E402
 from station.rim.ellipse import Ellipse  # noqa: E402
-from station.rim.photo_stability import LARGER  # noqa: E402
 
 DEFAULT_DATA = ROOT.parent / "shared" / "data" / "real-wheels"
 DEV_COUNT = 40
@@ -126,21 +125,6 @@ def judge(ellipse: Ellipse, wheels: list[Wheel]) -> tuple[str, list[float]]:
         return "detected", [float(x) for x in best]
     on_wheel = any(w.contains(ellipse.center_px) for w in wheels)
     return ("wrong contour" if on_wheel else "wrong object"), []
-
-
-def reason_of(message: str) -> str:
-    """The kind of a refusal: the sentence after the photo's name, without its figures, and
-    whether it names the photograph blurred or dark."""
-    text = message.split(": ", 1)[-1]
-    if " is not sure: " in text:  # found, but not found again in the photograph resized
-        return "not sure: " + ("another ellipse" if ": another ellipse" in text else "not found again") + (
-            " at a larger size" if f" {LARGER:g} times" in text else " at a smaller size")
-    if "; the best candidate" in text:  # the photo search: what its best candidate was refused for
-        text = text.split("; the photograph is blurred", 1)[0].split(". A dark photograph", 1)[0].rsplit(": ", 1)[-1]
-    elif "; the photograph search: " in text:  # refused by both searches: the photograph search's reason
-        text = text.split("; the photograph search: ", 1)[1]
-    named = [w for w, key in (("blurred", "the photograph is blurred"), ("dark", "A dark photograph")) if key in message]
-    return re.split(r"[(:]", text, maxsplit=1)[0].strip() + "".join(f", {w}" for w in named)
 
 
 PERTURBATIONS = ("none", "mirror", "smaller", "farther", "nearer", "larger", "rolled", "cropped", "frontal", "darker", "dark",
@@ -273,7 +257,7 @@ def run_photo(image_path: Path, wheels: list[Wheel], gamma: float | None = None,
     try:
         image = read_image(image_path)
     except StationError as e:
-        return Outcome(name, "refused", reason=reason_of(str(e)))
+        return Outcome(name, "refused", reason=refusal_kind(str(e)))
     image, wheels = perturbed(image, wheels, perturbation)
     t0 = time.perf_counter()
     try:
@@ -281,7 +265,7 @@ def run_photo(image_path: Path, wheels: list[Wheel], gamma: float | None = None,
             gamma = 1.0 if perturbation == "linear" else default_gamma(image_path)
         det = detect_photograph(image, gamma, name, search=search)
     except StationError as e:
-        return Outcome(name, "refused", time.perf_counter() - t0, reason_of(str(e)))
+        return Outcome(name, "refused", time.perf_counter() - t0, refusal_kind(str(e)))
     seconds = time.perf_counter() - t0
     status, dist = judge(det.ellipse, wheels)
     return Outcome(name, status, seconds, distances_px=dist, ellipse=det.ellipse.to_dict())

@@ -173,7 +173,9 @@ def test_a_folder_of_photographs_is_searched_image_by_image_with_a_summary(wheel
     assert "3/3 wheel.png: rim at (400.2, 300.6) px" in out
     assert "3 of 3 images searched: 2 rims found, 1 not (error 402 x1)" in out
     doc = json.loads((tmp_path / "all.json").read_text())
-    assert doc["summary"] == {"images": 3, "searched": 3, "found": 2, "not_found": {"402": 1}}
+    assert doc["summary"] == {"images": 3, "searched": 3, "found": 2, "not_found": {"402": 1},
+                              "why_not": {"the PNG file is truncated": 1}}
+    assert "why not: the PNG file is truncated x1" in out
     assert doc["interrupted"] is False
     found = [e for e in doc["images"] if e["found"]]
     assert [Path(e["image"]).name for e in found] == ["wheel.jpg", "wheel.png"]
@@ -259,3 +261,20 @@ def test_a_jpeg_is_read_upright_as_its_exif_orientation_says(tmp_path):
     image = read_image(tmp_path / "portrait.jpg")
     assert image.shape == (100, 60)
     assert image[:, -5:].mean() > 200 and image[:, :40].mean() < 60  # the stored top is now the right side
+
+
+@pytest.mark.parametrize("message,kind", [
+    ("1_001.jpg: no rim found. The station's search: no closed rim contour (best candidate: 28% of its perimeter); "
+     "the photograph search: no rim taken; the best candidate at (31, 1132) px, 218 px high, b/a 0.29: no dark tyre "
+     "round it (rubber-dark on 44% of the turn < 50%)", "no dark tyre round it"),
+    ("big.jpg: no rim found. The station's search: no closed rim contour; the photograph search: no rim taken; the "
+     "best candidate at (4879, 1734) px, 1112 px high, b/a 0.38: not one smooth contour (the edge points lie 2.8 px rms "
+     "off their ellipse > 1.0); the photograph is blurred there (edge blur 4.9 px > 4)", "not one smooth contour, blurred"),
+    ("1_045.jpg: the rim at (2361, 783) px, 363 px high, b/a 0.44 is not sure: another ellipse in the photograph 0.75 "
+     "times the size (at (2363, 806) px, 399 px high, back at this size)", "not sure: another ellipse at a smaller size"),
+    ("/x/cut.png: the PNG file is truncated (no end chunk)", "the PNG file is truncated"),
+])
+def test_a_refusal_is_counted_by_its_kind_without_its_figures(message, kind):
+    from station.commands.detect_batch import refusal_kind
+
+    assert refusal_kind(message) == kind

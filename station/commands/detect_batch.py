@@ -5,6 +5,7 @@ read or has no rim found is a line and an entry like any other; the rest go on. 
 
 from __future__ import annotations
 
+import re
 import sys
 from collections import Counter
 from pathlib import Path
@@ -12,6 +13,7 @@ from pathlib import Path
 from station.commands.detect_photograph import detect_file
 from station.commands.photo_files import detection_doc, draw, drawing_name, write_json
 from station.errors import CODED_ERRORS, ImageError, sentence_without
+from station.rim.photo_stability import LARGER
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 EXIT_SOME_NOT_FOUND = 1
@@ -64,11 +66,32 @@ def _found_line(det, seconds: float) -> str:
             f"{det.details.get('search', '?')} search, {seconds:.2f} s")
 
 
+def refusal_kind(message: str) -> str:
+    """What kind of refusal ``message`` (a RimNotFound's or an ImageError's sentence) is: the
+    reason after the image's name without its figures (the photograph search's for its best
+    candidate, where both searches refused), and whether it names the photograph blurred or
+    dark. "no dark tyre round it", "not one smooth contour, blurred", "not sure: another
+    ellipse at a smaller size", ..."""
+    text = message.split(": ", 1)[-1]
+    if " is not sure: " in text:  # found, but not found again in the photograph resized
+        return "not sure: " + ("another ellipse" if ": another ellipse" in text else "not found again") + (
+            " at a larger size" if f" {LARGER:g} times" in text else " at a smaller size")
+    if "; the best candidate" in text:  # the photo search: what its best candidate was refused for
+        text = text.split("; the photograph is blurred", 1)[0].split(". A dark photograph", 1)[0].rsplit(": ", 1)[-1]
+    elif "; the photograph search: " in text:  # refused by both searches: the photograph search's reason
+        text = text.split("; the photograph search: ", 1)[1]
+    named = [w for w, key in (("blurred", "the photograph is blurred"), ("dark", "A dark photograph")) if key in message]
+    return re.split(r"[(:]", text, maxsplit=1)[0].strip() + "".join(f", {w}" for w in named)
+
+
 def summary(entries: list[dict], total: int) -> dict:
-    """Counts of ``entries`` (of ``total`` images): found, and not found by error code."""
-    codes = Counter(str(e["error"]["code"]) for e in entries if not e["found"])
-    return {"images": total, "searched": len(entries), "found": sum(e["found"] for e in entries),
-            "not_found": dict(sorted(codes.items()))}
+    """Counts of ``entries`` (of ``total`` images): found, and not found by error code and by
+    the kind of refusal (``refusal_kind``)."""
+    missed = [e for e in entries if not e["found"]]
+    codes = Counter(str(e["error"]["code"]) for e in missed)
+    kinds = Counter(refusal_kind(e["error"]["message"]) for e in missed)
+    return {"images": total, "searched": len(entries), "found": len(entries) - len(missed),
+            "not_found": dict(sorted(codes.items())), "why_not": dict(kinds.most_common())}
 
 
 def run(args, paths: list[Path]) -> int:
@@ -112,6 +135,8 @@ def run(args, paths: list[Path]) -> int:
           + f"{counts['searched']} of {len(paths)} images searched: {counts['found']} "
           + ("rim found" if counts["found"] == 1 else "rims found")
           + (f", {counts['searched'] - counts['found']} not ({not_found})" if not_found else ""), file=out, flush=True)
+    if counts["why_not"]:
+        print("why not: " + "; ".join(f"{kind} x{n}" for kind, n in counts["why_not"].items()), file=out, flush=True)
     if args.json:
         write_json(args.json, {"images": entries, "summary": counts, "interrupted": interrupted})
     if interrupted:
