@@ -1,6 +1,6 @@
 """SimCamera: a camera of the simulated station, behind the same interface as real ones.
 
-URI: ``sim://camN[?line=K&fps=F]``. The simulated station comes from the driver context
+URI: ``sim://camN[?line=K&fps=F&gamma=G]``. The simulated station comes from the driver context
 (``context.simulation``, a simulators.sim_station.SimulatedStation); the camera renders
 ``world.render(camN, rng)`` of its world's current scene. Trigger modes behave as on the station:
 
@@ -10,7 +10,9 @@ URI: ``sim://camN[?line=K&fps=F]``. The simulated station comes from the driver 
 - free-run: a frame every 1/F s (default 10 fps), stamped on that grid.
 
 The exposure the camera was opened with sees the world's lighting; a later ``configure
-(exposure_us=...)`` scales the light by the ratio (the read noise stays).
+(exposure_us=...)`` scales the light by the ratio (the read noise stays). ``gamma`` G < 1
+encodes the grey as an sRGB webcam does, grey = 255 (light / 255)^G, noise and all (default 1:
+linear, as a machine-vision camera's).
 
 Frames are deterministic: frame n of camera camN is rendered with the noise stream
 ``default_rng([seed, N, n])``, seed = the simulated station's (default the station seed),
@@ -45,6 +47,9 @@ class SimCamera(Camera):
         self.index = int(m.group(1)) if m else 0
         self.line = int(opts.get("line", max(self.index - 1, 0)))
         self.fps = float(opts.get("fps", 10.0))
+        self.gamma = float(opts.get("gamma", 1.0))
+        if not 0.2 <= self.gamma <= 5:
+            raise DriverError(f"{camera_id}: {uri}: gamma {self.gamma:g} out of [0.2, 5]")
         self.world = None
         self.lines = None
         self._n = 0  # frames rendered since open
@@ -119,6 +124,8 @@ class SimCamera(Camera):
         rng = np.random.default_rng([self.seed, self.index, n])
         s = self.settings
         image = self.world.render(self.sim_id, rng, exposure=s.exposure_us / self._exposure_us)
+        if self.gamma != 1.0:
+            image = np.rint(255.0 * (image / 255.0) ** self.gamma).astype(np.uint8)
         if s.roi:
             x, y, w, h = s.roi
             image = image[y:y + h, x:x + w]
