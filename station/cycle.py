@@ -24,6 +24,7 @@ from drivers.context import DriverContext
 from drivers.registry import build_context
 from station.capture.cameras import close_cameras, open_station_cameras, open_trigger_board
 from station.capture.exposure_bracket import measure_bracketed
+from station.capture.linearity import response_warnings
 from station.capture.saving import capture_and_keep, keep_capture, new_cycle_id, remove_unfinished_captures
 from station.capture.sync import capture_averaged
 from station.compute.workers import WorkerPool, default_workers
@@ -338,6 +339,8 @@ class Station:
                                                     lambda ids, factor: self._retake(cycle, ids, factor, retake_failed),
                                                     steps)
         result.warnings += retake_failed
+        for cid, text in response_warnings(frames, self.config):  # a camera's grey not proportional to light
+            result.warn(text, WarningFlag("response", self.config.cameras[cid].wheel, camera=cid))
         self._stamp(result, cycle)
         result.timing_s["capture"] = t_capture
         result.captures_dir = cycle.captures_dir

@@ -79,7 +79,7 @@ def trigger(client, job, command=CASTER):
 
 def test_dry_run_sweeps_through_the_steer_state_with_the_plc_simulator(station):
     bg, client, _ = station(dry_run_runner(10, delay_s=0.15, reading_s=0.03))  # each capture 0.15 s
-    assert block(client)["map_version"] == 6
+    assert block(client)["map_version"] == rm.MAP_VERSION
     seen = []
     sim = PlcSimulator(client, on_steer=seen.append)
     expect = dry_run_expectation(10)
@@ -377,7 +377,7 @@ def test_mbpoll_follows_a_steering_sweep(station):
     for i, w in enumerate(FRONT):
         assert signed(ints[255 + i]) == round(want.steering.wheels[w].kingpin_offset_m * 1000 * 100), w
     status = parse(mbpoll(target + ["-r", "100", "-c", "13", "127.0.0.1"]).stdout)
-    assert status[104] == "1" and status[105] == str(CASTER) and status[106] == "501" and status[112] == "6"
+    assert status[104] == "1" and status[105] == str(CASTER) and status[106] == "501" and status[112] == str(rm.MAP_VERSION)
     assert mbpoll(target + ["-r", "0", "127.0.0.1"], ACK).returncode == 0
 
 

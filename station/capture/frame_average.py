@@ -36,15 +36,50 @@ def mean_image(images: Sequence[np.ndarray]) -> np.ndarray:
     return np.rint(total * (scale / len(images))).astype(np.uint16)
 
 
+NOISE_KEY = "noise_by_level"  # a burst's temporal noise by grey level (station/capture/linearity.py)
+NOISE_MIN_FRAMES = 3          # fewer frames tell too little of each pixel's noise
+NOISE_BINS = 16               # grey-level bins over the camera's full scale
+NOISE_MIN_PIXELS = 200        # a bin's pixels (of the subsampled grid) for its noise to count
+NOISE_SAMPLE_PIXELS = 80_000  # pixels on the grid the noise is read on (a 1.3-Mpx frame: every 4th)
+
+
+def noise_by_level(images: Sequence[np.ndarray]) -> list[list[float]]:
+    """[[level, std], ...] of a burst of N >= NOISE_MIN_FRAMES (H,W) frames of one camera: each
+    pixel's temporal standard deviation over the burst (on a grid of about NOISE_SAMPLE_PIXELS),
+    by its mean grey level in NOISE_BINS bins of the full scale, the bin's median level and
+    median std, on the 16-bit scale of ``mean_image``; bins of too few pixels left out. The
+    scene stands still during a burst, so what varies from frame to frame is the sensor's
+    noise: how it goes with the light tells whether the grey is proportional to light."""
+    scale = SCALE_8_TO_16 if images[0].dtype == np.uint8 else 1
+    step = max(1, round(float(np.sqrt(images[0].size / NOISE_SAMPLE_PIXELS))))
+    stack = np.stack([im[::step, ::step] for im in images]).astype(np.float32)   # (N, h, w)
+    mean = stack.mean(axis=0).ravel() * scale
+    std = stack.std(axis=0, ddof=1).ravel() * scale
+    bins = np.minimum((mean / 65535.0 * NOISE_BINS).astype(int), NOISE_BINS - 1)   # (P,) of the 16-bit scale
+    order = np.argsort(bins, kind="stable")
+    bounds = np.searchsorted(bins[order], np.arange(NOISE_BINS + 1))
+    out = []
+    for b in range(NOISE_BINS):
+        idx = order[bounds[b]:bounds[b + 1]]
+        if len(idx) >= NOISE_MIN_PIXELS:
+            out.append([round(float(np.median(mean[idx])), 2), round(float(np.median(std[idx])), 3)])
+    return out
+
+
 def averaged_frames(bursts: Sequence[dict[str, Frame]]) -> dict[str, Frame]:
     """[{camera id: Frame}, ...] of N synchronised sets -> {camera id: Frame} whose image is the
     mean of the camera's N frames (mean_image); timestamp and frame id of its first frame,
-    its metadata plus ``averaged_frames`` (N), the N frame ids and the burst's duration."""
+    its metadata plus ``averaged_frames`` (N), the N frame ids, the burst's duration and, of
+    NOISE_MIN_FRAMES or more, the noise by grey level (``noise_by_level``)."""
     out = {}
     for cam_id, first in bursts[0].items():
         frames = [b[cam_id] for b in bursts]
         md = dict(first.metadata)
         md.update({AVERAGED_FRAMES_KEY: len(frames), "burst_frame_ids": [int(f.frame_id) for f in frames],
                    "burst_ms": round((frames[-1].timestamp_ns - first.timestamp_ns) / 1e6, 3)})
-        out[cam_id] = Frame(cam_id, mean_image([f.image for f in frames]), first.timestamp_ns, first.frame_id, md)
+        images = [f.image for f in frames]
+        mean = mean_image(images)  # checks the frames alike first
+        if len(images) >= NOISE_MIN_FRAMES:
+            md[NOISE_KEY] = noise_by_level(images)
+        out[cam_id] = Frame(cam_id, mean, first.timestamp_ns, first.frame_id, md)
     return out

@@ -50,7 +50,7 @@ COMMANDS = {0: "none", 1: "measure", 2: "calibration_check", 3: "reset_fault", 4
 COMMAND_CODES = {name: code for code, name in COMMANDS.items()}
 STATES = {0: "idle", 1: "busy", 2: "done", 3: "fault", 4: "roll", 5: "steer"}
 STATE_CODES = {name: code for code, name in STATES.items()}
-MAP_VERSION = 6  # 2: warning_bits (113) added; 3: station_warning_bits (114), and bit 15 of
+MAP_VERSION = 7  # 2: warning_bits (113) added; 3: station_warning_bits (114), and bit 15 of
                  # warning_bits is RR's runner-up alone (it also meant "any warning" in 2);
                  # 4: bit 4 of station_warning_bits (a rim another size than its axle partner's);
                  # 5: runout compensation (issue 32): command 5 measure compensated, command 6 in
@@ -59,14 +59,15 @@ MAP_VERSION = 6  # 2: warning_bits (113) added; 3: station_warning_bits (114), a
                  # 6: the steering sweep (issue 33): command 7 measure caster, state 5 steer, the
                  # steer prompt and the front wheels' live steer angle 225..231, steering_valid and
                  # each front wheel's caster, SAI, included angle and kingpin offset 232..256 (a
-                 # second read, STEER_BLOCK: 100..224 stays one read); nothing moved
+                 # second read, STEER_BLOCK: 100..224 stays one read); nothing moved;
+                 # 7: bit 5 of station_warning_bits (a camera's grey not proportional to light)
 # bits of warning_bits: (first bit, kind of the result's warning_flags); bit first + i for wheel i
 # of WHEELS (FL, FR, RL, RR)
 WARNING_KINDS = ((0, "uncertain"), (4, "drift"), (8, "unchecked"), (12, "runner_up"))
 # bits of station_warning_bits: any warning at all, the kinds of the cameras' own warnings, and
 # a wheel whose rim came out another size than its axle partner's (the texts name them)
 ANY_WARNING_BIT = 0
-STATION_WARNING_KINDS = ((1, "exposure"), (2, "focus"), (3, "small_rim"), (4, "rim_size"))
+STATION_WARNING_KINDS = ((1, "exposure"), (2, "focus"), (3, "small_rim"), (4, "rim_size"), (5, "response"))
 
 
 @dataclass(frozen=True)
