@@ -101,3 +101,23 @@ def test_tables_show_every_camera_parameter_std_and_pair(capsys):
     assert all(f"cam{i} " in out for i in range(1, 9))
     assert "standard deviations" in out and "k3" in out
     assert "FR    cam1  cam2" in out
+
+
+def test_a_camera_whose_grey_is_not_linear_is_named_while_calibrating(tmp_path, monkeypatch, capsys):
+    """The box's bursts show a camera encoding sRGB as they show it in a cycle (tests/test_linearity.py):
+    its corners would hold, its rims will not, so calibrate says so once, as soon as it sees it."""
+    from simulators import world as world_mod
+
+    ramp = np.tile(np.linspace(20, 230, 1280, dtype=np.float32), (1024, 1))
+
+    def render(self, cam_id, rng=None, scene=None, exposure=1.0):
+        return np.clip(np.rint(ramp + rng.standard_normal(ramp.shape, dtype=np.float32) * 2), 0, 255).astype(np.uint8)
+    monkeypatch.setattr(world_mod.SimWorld, "render", render)
+
+    def edit(raw):
+        raw["capture"].update(frames_averaged=4)
+        raw["cameras"]["cam3"]["uri"] = "sim://cam3?gamma=0.45"
+    assert cli.main(["--config", str(_config_copy(tmp_path, edit)), "calibrate", "--poses", "3"]) != 0  # no box
+    err = capsys.readouterr().err
+    assert err.count("warning: cam3: its noise falls as its light grows") == 1
+    assert "cam4: its noise" not in err and "Traceback" not in err

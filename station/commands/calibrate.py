@@ -36,6 +36,7 @@ def run(args) -> int:
     from calibration.station_calibration import assemble, calibrate_pair, check_limits, fixture_poses
     from drivers.registry import build_context
     from station.capture.cameras import close_cameras, open_station_cameras
+    from station.capture.linearity import response_warnings
     from station.capture.sync import capture_averaged
     from station.operator import TerminalOperator
 
@@ -61,9 +62,15 @@ def run(args) -> int:
     # so the corners carry 1/sqrt(N) of one frame's noise into every camera's pose and lens.
     n_frames = config.capture.frames_averaged
 
+    warned = set()  # cameras whose grey is not proportional to light, said once each
+
     def take(cam_ids, what):
         out = {}
         frames = capture_averaged({c: cameras[c] for c in cam_ids}, timeout, frames=n_frames)
+        for cam, text in response_warnings(frames, config):  # the corners hold; the rims will not
+            if cam not in warned:
+                warned.add(cam)
+                _progress(f"warning: {text}")
         for cam in cam_ids:
             det = detector.detect(frames[cam].image)
             _progress(f"{cam}: {what}: {det.n_points} corners on faces {', '.join(det.faces) or 'none'}")
