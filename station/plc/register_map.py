@@ -196,7 +196,8 @@ STATION_FIELDS = [
           "at all; bits 1-3 a camera's own: 1 its rim edge reaches the sensor's white (shorten the "
           "exposure), 2 its rim edge is blurred (refocus), 3 its rim is too small in the image (the "
           "texts name the camera); 4 a wheel's rim came out another size than its axle partner's (its "
-          "angles may be off: the texts name the wheel)"),
+          "angles may be off: the texts name the wheel); 5 a camera's grey is not proportional to light as "
+          "configured (a gamma or LUT on: the texts name the camera)"),
     Field("roll_step", 115, "u16", 1, "in state roll: the roll the station waits for, 1..roll_steps; 0 in "
           "any other state"),
     Field("roll_steps", 116, "u16", 1, "in state roll: the rolls of the whole procedure (5); 0 in any other "
