@@ -84,3 +84,23 @@ def test_a_simulated_srgb_camera_read_as_linear_is_named_until_it_is_configured(
     assert result_station_warning_bits(result) == (1 << rm.ANY_WARNING_BIT) | (1 << 5)
     for cam in cams.values():
         cam.close()
+
+
+def test_the_screens_camera_check_names_a_camera_whose_grey_is_not_linear(tmp_path, monkeypatch):
+    """The Cameras page's check takes a burst of NOISE_MIN_FRAMES and adds the same warning to
+    that camera's own (the rims are not looked for here: the measurement is a stand-in)."""
+    from types import SimpleNamespace
+
+    from station.ui import camera_check
+
+    config = station_config(tmp_path, {"cam3": "sim://cam3?gamma=0.45"}, width=256, height=192)
+    cams = open_station_cameras(config, SimulatedStation(CleanWorld(256, 192)).context())
+    monkeypatch.setattr(camera_check, "measure_frames", lambda images, *a, **k: Measurement(station="x"))
+    station = SimpleNamespace(config=config, cameras=cams, timeout_s=3.0, trigger_board=None, models={},
+                              workers=None, calibration=SimpleNamespace(pair_covariance=None))
+    pngs, summary = camera_check.check_cameras(station, lambda text: None)
+    warnings = {cid: c["warnings"] for cid, c in summary["cameras"].items()}
+    assert len(warnings["cam3"]) == 1 and "its noise falls as its light grows" in warnings["cam3"][0]
+    assert not any(w for cid, w in warnings.items() if cid != "cam3") and set(pngs) == set(IDS)
+    for cam in cams.values():
+        cam.close()

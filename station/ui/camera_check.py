@@ -1,5 +1,7 @@
-"""The Cameras page's check: one capture of every camera, the rim each found drawn over its image,
-and each camera's exposure, focus and rim-size warnings (as ``station measure`` gives them).
+"""The Cameras page's check: one capture of every camera (a burst of NOISE_MIN_FRAMES, averaged),
+the rim each found drawn over its image, and each camera's exposure, focus and rim-size warnings
+(as ``station measure`` gives them) and whether its grey is proportional to light (its burst's
+noise, station/capture/linearity.py).
 
 Nothing is kept: no frames on disk, no history row; it is for setting up and service.
 """
@@ -10,6 +12,8 @@ from typing import Callable
 
 import numpy as np
 
+from station.capture.frame_average import NOISE_MIN_FRAMES
+from station.capture.linearity import response_warnings
 from station.capture.sync import capture_averaged
 from station.measure import measure_frames
 
@@ -48,8 +52,9 @@ def overlay_png(image: np.ndarray, points_px: np.ndarray | None) -> bytes:
 def check_cameras(station, show: Callable[[str], None]) -> tuple[dict, dict]:
     """({camera id: PNG bytes}, summary {cameras: {id: {wheel, ok, reason, warnings}}, warnings})."""
     cfg = station.config
-    show(f"capturing {len(station.cameras)} cameras once")
-    frames = capture_averaged(station.cameras, station.timeout_s, station.trigger_board, frames=1)
+    show(f"capturing {len(station.cameras)} cameras once ({NOISE_MIN_FRAMES} frames each)")
+    frames = capture_averaged(station.cameras, station.timeout_s, station.trigger_board, frames=NOISE_MIN_FRAMES)
+    not_linear = dict(response_warnings(frames, cfg))
     images = {c: f.image for c, f in frames.items()}
     show("finding the rim in every image")
     result = measure_frames(images, station.models, cfg, workers=station.workers,
@@ -63,6 +68,7 @@ def check_cameras(station, show: Callable[[str], None]) -> tuple[dict, dict]:
         if cid in images:
             pngs[cid] = overlay_png(images[cid], pts)
         warnings = [f.text for f in result.warning_flags if f.camera == cid and f.kind in CAMERA_WARNINGS]
+        warnings += [not_linear[cid]] if cid in not_linear else []
         cams[cid] = {"wheel": cfg.cameras[cid].wheel, "ok": bool(det and det.ok),
                      "reason": None if det is None else det.reason,
                      "rim_axes_px": None if not (det and det.ok) else [round(x, 1) for x in det.axes_px],
