@@ -21,6 +21,7 @@ from drivers.base import AVERAGED_FRAMES_KEY, Frame
 from drivers.errors import FrameError
 
 SCALE_8_TO_16 = 257  # 65535 / 255
+FULL_SCALE_16 = 255 * SCALE_8_TO_16  # the 16-bit scale means and their noise are kept on
 
 
 def mean_image(images: Sequence[np.ndarray]) -> np.ndarray:
@@ -55,7 +56,7 @@ def noise_by_level(images: Sequence[np.ndarray]) -> list[list[float]]:
     stack = np.stack([im[::step, ::step] for im in images]).astype(np.float32)   # (N, h, w)
     mean = stack.mean(axis=0).ravel() * scale
     std = stack.std(axis=0, ddof=1).ravel() * scale
-    bins = np.minimum((mean / 65535.0 * NOISE_BINS).astype(int), NOISE_BINS - 1)   # (P,) of the 16-bit scale
+    bins = np.minimum((mean / FULL_SCALE_16 * NOISE_BINS).astype(int), NOISE_BINS - 1)   # (P,)
     order = np.argsort(bins, kind="stable")
     bounds = np.searchsorted(bins[order], np.arange(NOISE_BINS + 1))
     out = []

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from station.capture.frame_average import NOISE_KEY, SCALE_8_TO_16
+from station.capture.frame_average import FULL_SCALE_16, NOISE_KEY, SCALE_8_TO_16
 
 LEVELS = (0.04, 0.9)     # of full scale: the bins judged (clipped at black, near the white)
 MIN_STD_GREY = 0.6       # a bin's noise at least this (8-bit grey levels): below, quantisation is most of it
@@ -32,15 +32,14 @@ def noise_slope(noise_by_level: list, response_gamma: float) -> float | None:
     """The slope of log(noise) against log(light) over the bins ``noise_by_level`` ([[level,
     std], ...] on the 16-bit scale) with ``response_gamma`` undone, or None where too few bins
     can be judged (``LEVELS``, ``MIN_STD_GREY``, ``MIN_LIGHT_RATIO``)."""
-    top = 255.0 * SCALE_8_TO_16
     if not noise_by_level:
         return None
     level, std = np.asarray(noise_by_level, float).T               # (B,) each
-    g = level / top
-    keep = (g >= LEVELS[0]) & (g <= LEVELS[1]) & (std >= MIN_STD_GREY * top / 255.0)
+    g = level / FULL_SCALE_16
+    keep = (g >= LEVELS[0]) & (g <= LEVELS[1]) & (std >= MIN_STD_GREY * SCALE_8_TO_16)
     if keep.sum() < 3:
         return None
-    g, std = g[keep], std[keep] / top
+    g, std = g[keep], std[keep] / FULL_SCALE_16
     light = g ** (1.0 / response_gamma)                              # the configured response undone
     std_light = std * light / (response_gamma * g)                   # d light / d g = light / (gamma g)
     if light.max() / light.min() < MIN_LIGHT_RATIO:
