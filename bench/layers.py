@@ -37,7 +37,7 @@ STATION_LAYERS = [
     ("stages", ("station.capture.*", "station.rim.*", "station.alignment", "station.odometry.*",
                 "station.records.*", "station.operator", "station.sequencer", "station.result")),
     ("3-D wheel", ("station.wheel.*",)),
-    ("measurement", ("station.measure",)),
+    ("measurement", ("station.measure", "station.stated_uncertainty")),
     ("cycle", ("station.cycle", "station.live", "station.procedures.*")),
     ("plc", ("station.plc.*",)),
     ("commands", ("station.commands.*", "station.cli", "station.ui.*")),

@@ -1,11 +1,14 @@
 """Does a refused wheel's message name the camera whose edge is off?
 
-When a pair's two views see the rim's axis differently the cycle is refused (code 404) and the
-message names the camera whose edge is likely off, with what to do about it
-(station.measure._edge_off: a lip at the sensor's white, else arcs whose lip is no brighter
-than the tyre beside it, else the fainter edge). This bench measures the simulated vehicles
-of a scenario (the images of bench/accuracy.py, from its --cache when there) with the
-station's calibration, and for every such refused wheel compares the camera(s) named with
+A wheel stated beyond the uncertainty limit refuses the cycle (code 404), and the message names
+a camera by the largest part of the statement (station.stated_uncertainty.statement_parts):
+where the pair's two views see the rim's axis differently, the camera whose edge is likely off
+(station.stated_uncertainty._edge_off: a lip at the sensor's white, else arcs whose lip is no
+brighter than the tyre beside it, else the fainter edge); where the lip's edge wavers round the
+rim beyond its noise, the camera whose own edge-bias part is larger. This bench measures the
+simulated vehicles of a scenario (the images of bench/accuracy.py, from its --cache when there)
+with the station's calibration, and for every refused wheel so named, one row per reason,
+compares the camera(s) named with
 the camera whose own rim axis (station/wheel/view_agreement.py: the circle that camera's
 edge points alone fit best) lies farther from the true axis, and with the camera whose
 detected points lie farther off the true rim (the larger share beyond 0.3 px).
@@ -36,7 +39,7 @@ from station.rim.preprocess import PixelMap  # noqa: E402
 from tests.wheel_fixtures import angle_deg, rim_points  # noqa: E402
 
 OFF_PX = 0.3           # a detected point farther than this from the true rim is off it
-NAMED = re.compile(r"part of the rim \((.*)\)$")
+NAMED = re.compile(r"part of the rim \((.*)\)$|wavers round the rim beyond its noise, (?:most )?in (cam\d+(?: and cam\d+)?)")
 
 
 def how_far_off(world, vehicle, wheel: str, observation) -> tuple[dict[str, float], dict[str, float]]:
@@ -72,7 +75,8 @@ def main() -> int:
     cams = {cid: calib.model(cid) for cid in config.cameras}
     world = SimWorld.from_config(config, noise_sigma=SCENARIOS[args.scenario][0])
     measured = outside_envelope.configured(args.scenario, config)
-    total = named_right = both = first_right = axis_named = axis_first = 0
+    counts = {reason: dict.fromkeys(("total", "both", "axis_named", "axis_first", "named_right", "first_right"), 0)
+              for reason in ("views", "edge")}
     for seed in range(args.seed, args.seed + args.n):
         scene = rim_scenarios.scene_for(world, args.scenario, seed, config.nominal_vehicle)
         world.set_scene(scene)
@@ -82,23 +86,27 @@ def main() -> int:
             m = NAMED.search(flag.text or "") if flag.kind == "uncertain" else None
             if m is None or flag.wheel not in WHEELS:
                 continue
-            named = re.findall(r"cam\d+", m.group(1))
+            reason = "views" if m.group(1) is not None else "edge"
+            named = re.findall(r"cam\d+", m.group(1) or m.group(2))
             o = res.observations[flag.wheel]
             off, tilt = how_far_off(world, scene.vehicle, flag.wheel, o)
             truly, turned = max(off, key=off.get), max(tilt, key=tilt.get)
-            total += 1
-            both += len(set(named)) > 1
-            named_right += truly in named
-            first_right += bool(named) and named[0] == truly
-            axis_named += turned in named
-            axis_first += bool(named) and named[0] == turned
-            print(f"  {seed} {flag.wheel}: named {', '.join(named)}; share off the rim "
+            c = counts[reason]
+            c["total"] += 1
+            c["both"] += len(set(named)) > 1
+            c["named_right"] += truly in named
+            c["first_right"] += bool(named) and named[0] == truly
+            c["axis_named"] += turned in named
+            c["axis_first"] += bool(named) and named[0] == turned
+            print(f"  {seed} {flag.wheel} ({reason}): named {', '.join(named)}; share off the rim "
                   + ", ".join(f"{c} {v:.2f}" for c, v in off.items()) + "; own axis off the true one "
                   + ", ".join(f"{c} {v:.3f} deg" for c, v in tilt.items()), file=sys.stderr)
-    print("| scenario | refused wheels | (both named) | axis farther off: named / named first "
+    print("| scenario | reason | refused wheels | (both named) | axis farther off: named / named first "
           "| points farther off: named / named first |")
-    print("|---|---|---|---|---|")
-    print(f"| {args.scenario} | {total} | ({both}) | {axis_named} / {axis_first} | {named_right} / {first_right} |")
+    print("|---|---|---|---|---|---|")
+    for reason, c in counts.items():
+        print(f"| {args.scenario} | {reason} | {c['total']} | ({c['both']}) | {c['axis_named']} / {c['axis_first']} "
+              f"| {c['named_right']} / {c['first_right']} |")
     return 0
 
 

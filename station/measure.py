@@ -18,17 +18,17 @@ from calibration.station_frame import AXLE_PARTNER, AXLES, WHEELS
 from station import alignment
 from station.compute.frame_handoff import FrameHandoff
 from station.config import StationConfig
-from station.errors import MeasurementError, StationError, WheelUncertain
+from station.errors import MeasurementError, StationError
 from station.result import (ANGLE_NAMES, AxleResult, CameraDetection, Failure, Measurement, WarningFlag, WheelQuality,
                             WheelResult)
 from station.rim.camera_response import linear_images
 from station.rim.choice import DARK_RIM_NOTE
+from station.stated_uncertainty import refuse_uncertain_wheels, unseen_axis_covariance, views_covariance
 from station.wheel.axle_rims import pair_from_partner, settle_axles
 from station.wheel.fit import WheelFit
-from station.wheel.pair import (FULL_VIEW_COVERAGE, TANGENT_GAP_DEG, WheelObservation, kept_fractions, measure_wheel,
+from station.wheel.pair import (FULL_VIEW_COVERAGE, TANGENT_GAP_DEG, measure_wheel,
                                 unverifiable_epipolar)
 from station.wheel.rim_size import size_mismatches
-from station.wheel.view_agreement import disagreement_covariance
 
 METHODS = ("circle", "paper")
 
@@ -152,54 +152,6 @@ def centreline_warnings(result: Measurement) -> None:
     result.warning_flags.extend(WarningFlag("centreline", w, because_of=doubtful) for w in others)
 
 
-def unseen_axis_variance(o: WheelObservation, config: StationConfig) -> float:
-    """The variance (rad^2) added across a wheel's axis for what no single cycle's residuals
-    show: ``measurement.uncertainty_floor_deg`` squared, plus (``uncertainty_noise_gain`` k)
-    (k q / a)^2, q the circle's reprojection RMS (px) and a the rim's mean semi-axis in its two
-    views (px). Decisions that a noisier capture takes the other way (which arcs, which edge
-    model) move whole arcs, and the noisier its edges the more of them: at 1.3 Mpx a constant
-    floor stated sigma-2 toe 1.5 times its error and sigma-5 camber 0.65 times; scaled by the
-    edges' noise, both within 0.77-1.49 on every set (docs/measurement.md, "Uncertainty of
-    every angle"; the comparison in docs/history/accuracy.md)."""
-    m = config.measurement
-    q = o.circle.reprojection_rms_px
-    a = float(np.mean([np.sqrt(np.prod(d.ellipse.axes_px)) for d in o.detections]))
-    noise = m.uncertainty_noise_gain * q / a if np.isfinite(q) and a > 0 else 0.0
-    return float(np.radians(m.uncertainty_floor_deg) ** 2 + noise ** 2)
-
-
-def unseen_axis_covariance(o: WheelObservation, axis_station: np.ndarray, config: StationConfig) -> np.ndarray:
-    """(3,3) the unseen variance (:func:`unseen_axis_variance`) across the unit axis (3,), shaped
-    by :func:`unseen_axis_shape`."""
-    return unseen_axis_variance(o, config) * unseen_axis_shape(axis_station, config.measurement.uncertainty_toe_scale)
-
-
-def views_covariance(o: WheelObservation, config: StationConfig) -> np.ndarray:
-    """(3,3) what the pair's two views' disagreement about the rim's axis adds to it
-    (station/wheel/view_agreement.py). A procedure of several captures adds it to the axis it
-    finds from the lip, not to each capture: the arc a view sees off the edge stays where the
-    light puts it while the wheel rolls or steers, so it weighs every capture alike."""
-    return disagreement_covariance(o.views, config.measurement.view_edge_bias_px)
-
-
-def unseen_axis_shape(axis_station: np.ndarray, toe_scale: float) -> np.ndarray:
-    """(3,3) shape of the unseen variance across a wheel's unit axis (3,): 1 along the
-    direction that tilts the axis up or down (camber), ``toe_scale`` squared along the
-    horizontal one (toe; ``measurement.uncertainty_toe_scale``). The pair's baseline is
-    horizontal: toe shows in the disparity across the rim's vertical edges, which the epipolar
-    lines cross (modes 0 and cos 2phi of the rim angle), and in each view's aspect ratio;
-    camber only in the sin-2phi mode of the two views' difference, where an edge bias of the
-    same size moves the axis further (docs/measurement.md)."""
-    a = np.asarray(axis_station, float)
-    a = a / np.linalg.norm(a)
-    e_toe = np.cross([0.0, 0.0, 1.0], a)
-    if np.linalg.norm(e_toe) < 1e-9:  # an axis straight up: no toe direction to tell apart
-        return np.eye(3) - np.outer(a, a)
-    e_toe /= np.linalg.norm(e_toe)
-    e_camber = np.cross(a, e_toe)
-    return toe_scale ** 2 * np.outer(e_toe, e_toe) + np.outer(e_camber, e_camber)
-
-
 def fill_angles(result: Measurement, fits: dict[str, WheelFit], observations: dict, config: StationConfig,
                 floors: bool = True) -> None:
     """The angles of the wheels ``fits`` (one WheelFit per wheel), their standard uncertainty
@@ -250,87 +202,6 @@ def fill_angles(result: Measurement, fits: dict[str, WheelFit], observations: di
     result.paper_front_angles_deg = alignment.paper_front_angles(centers, axes)
     result.alignment_frame = {"origin_station_m": np.mean([centers[w] for w in WHEELS], axis=0).tolist(),
                               "R_station_align": angles["R_station_align"].tolist()}
-
-
-def refuse_uncertain_wheels(result: Measurement, observations: dict, config: StationConfig) -> Failure | None:
-    """The failure of a cycle with a wheel whose toe or camber is less certain than
-    ``measurement.uncertainty_limit_deg``: a value that uncertain is no use for aligning, and a
-    wrong value reported as valid is the worst outcome for a technician. The message names every
-    such wheel and why (its two cameras disagree about the rim's axis, or the 3-D rim rests on
-    a small share of a camera's edge), the hint what to do about it; each such wheel is flagged
-    ``uncertain``."""
-    limit = config.measurement.uncertainty_limit_deg
-    refused = []
-    for w in WHEELS:
-        r = result.wheels[w]
-        worst = max(("toe", r.toe_std_deg), ("camber", r.camber_std_deg), key=lambda kv: kv[1])
-        if worst[1] > limit:
-            refused.append((w, worst))
-    if not refused:
-        return None
-    texts, hints = [], []
-    for w, (name, std) in refused:
-        text, hint = _why_uncertain(observations[w], std, config)
-        result.warning_flags.append(WarningFlag("uncertain", w, text=f"{w}: {text}"))
-        texts.append(f"{w}: {name} +/-{std:.3f} deg, {text}")
-        hints.append(hint)
-    wheels = [w for w, _ in refused]
-    camera = "+".join(observations[wheels[0]].cams)
-    return Failure(WheelUncertain.code,
-                   f"{', '.join(wheels)} less certain than the {limit} deg uncertainty limit ({'; '.join(texts)}); "
-                   "no angle of this cycle is reported", " ".join(dict.fromkeys(hints)) + " Then measure again.",
-                   wheels[0] if len(wheels) == 1 else ",".join(wheels), camera)
-
-
-def _why_uncertain(o: WheelObservation, std_deg: float, config: StationConfig) -> tuple[str, str]:
-    """(why the wheel is uncertain, what to do): the views' disagreement when it makes up most
-    of the stated ``std_deg``, naming the camera whose edge is off (:func:`_edge_off`), else the
-    share of a camera's edge points the 3-D rim rests on."""
-    views = o.views
-    # the views' share is the same in every direction across the axis: half the trace each
-    if np.degrees(np.sqrt(np.trace(views_covariance(o, config)) / 2)) ** 2 > std_deg ** 2 / 2:
-        why, hint = _edge_off(o, config)
-        return (f"its cameras {o.cams[0]} and {o.cams[1]} each see the rim's axis differently, by "
-                f"{views.angle_deg:.2f} deg: one of them sees the rim's edge off on part of the rim ({why})", hint)
-    kept = kept_fractions(o)
-    weak = o.cams[int(np.argmin(kept))]
-    return (f"the 3-D rim rests on {min(kept):.0%} of {weak}'s edge points",
-            f"Check that {weak} sees the whole rim (wheel position, tyre, arch) and that its lip is clean and lit.")
-
-
-def _edge_off(o: WheelObservation, config: StationConfig) -> tuple[str, str]:
-    """(why, what to do) for a disagreeing pair, naming the cameras whose edge is likely off
-    from what each detection measured of its own edge: the one whose lip is at the sensor's
-    white on more of the rim than its partner's by ``measurement.white_edge_limit`` (the edge
-    read toward the tyre; a polished lip mirroring lamps puts both at the white in spots),
-    else those with arcs whose bright side is not the rim's metal (a tyre lit past a shaded
-    lip, a dirty lip, a glossy lip mirroring something dark: station/rim/metal_side.py; both
-    where both show it, the larger share first), else the one with the fainter edge."""
-    white = {c: float(d.details.get("white_share", 0.0)) for c, d in zip(o.cams, o.detections)}
-    dark = {c: float(d.details.get("metal_side_dark_share", 0.0)) for c, d in zip(o.cams, o.detections)}
-    whiter, other = sorted(o.cams, key=lambda c: -white[c])
-    if white[whiter] - white[other] > config.measurement.white_edge_limit:
-        return (f"the lip is at the sensor's white on {white[whiter]:.0%} of {whiter}'s rim, which moves the edge "
-                f"toward the tyre",
-                f"Shorten {whiter}'s exposure (or its gain), or shade the wheel from the sun or the lamp that drives "
-                f"the lip to white.")
-    if max(dark.values()) > 0.0:
-        cams = sorted((c for c in o.cams if dark[c] > 0.0), key=lambda c: -dark[c])
-        shares = " and ".join(f"{dark[c]:.0%} of {c}'s" for c in cams)
-        names = " and ".join(cams)
-        return (f"on {shares} rim the lip is no brighter than the tyre beside it, so the edge found there is not "
-                f"the rim's",
-                f"Look at the rim in {names}: a lamp or the sun at the side lights the tyre past a shaded lip, the "
-                f"lip is dirty there, or a glossy lip mirrors something dark. Shade the wheel from that light or "
-                f"light it evenly (a diffuse panel), and clean the lip.")
-    steps = [float(np.median(d.points_contrast)) if d.points_contrast is not None and len(d.points_contrast)
-             else float("nan") for d in o.detections]
-    cam = o.cams[int(np.nanargmin(steps))] if not np.all(np.isnan(steps)) else o.cams[0]
-    return (f"the fainter edge is {cam}'s",
-            f"Look at {cam}'s image of the rim's lip: clean the lip (brake dust, dirt), shade it from direct "
-            f"sun, light it, or give {cam} a longer exposure if the rim is dark. On a glossy lip (clear-coated "
-            f"dark paint, polish, chrome) the lamps it mirrors move its edge: dim or move the lamps whose "
-            f"reflections sit on the lip, or light the wheel with a diffuse panel.")
 
 
 def _pair_warnings(result: Measurement, observations: dict, config: StationConfig) -> None:

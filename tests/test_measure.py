@@ -173,6 +173,41 @@ def test_a_pair_that_did_not_see_the_rim_where_the_epipolar_planes_touch_it_is_u
 
 
 @pytest.mark.slow
+def test_a_refused_wheels_reason_is_the_largest_part_of_its_statement(sim):
+    """``statement_parts`` splits a wheel's stated toe and camber into the views' disagreement,
+    the calibration, the edges' noise and their slow unevenness; in quadrature they make up the
+    statement (the centres' share aside), and the reason names the largest part."""
+    import dataclasses
+
+    from station.stated_uncertainty import _why_uncertain, statement_parts
+
+    cfg, world, scene, images = sim
+    result = measure_frames(images, world.cameras, cfg)
+    for w, o in result.observations.items():
+        for angle in ("toe", "camber"):
+            parts = statement_parts(o, angle, cfg)
+            assert set(parts) == {"views", "calibration", "noise", "edge"} and min(parts.values()) >= 0
+            stated = getattr(result.wheels[w], f"{angle}_std_deg")
+            assert np.sqrt(sum(parts.values())) == pytest.approx(stated, rel=0.05), (w, angle, parts)
+    o = result.observations["FR"]
+    circle = o.circle
+    big = dataclasses.replace(circle, calibration_share=(0.0, 2 * np.radians(0.5) ** 2),
+                              cov_axis=circle.cov_axis + np.radians(0.5) ** 2 * np.eye(3))
+    why, hint = _why_uncertain(dataclasses.replace(o, circle=big), "camber", 0.5, cfg)
+    assert "calibration" in why and "station calibrate" in hint
+    wavy = [np.zeros((3, 3)), np.radians(0.3) ** 2 * np.eye(3)]  # the reference camera's edge wavers
+    big = dataclasses.replace(circle, cov_axis=circle.cov_axis + wavy[1], cov_axis_bias_views=tuple(wavy))
+    why, _ = _why_uncertain(dataclasses.replace(o, circle=big), "toe", 0.3, cfg)
+    assert f"wavers round the rim beyond its noise, most in {o.cams[1]}" in why and "+/-0.3" in why
+    alike = dataclasses.replace(big, cov_axis_bias_views=(0.8 * wavy[1], wavy[1]))
+    why, _ = _why_uncertain(dataclasses.replace(o, circle=alike), "toe", 0.3, cfg)
+    assert f"in {o.cams[0]} and {o.cams[1]} alike" in why
+    apart = dataclasses.replace(o.views, disagreement_station=np.radians(1.0) * np.cross(circle.axis_station, [0, 0, 1]))
+    why, _ = _why_uncertain(dataclasses.replace(o, views=apart), "toe", 0.5, cfg)
+    assert "each see the rim's axis differently, by 1.00 deg" in why
+
+
+@pytest.mark.slow
 def test_a_wheel_less_certain_than_the_limit_is_refused_with_why_and_what_to_do(sim, monkeypatch):
     cfg, world, scene, images = sim
     result = measure_frames(images, world.cameras, cfg)
@@ -185,7 +220,13 @@ def test_a_wheel_less_certain_than_the_limit_is_refused_with_why_and_what_to_do(
     assert flags == ["FL", "FR", "RL", "RR"]                     # the PLC's warning_bits 0-3
     message = refused.failure.message
     assert "0.001 deg uncertainty limit" in message and "no angle of this cycle is reported" in message
-    assert "FR: " in message and ("of cam1's" in message or "of cam2's" in message)
+    reasons = ("see the rim's axis differently", "wavers round the rim", "faint or noisy", "calibration")
+    for f in refused.warning_flags:  # why: the largest part of the statement, naming a camera of the pair
+        if f.kind == "uncertain":
+            pair = cfg.pairs[f.wheel]
+            assert f.text.startswith(f"{f.wheel}: ") and f.text[4:] in message
+            assert sum(r in f.text for r in reasons) == 1
+            assert pair.precision in f.text or pair.reference in f.text
     assert "measure again" in refused.failure.hint
     doc = refused.to_json()  # the refused angles stay on the object (recording, benchmarks), not in the JSON
     assert doc["valid"] is False and doc["wheels"] == {} and doc["thrust_deg"] is None
@@ -267,7 +308,7 @@ def test_a_doubtful_rim_puts_the_other_wheels_toe_in_doubt():
 def test_the_unseen_variance_takes_its_toe_share_across_the_horizontal():
     """``unseen_axis_shape``: nothing along the axis, 1 along the direction that tilts it up or
     down (camber), the toe scale squared along the horizontal (toe), for any axis."""
-    from station.measure import unseen_axis_shape
+    from station.stated_uncertainty import unseen_axis_shape
 
     np.testing.assert_allclose(unseen_axis_shape(np.array([1.0, 0.0, 0.0]), 0.6), np.diag([0.0, 0.36, 1.0]), atol=1e-12)
     rng = np.random.default_rng(3)
@@ -307,8 +348,8 @@ def test_the_toe_scale_shrinks_only_toes_unseen_share(sim, monkeypatch):
 def test_the_unseen_error_grows_with_each_wheels_edge_noise(sim, monkeypatch):
     """``uncertainty_noise_gain`` k adds (k q / a) rad in quadrature, q the wheel's circle
     reprojection RMS and a its rim's semi-axis (px): a wheel with noisier edges states more,
-    and no value moves (station.measure.unseen_axis_variance)."""
-    from station.measure import unseen_axis_variance
+    and no value moves (station.stated_uncertainty.unseen_axis_variance)."""
+    from station.stated_uncertainty import unseen_axis_variance
 
     cfg, world, _, images = sim
     monkeypatch.setattr(cfg.measurement, "uncertainty_floor_deg", 0.0)

@@ -1,4 +1,4 @@
-"""Which camera a refused wheel's message names when its two views disagree (station/measure.py,
+"""Which camera a refused wheel's message names when its two views disagree (station/stated_uncertainty.py,
 ``_edge_off``): the one whose lip is at the sensor's white, else the one whose edge is not the
 rim's on some arcs (station/rim/metal_side.py), else the fainter one; both where both show it."""
 
@@ -9,7 +9,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from station.config import load_config
-from station.measure import _edge_off
+from station.stated_uncertainty import _edge_off
 
 
 def _pair(white=(0.0, 0.0), dark=(0.0, 0.0), steps=(50.0, 20.0)):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from station.config import StationConfig
-from station.measure import unseen_axis_covariance
+from station.stated_uncertainty import unseen_axis_covariance
 from station.result import Measurement
 from station.wheel.rim_pattern import FacePose
 

@@ -28,7 +28,8 @@ from calibration.camera_model import CameraModel
 from calibration.station_frame import SIDE, WHEELS
 from station.config import StationConfig
 from station.errors import CarMovedSideways, RimPatternLost, RollTooShort, WheelSlipped
-from station.measure import fill_angles, refuse_uncertain_wheels
+from station.measure import fill_angles
+from station.stated_uncertainty import refuse_uncertain_wheels
 from station.procedures.poses import face_pose, normal_covariance
 from station.result import Measurement, WarningFlag
 from station.rim.camera_response import linear_images
@@ -222,7 +223,7 @@ def with_spin_axes(reference: Measurement, spins: dict[str, SpinAxis], config: S
     With ``views`` (per wheel: the views' agreement of its typical capture, ``_typical_views``)
     that, not the reference's, is reported with each wheel. A spin axis less certain than
     ``measurement.uncertainty_limit_deg`` makes it invalid, as a single capture's rim plane
-    would (station.measure.refuse_uncertain_wheels)."""
+    would (station.stated_uncertainty.refuse_uncertain_wheels)."""
     result = replace(reference, wheels={}, axles={}, warnings=list(reference.warnings),
                      warning_flags=list(reference.warning_flags), timing_s=dict(reference.timing_s))
     fits = {w: replace(o.circle, axis_station=spins[w].axis_station, cov_axis=spins[w].cov_axis)

@@ -26,7 +26,7 @@ from calibration.camera_model import CameraModel
 from calibration.station_frame import SIDE, WHEELS
 from station.config import StationConfig
 from station.errors import StorageError
-from station.measure import unseen_axis_covariance, views_covariance
+from station.stated_uncertainty import unseen_axis_covariance, views_covariance
 from station.procedures.runout import (MIN_PATTERN_PEAK, PATTERN_AGREEMENT_DEG, ROLL_DISTANCE_M, TYRE_BEYOND_LIP_M,
                                        WheelRoll, with_spin_axes)
 from station.records.atomic_file import write_text_atomic

@@ -13,7 +13,7 @@ The test, per edge point: somewhere ``INNER_REACH_PX`` inside the edge the image
 than the mean of ``TYRE_SIDE_PX`` outside it. An arc of ``ARC_DEG`` where ``WRONG_SHARE`` of the
 points fail it is an arc whose edge is not the rim's; :func:`dark_side_share` is the share of
 the rim's points on such arcs (``details["metal_side_dark_share"]`` of a detection). The
-measurement names the camera with such arcs when a pair's views disagree (station/measure.py).
+measurement names the camera with such arcs when a pair's views disagree (station/stated_uncertainty.py).
 """
 
 from __future__ import annotations

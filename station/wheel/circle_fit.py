@@ -338,9 +338,9 @@ def _wheel_fit(model: _CircleModel, sol, views: list[View], init: WheelFit, sett
     cov_p, inlier = noise_covariance(sol, views)
     if cov_p is None:
         cov_p = np.full((6, 6), np.nan)
-    cov_noise = cov_p
+    cov_noise, own = cov_p, []
     if settings.bias_modes:
-        cov_p = cov_p + bias_covariance(sol, views, model.n0, model.e1, model.e2, settings.bias_modes)
+        cov_p = cov_p + bias_covariance(sol, views, model.n0, model.e1, model.e2, settings.bias_modes, own=own)
     # the pair's epipolar check on the points the circle was fitted to: an arc left out
     # (hidden, another contour) would otherwise move a tangent plane of its view's ellipse
     epipolar = init.epipolar_rms_px
@@ -358,7 +358,8 @@ def _wheel_fit(model: _CircleModel, sol, views: list[View], init: WheelFit, sett
                     cov_center=cov_p[2:5, 2:5], cov_axis=cov_axis,
                     reprojection_rms_px=float(np.sqrt(np.mean(r[inlier] ** 2))) if inlier.any() else float("nan"),
                     epipolar_rms_px=epipolar, n_points=(len(views[0][1]), len(views[1][1])),
-                    cov_axis_noise=axis_covariance(n, model.e1, model.e2, cov_noise[:2, :2]))
+                    cov_axis_noise=axis_covariance(n, model.e1, model.e2, cov_noise[:2, :2]),
+                    cov_axis_bias_views=tuple(axis_covariance(n, model.e1, model.e2, c[:2, :2]) for c in own) or None)
 
 
 def _with_subset_fit(fit: WheelFit, subset: WheelFit) -> WheelFit:

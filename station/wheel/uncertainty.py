@@ -19,7 +19,7 @@ from station.rim.npfast import sector_medians
 from station.wheel.arcs import rim_angles, sector_labels
 
 
-def bias_covariance(sol, views, n0, e1, e2, n_modes: int, n_sectors: int = 18) -> np.ndarray:
+def bias_covariance(sol, views, n0, e1, e2, n_modes: int, n_sectors: int = 18, own: list | None = None) -> np.ndarray:
     """(P,P) covariance of the circle parameters (P = 6, or more for a model whose first six
     parameters are the circle's) from slowly varying edge biases in each view.
 
@@ -55,7 +55,10 @@ def bias_covariance(sol, views, n0, e1, e2, n_modes: int, n_sectors: int = 18) -
     those of the weighted residuals: a faint arc's edge is off by more, and counts for less,
     in about the same proportion. Sized in raw pixels instead, its bias was counted in full
     against a fit that gives it little weight: toe stated/RMS 1.45 on 40 vehicles outside the
-    issue set (with a 0.010 deg floor), 1.26 with the weighted modes."""
+    issue set (with a 0.010 deg floor), 1.26 with the weighted modes.
+
+    ``own``: a list that receives each view's own part (P,P) (modes 1-2, the common offset
+    left out), in the order of ``views``: which camera's edge wavers."""
     c = sol.x[2:5]
     n = normal_from(sol.x[:2], n0, e1, e2)
     J = sol.jac
@@ -81,6 +84,8 @@ def bias_covariance(sol, views, n0, e1, e2, n_modes: int, n_sectors: int = 18) -
         dp = pinv[:, a:b] @ (np.stack(funcs, axis=1) * np.array(amps))   # (P, modes)
         common += dp[:, :1]                # the uniform offset: the same in both views
         cov += dp[:, 1:] @ dp[:, 1:].T     # the rest: each view's own
+        if own is not None:
+            own.append(dp[:, 1:] @ dp[:, 1:].T)
     return cov + common @ common.T
 
 

@@ -1,0 +1,227 @@
+"""What a wheel's stated uncertainty holds beyond its circle fit, and the wheels stated beyond
+``measurement.uncertainty_limit_deg``.
+
+* :func:`unseen_axis_covariance` - what no single cycle's residuals show, grown with the edges'
+  noise; :func:`views_covariance` - the pair's two views' disagreement about the rim's axis;
+* :func:`statement_parts` - a wheel's stated toe or camber split into its parts;
+* :func:`refuse_uncertain_wheels` - the cycle's failure naming each wheel stated beyond the
+  limit, why (the largest part) and what to do (docs/measurement.md, "Too uncertain to trust").
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from calibration.station_frame import WHEELS
+from station.config import StationConfig
+from station.errors import WheelUncertain
+from station.result import Failure, Measurement, WarningFlag
+from station.wheel.pair import FULL_VIEW_COVERAGE, WheelObservation, kept_fractions
+from station.wheel.view_agreement import disagreement_covariance
+
+
+def unseen_axis_variance(o: WheelObservation, config: StationConfig) -> float:
+    """The variance (rad^2) added across a wheel's axis for what no single cycle's residuals
+    show: ``measurement.uncertainty_floor_deg`` squared, plus (``uncertainty_noise_gain`` k)
+    (k q / a)^2, q the circle's reprojection RMS (px) and a the rim's mean semi-axis in its two
+    views (px). Decisions that a noisier capture takes the other way (which arcs, which edge
+    model) move whole arcs, and the noisier its edges the more of them: at 1.3 Mpx a constant
+    floor stated sigma-2 toe 1.5 times its error and sigma-5 camber 0.65 times; scaled by the
+    edges' noise, both within 0.77-1.49 on every set (docs/measurement.md, "Uncertainty of
+    every angle"; the comparison in docs/history/accuracy.md)."""
+    m = config.measurement
+    q = o.circle.reprojection_rms_px
+    a = float(np.mean([np.sqrt(np.prod(d.ellipse.axes_px)) for d in o.detections]))
+    noise = m.uncertainty_noise_gain * q / a if np.isfinite(q) and a > 0 else 0.0
+    return float(np.radians(m.uncertainty_floor_deg) ** 2 + noise ** 2)
+
+
+def unseen_axis_covariance(o: WheelObservation, axis_station: np.ndarray, config: StationConfig) -> np.ndarray:
+    """(3,3) the unseen variance (:func:`unseen_axis_variance`) across the unit axis (3,), shaped
+    by :func:`unseen_axis_shape`."""
+    return unseen_axis_variance(o, config) * unseen_axis_shape(axis_station, config.measurement.uncertainty_toe_scale)
+
+
+def views_covariance(o: WheelObservation, config: StationConfig) -> np.ndarray:
+    """(3,3) what the pair's two views' disagreement about the rim's axis adds to it
+    (station/wheel/view_agreement.py). A procedure of several captures adds it to the axis it
+    finds from the lip, not to each capture: the arc a view sees off the edge stays where the
+    light puts it while the wheel rolls or steers, so it weighs every capture alike."""
+    return disagreement_covariance(o.views, config.measurement.view_edge_bias_px)
+
+
+def unseen_axis_shape(axis_station: np.ndarray, toe_scale: float) -> np.ndarray:
+    """(3,3) shape of the unseen variance across a wheel's unit axis (3,): 1 along the
+    direction that tilts the axis up or down (camber), ``toe_scale`` squared along the
+    horizontal one (toe; ``measurement.uncertainty_toe_scale``). The pair's baseline is
+    horizontal: toe shows in the disparity across the rim's vertical edges, which the epipolar
+    lines cross (modes 0 and cos 2phi of the rim angle), and in each view's aspect ratio;
+    camber only in the sin-2phi mode of the two views' difference, where an edge bias of the
+    same size moves the axis further (docs/measurement.md)."""
+    a = np.asarray(axis_station, float)
+    a = a / np.linalg.norm(a)
+    tilts = tilt_directions(a)
+    if tilts is None:  # an axis straight up: no toe direction to tell apart
+        return np.eye(3) - np.outer(a, a)
+    e_toe, e_camber = tilts
+    return toe_scale ** 2 * np.outer(e_toe, e_toe) + np.outer(e_camber, e_camber)
+
+
+def tilt_directions(axis_station: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """(e_toe, e_camber), unit (3,) each: the directions across a wheel's axis (3,) that turn it
+    in toe (horizontal) and tilt it in camber (up or down); None for an axis straight up."""
+    a = np.asarray(axis_station, float)
+    a = a / np.linalg.norm(a)
+    e_toe = np.cross([0.0, 0.0, 1.0], a)
+    if np.linalg.norm(e_toe) < 1e-9:
+        return None
+    e_toe /= np.linalg.norm(e_toe)
+    return e_toe, np.cross(a, e_toe)
+
+
+def refuse_uncertain_wheels(result: Measurement, observations: dict, config: StationConfig) -> Failure | None:
+    """The failure of a cycle with a wheel whose toe or camber is less certain than
+    ``measurement.uncertainty_limit_deg``: a value that uncertain is no use for aligning, and a
+    wrong value reported as valid is the worst outcome for a technician. The message names every
+    such wheel and why (the largest part of its statement: its two cameras disagree about the
+    rim's axis, its edge wavers round the rim, its edge is faint, or the calibration), the hint
+    what to do about it; each such wheel is flagged ``uncertain``."""
+    limit = config.measurement.uncertainty_limit_deg
+    refused = []
+    for w in WHEELS:
+        r = result.wheels[w]
+        worst = max(("toe", r.toe_std_deg), ("camber", r.camber_std_deg), key=lambda kv: kv[1])
+        if worst[1] > limit:
+            refused.append((w, worst))
+    if not refused:
+        return None
+    texts, hints = [], []
+    for w, (name, std) in refused:
+        text, hint = _why_uncertain(observations[w], name, std, config)
+        result.warning_flags.append(WarningFlag("uncertain", w, text=f"{w}: {text}"))
+        texts.append(f"{w}: {name} +/-{std:.3f} deg, {text}")
+        hints.append(hint)
+    wheels = [w for w, _ in refused]
+    camera = "+".join(observations[wheels[0]].cams)
+    return Failure(WheelUncertain.code,
+                   f"{', '.join(wheels)} less certain than the {limit} deg uncertainty limit ({'; '.join(texts)}); "
+                   "no angle of this cycle is reported", " ".join(dict.fromkeys(hints)) + " Then measure again.",
+                   wheels[0] if len(wheels) == 1 else ",".join(wheels), camera)
+
+
+def _why_uncertain(o: WheelObservation, angle: str, std_deg: float, config: StationConfig) -> tuple[str, str]:
+    """(why the wheel's ``angle`` ("toe" or "camber") is stated ``std_deg``, what to do), from
+    the largest part of that statement (:func:`statement_parts`): the views' disagreement,
+    naming the camera whose edge is off (:func:`_edge_off`); an edge that wavers round the rim
+    beyond its noise, naming the camera whose edge wavers (:func:`_wavering`); the edges' noise, naming the
+    fainter edge and a camera whose edge points the 3-D rim rests on only in part; or the
+    calibration."""
+    parts = statement_parts(o, angle, config)
+    main = max(parts, key=parts.get)
+    share = f"+/-{np.sqrt(parts[main]):.3f} deg on its own"
+    if main == "views":
+        why, hint = _edge_off(o, config)
+        return (f"its cameras {o.cams[0]} and {o.cams[1]} each see the rim's axis differently, by "
+                f"{o.views.angle_deg:.2f} deg: one of them sees the rim's edge off on part of the rim ({why})", hint)
+    if main == "calibration":
+        return (f"the calibration of {o.cams[0]} and {o.cams[1]} is uncertain here ({share})",
+                f"Calibrate again (station calibrate), the box shown across the whole view of {o.cams[0]} and "
+                f"{o.cams[1]}.")
+    cam = _fainter(o)
+    if main == "edge":
+        cams = _wavering(o)
+        where = f"most in {cams[0]}" if len(cams) == 1 else f"in {cams[0]} and {cams[1]} alike"
+        return (f"the lip's edge wavers round the rim beyond its noise, {where} ({share}): an edge that uneven may "
+                f"be off the lip on whole arcs",
+                f"Look at the rim's lip in {' and '.join(cams)}: clean the lip (brake dust, dirt), shade it from "
+                f"direct sun and light it evenly; on a glossy lip the lamps it mirrors move its edge: dim or move "
+                f"them, or light the wheel with a diffuse panel.")
+    kept = kept_fractions(o)
+    weak = o.cams[int(np.argmin(kept))]
+    why = (f"the lip's edge is faint or noisy: the 3-D rim's points lie {o.circle.reprojection_rms_px:.2f} px rms "
+           f"off it, the fainter edge {cam}'s ({share})")
+    hint = (f"Light the rim or give {cam} a longer exposure, check its focus, and clean the lip.")
+    if min(kept) < FULL_VIEW_COVERAGE:
+        why += f"; the 3-D rim rests on {min(kept):.0%} of {weak}'s edge points"
+        hint += f" Check that {weak} sees the whole rim (wheel position, tyre, arch)."
+    return why, hint
+
+
+def statement_parts(o: WheelObservation, angle: str, config: StationConfig) -> dict[str, float]:
+    """What makes up a wheel's stated ``angle`` ("toe" or "camber"): variance (deg^2) along
+    the direction that turns its axis in that angle, per part: "views" (their disagreement,
+    :func:`views_covariance`), "calibration" (the calibration's share), "noise" (the points'
+    noise and the unseen share that grows with it, :func:`unseen_axis_covariance`) and "edge"
+    (the rest of the fit's: the edge biases that vary slowly round the rim, and fits with and
+    without some arcs that disagree). A procedure's spin axis states its own covariance; its
+    capture's parts still say which part dominates."""
+    c = o.circle
+    tilts = tilt_directions(c.axis_station)
+    if tilts is None:
+        return {"edge": 1.0}
+    d = tilts[0] if angle == "toe" else tilts[1]
+
+    def along(cov) -> float:
+        return float(d @ np.asarray(cov, float) @ d) if cov is not None else 0.0
+
+    fit, noise = along(c.cov_axis), along(c.cov_axis_noise)
+    calibration = c.calibration_share[1] / 2 if c.calibration_share else 0.0  # its trace over both directions
+    parts = {"views": along(views_covariance(o, config)), "calibration": calibration,
+             "noise": noise + along(unseen_axis_covariance(o, c.axis_station, config)),
+             "edge": max(fit - noise - calibration, 0.0)}
+    return {k: float(np.degrees(np.sqrt(max(v, 0.0))) ** 2) if np.isfinite(v) else 0.0 for k, v in parts.items()}
+
+
+WAVERING_RATIO = 2.0  # one camera's edge-bias part this many times its partner's: that camera's edge wavers
+
+
+def _wavering(o: WheelObservation) -> list[str]:
+    """The camera whose own edge-bias part (``cov_axis_bias_views``) is ``WAVERING_RATIO``
+    times its partner's, else both: on glossy rims both views' edges move with the lamps they
+    mirror, and which one is off more is a toss-up (bench/refusal_naming.py)."""
+    own = o.circle.cov_axis_bias_views
+    if own is None or len(own) != 2:
+        return list(o.cams)
+    size = [float(np.trace(c)) for c in own]
+    k = int(np.argmax(size))
+    return [o.cams[k]] if size[k] > WAVERING_RATIO * size[1 - k] else list(o.cams)
+
+
+def _fainter(o: WheelObservation) -> str:
+    """The camera of the pair whose edge steps least (median of its points' steps)."""
+    steps = [float(np.median(d.points_contrast)) if d.points_contrast is not None and len(d.points_contrast)
+             else float("nan") for d in o.detections]
+    return o.cams[int(np.nanargmin(steps))] if not np.all(np.isnan(steps)) else o.cams[0]
+
+
+def _edge_off(o: WheelObservation, config: StationConfig) -> tuple[str, str]:
+    """(why, what to do) for a disagreeing pair, naming the cameras whose edge is likely off
+    from what each detection measured of its own edge: the one whose lip is at the sensor's
+    white on more of the rim than its partner's by ``measurement.white_edge_limit`` (the edge
+    read toward the tyre; a polished lip mirroring lamps puts both at the white in spots),
+    else those with arcs whose bright side is not the rim's metal (a tyre lit past a shaded
+    lip, a dirty lip, a glossy lip mirroring something dark: station/rim/metal_side.py; both
+    where both show it, the larger share first), else the one with the fainter edge."""
+    white = {c: float(d.details.get("white_share", 0.0)) for c, d in zip(o.cams, o.detections)}
+    dark = {c: float(d.details.get("metal_side_dark_share", 0.0)) for c, d in zip(o.cams, o.detections)}
+    whiter, other = sorted(o.cams, key=lambda c: -white[c])
+    if white[whiter] - white[other] > config.measurement.white_edge_limit:
+        return (f"the lip is at the sensor's white on {white[whiter]:.0%} of {whiter}'s rim, which moves the edge "
+                f"toward the tyre",
+                f"Shorten {whiter}'s exposure (or its gain), or shade the wheel from the sun or the lamp that drives "
+                f"the lip to white.")
+    if max(dark.values()) > 0.0:
+        cams = sorted((c for c in o.cams if dark[c] > 0.0), key=lambda c: -dark[c])
+        shares = " and ".join(f"{dark[c]:.0%} of {c}'s" for c in cams)
+        names = " and ".join(cams)
+        return (f"on {shares} rim the lip is no brighter than the tyre beside it, so the edge found there is not "
+                f"the rim's",
+                f"Look at the rim in {names}: a lamp or the sun at the side lights the tyre past a shaded lip, the "
+                f"lip is dirty there, or a glossy lip mirrors something dark. Shade the wheel from that light or "
+                f"light it evenly (a diffuse panel), and clean the lip.")
+    cam = _fainter(o)
+    return (f"the fainter edge is {cam}'s",
+            f"Look at {cam}'s image of the rim's lip: clean the lip (brake dust, dirt), shade it from direct "
+            f"sun, light it, or give {cam} a longer exposure if the rim is dark. On a glossy lip (clear-coated "
+            f"dark paint, polish, chrome) the lamps it mirrors move its edge: dim or move the lamps whose "
+            f"reflections sit on the lip, or light the wheel with a diffuse panel.")
