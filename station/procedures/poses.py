@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from station.config import StationConfig
-from station.stated_uncertainty import unseen_axis_covariance
 from station.result import Measurement
+from station.stated_uncertainty import unseen_axis_covariance
 from station.wheel.rim_pattern import FacePose
 
 

@@ -29,10 +29,10 @@ from calibration.station_frame import SIDE, WHEELS
 from station.config import StationConfig
 from station.errors import CarMovedSideways, RimPatternLost, RollTooShort, WheelSlipped
 from station.measure import fill_angles
-from station.stated_uncertainty import refuse_uncertain_wheels
 from station.procedures.poses import face_pose, normal_covariance
 from station.result import Measurement, WarningFlag
 from station.rim.camera_response import linear_images
+from station.stated_uncertainty import refuse_uncertain_wheels
 from station.wheel.rim_pattern import FacePose, angular_profile, face_depth, rotation_between
 from station.wheel.face_motion import face_spin_axis, with_face
 from station.wheel.hub_center import hub_centers

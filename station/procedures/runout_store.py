@@ -17,7 +17,7 @@ Shapes: profiles (S,) per camera; axes (3,) unit, station frame; covariances (3,
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -26,12 +26,12 @@ from calibration.camera_model import CameraModel
 from calibration.station_frame import SIDE, WHEELS
 from station.config import StationConfig
 from station.errors import StorageError
-from station.stated_uncertainty import unseen_axis_covariance, views_covariance
 from station.procedures.runout import (MIN_PATTERN_PEAK, PATTERN_AGREEMENT_DEG, ROLL_DISTANCE_M, TYRE_BEYOND_LIP_M,
                                        WheelRoll, with_spin_axes)
 from station.records.atomic_file import write_text_atomic
 from station.result import Measurement, WarningFlag
 from station.rim.camera_response import linear_images
+from station.stated_uncertainty import unseen_axis_covariance, views_covariance
 from station.wheel.rim_pattern import FacePose, angular_profile, ring_basis, rotation_between
 from station.wheel.runout import SpinAxis, rotation_matrix
 
