@@ -55,6 +55,7 @@ class WarningFlag:
     camera: str | None = None
     because_of: list[str] | None = None   # "centreline": the wheels whose rim is in doubt
     text: str | None = field(default=None, compare=False)  # its warning's sentence (not in the JSON)
+    reason: str | None = None  # "uncertain": why (station.stated_uncertainty.UNCERTAIN_REASONS)
 
     def to_json(self) -> dict:
         out: dict[str, Any] = {"kind": self.kind, "wheel": self.wheel}
@@ -62,11 +63,13 @@ class WarningFlag:
             out["camera"] = self.camera
         if self.because_of is not None:
             out["because_of"] = list(self.because_of)
+        if self.reason is not None:
+            out["reason"] = self.reason
         return out
 
     @classmethod
     def from_json(cls, d: dict) -> WarningFlag:
-        return cls(d.get("kind"), d.get("wheel"), d.get("camera"), d.get("because_of"))
+        return cls(d.get("kind"), d.get("wheel"), d.get("camera"), d.get("because_of"), reason=d.get("reason"))
 
 
 @dataclass

@@ -79,6 +79,13 @@ def tilt_directions(axis_station: np.ndarray) -> tuple[np.ndarray, np.ndarray] |
     return e_toe, np.cross(a, e_toe)
 
 
+# why a wheel is stated beyond the limit, as its ``uncertain`` flag's ``reason`` says it (the PLC's
+# uncertain_reasons codes them, station/plc/register_map.py): its views disagree, one lip at the
+# sensor's white, or on arcs no brighter than the tyre, or the fainter; its edge wavers round
+# the rim beyond its noise; its edge is faint or noisy; the calibration's share
+UNCERTAIN_REASONS = ("white_lip", "dark_lip", "faint_view", "uneven_edge", "faint_edge", "calibration")
+
+
 def refuse_uncertain_wheels(result: Measurement, observations: dict, config: StationConfig) -> Failure | None:
     """The failure of a cycle with a wheel whose toe or camber is less certain than
     ``measurement.uncertainty_limit_deg``: a value that uncertain is no use for aligning, and a
@@ -97,8 +104,8 @@ def refuse_uncertain_wheels(result: Measurement, observations: dict, config: Sta
         return None
     texts, hints = [], []
     for w, (name, std) in refused:
-        text, hint = _why_uncertain(observations[w], name, std, config)
-        result.warning_flags.append(WarningFlag("uncertain", w, text=f"{w}: {text}"))
+        text, hint, reason = _why_uncertain(observations[w], name, std, config)
+        result.warning_flags.append(WarningFlag("uncertain", w, text=f"{w}: {text}", reason=reason))
         texts.append(f"{w}: {name} +/-{std:.3f} deg, {text}")
         hints.append(hint)
     wheels = [w for w, _ in refused]
@@ -109,8 +116,9 @@ def refuse_uncertain_wheels(result: Measurement, observations: dict, config: Sta
                    wheels[0] if len(wheels) == 1 else ",".join(wheels), camera)
 
 
-def _why_uncertain(o: WheelObservation, angle: str, std_deg: float, config: StationConfig) -> tuple[str, str]:
-    """(why the wheel's ``angle`` ("toe" or "camber") is stated ``std_deg``, what to do), from
+def _why_uncertain(o: WheelObservation, angle: str, std_deg: float, config: StationConfig) -> tuple[str, str, str]:
+    """(why the wheel's ``angle`` ("toe" or "camber") is stated ``std_deg``, what to do, which of
+    ``UNCERTAIN_REASONS``), from
     the largest part of that statement (:func:`statement_parts`): the views' disagreement,
     naming the camera whose edge is off (:func:`_edge_off`); an edge that wavers round the rim
     beyond its noise, naming the camera whose edge wavers (:func:`_wavering`); the edges' noise, naming the
@@ -120,13 +128,14 @@ def _why_uncertain(o: WheelObservation, angle: str, std_deg: float, config: Stat
     main = max(parts, key=parts.get)
     share = f"+/-{np.sqrt(parts[main]):.3f} deg on its own"
     if main == "views":
-        why, hint = _edge_off(o, config)
+        why, hint, reason = _edge_off(o, config)
         return (f"its cameras {o.cams[0]} and {o.cams[1]} each see the rim's axis differently, by "
-                f"{o.views.angle_deg:.2f} deg: one of them sees the rim's edge off on part of the rim ({why})", hint)
+                f"{o.views.angle_deg:.2f} deg: one of them sees the rim's edge off on part of the rim ({why})", hint,
+                reason)
     if main == "calibration":
         return (f"the calibration of {o.cams[0]} and {o.cams[1]} is uncertain here ({share})",
                 f"Calibrate again (station calibrate), the box shown across the whole view of {o.cams[0]} and "
-                f"{o.cams[1]}.")
+                f"{o.cams[1]}.", "calibration")
     cam = _fainter(o)
     if main == "edge":
         cams = _wavering(o)
@@ -135,7 +144,7 @@ def _why_uncertain(o: WheelObservation, angle: str, std_deg: float, config: Stat
                 f"be off the lip on whole arcs",
                 f"Look at the rim's lip in {' and '.join(cams)}: clean the lip (brake dust, dirt), shade it from "
                 f"direct sun and light it evenly; on a glossy lip the lamps it mirrors move its edge: dim or move "
-                f"them, or light the wheel with a diffuse panel.")
+                f"them, or light the wheel with a diffuse panel.", "uneven_edge")
     kept = kept_fractions(o)
     weak = o.cams[int(np.argmin(kept))]
     why = (f"the lip's edge is faint or noisy: the 3-D rim's points lie {o.circle.reprojection_rms_px:.2f} px rms "
@@ -144,7 +153,7 @@ def _why_uncertain(o: WheelObservation, angle: str, std_deg: float, config: Stat
     if min(kept) < FULL_VIEW_COVERAGE:
         why += f"; the 3-D rim rests on {min(kept):.0%} of {weak}'s edge points"
         hint += f" Check that {weak} sees the whole rim (wheel position, tyre, arch)."
-    return why, hint
+    return why, hint, "faint_edge"
 
 
 def statement_parts(o: WheelObservation, angle: str, config: StationConfig) -> dict[str, float]:
@@ -194,8 +203,9 @@ def _fainter(o: WheelObservation) -> str:
     return o.cams[int(np.nanargmin(steps))] if not np.all(np.isnan(steps)) else o.cams[0]
 
 
-def _edge_off(o: WheelObservation, config: StationConfig) -> tuple[str, str]:
-    """(why, what to do) for a disagreeing pair, naming the cameras whose edge is likely off
+def _edge_off(o: WheelObservation, config: StationConfig) -> tuple[str, str, str]:
+    """(why, what to do, which of ``UNCERTAIN_REASONS``) for a disagreeing pair, naming the
+    cameras whose edge is likely off
     from what each detection measured of its own edge: the one whose lip is at the sensor's
     white on more of the rim than its partner's by ``measurement.white_edge_limit`` (the edge
     read toward the tyre; a polished lip mirroring lamps puts both at the white in spots),
@@ -209,7 +219,7 @@ def _edge_off(o: WheelObservation, config: StationConfig) -> tuple[str, str]:
         return (f"the lip is at the sensor's white on {white[whiter]:.0%} of {whiter}'s rim, which moves the edge "
                 f"toward the tyre",
                 f"Shorten {whiter}'s exposure (or its gain), or shade the wheel from the sun or the lamp that drives "
-                f"the lip to white.")
+                f"the lip to white.", "white_lip")
     if max(dark.values()) > 0.0:
         cams = sorted((c for c in o.cams if dark[c] > 0.0), key=lambda c: -dark[c])
         shares = " and ".join(f"{dark[c]:.0%} of {c}'s" for c in cams)
@@ -218,10 +228,10 @@ def _edge_off(o: WheelObservation, config: StationConfig) -> tuple[str, str]:
                 f"the rim's",
                 f"Look at the rim in {names}: a lamp or the sun at the side lights the tyre past a shaded lip, the "
                 f"lip is dirty there, or a glossy lip mirrors something dark. Shade the wheel from that light or "
-                f"light it evenly (a diffuse panel), and clean the lip.")
+                f"light it evenly (a diffuse panel), and clean the lip.", "dark_lip")
     cam = _fainter(o)
     return (f"the fainter edge is {cam}'s",
             f"Look at {cam}'s image of the rim's lip: clean the lip (brake dust, dirt), shade it from direct "
             f"sun, light it, or give {cam} a longer exposure if the rim is dark. On a glossy lip (clear-coated "
             f"dark paint, polish, chrome) the lamps it mirrors move its edge: dim or move the lamps whose "
-            f"reflections sit on the lip, or light the wheel with a diffuse panel.")
+            f"reflections sit on the lip, or light the wheel with a diffuse panel.", "faint_view")

@@ -193,18 +193,21 @@ def test_a_refused_wheels_reason_is_the_largest_part_of_its_statement(sim):
     circle = o.circle
     big = dataclasses.replace(circle, calibration_share=(0.0, 2 * np.radians(0.5) ** 2),
                               cov_axis=circle.cov_axis + np.radians(0.5) ** 2 * np.eye(3))
-    why, hint = _why_uncertain(dataclasses.replace(o, circle=big), "camber", 0.5, cfg)
-    assert "calibration" in why and "station calibrate" in hint
+    why, hint, reason = _why_uncertain(dataclasses.replace(o, circle=big), "camber", 0.5, cfg)
+    assert "calibration" in why and "station calibrate" in hint and reason == "calibration"
     wavy = [np.zeros((3, 3)), np.radians(0.3) ** 2 * np.eye(3)]  # the reference camera's edge wavers
     big = dataclasses.replace(circle, cov_axis=circle.cov_axis + wavy[1], cov_axis_bias_views=tuple(wavy))
-    why, _ = _why_uncertain(dataclasses.replace(o, circle=big), "toe", 0.3, cfg)
+    why, _, reason = _why_uncertain(dataclasses.replace(o, circle=big), "toe", 0.3, cfg)
     assert f"wavers round the rim beyond its noise, most in {o.cams[1]}" in why and "+/-0.3" in why
+    assert reason == "uneven_edge"
     alike = dataclasses.replace(big, cov_axis_bias_views=(0.8 * wavy[1], wavy[1]))
-    why, _ = _why_uncertain(dataclasses.replace(o, circle=alike), "toe", 0.3, cfg)
+    why, _, _ = _why_uncertain(dataclasses.replace(o, circle=alike), "toe", 0.3, cfg)
     assert f"in {o.cams[0]} and {o.cams[1]} alike" in why
-    apart = dataclasses.replace(o.views, disagreement_station=np.radians(1.0) * np.cross(circle.axis_station, [0, 0, 1]))
-    why, _ = _why_uncertain(dataclasses.replace(o, views=apart), "toe", 0.5, cfg)
+    across = np.cross(circle.axis_station, [0, 0, 1])
+    apart = dataclasses.replace(o.views, disagreement_station=np.radians(1.0) * across / np.linalg.norm(across))
+    why, _, reason = _why_uncertain(dataclasses.replace(o, views=apart), "toe", 0.5, cfg)
     assert "each see the rim's axis differently, by 1.00 deg" in why
+    assert reason in ("white_lip", "dark_lip", "faint_view")
 
 
 @pytest.mark.slow
@@ -220,12 +223,15 @@ def test_a_wheel_less_certain_than_the_limit_is_refused_with_why_and_what_to_do(
     assert flags == ["FL", "FR", "RL", "RR"]                     # the PLC's warning_bits 0-3
     message = refused.failure.message
     assert "0.001 deg uncertainty limit" in message and "no angle of this cycle is reported" in message
+    from station.stated_uncertainty import UNCERTAIN_REASONS
+
     reasons = ("see the rim's axis differently", "wavers round the rim", "faint or noisy", "calibration")
     for f in refused.warning_flags:  # why: the largest part of the statement, naming a camera of the pair
         if f.kind == "uncertain":
             pair = cfg.pairs[f.wheel]
             assert f.text.startswith(f"{f.wheel}: ") and f.text[4:] in message
-            assert sum(r in f.text for r in reasons) == 1
+            assert sum(r in f.text for r in reasons) == 1 and f.reason in UNCERTAIN_REASONS
+            assert f.to_json()["reason"] == f.reason
             assert pair.precision in f.text or pair.reference in f.text
     assert "measure again" in refused.failure.hint
     doc = refused.to_json()  # the refused angles stay on the object (recording, benchmarks), not in the JSON

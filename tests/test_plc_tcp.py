@@ -414,3 +414,40 @@ def test_serve_on_an_uncalibrated_station_faults_the_cycle_and_keeps_serving(tmp
     finally:
         proc.terminate()
         proc.wait(10)
+
+
+def test_a_refused_cycle_says_which_wheels_and_why_in_the_warning_registers(station):
+    """A cycle refused for uncertain wheels (404) sets their warning_bits and, per wheel, the
+    reason code in uncertain_reasons, so that a line can show what to do; the next cycle clears them."""
+    from station.result import WarningFlag
+
+    def runner(request):
+        if request.job_id.endswith("1"):
+            return Measurement(station="test", failure=Failure(404, "FL, RR less certain than the 0.06 deg limit",
+                                                               "Shorten cam3's exposure.", "FL,RR"),
+                               warning_flags=[WarningFlag("uncertain", "FL", reason="white_lip"),
+                                              WarningFlag("uncertain", "RR", reason="uneven_edge"),
+                                              WarningFlag("exposure", "FL", camera="cam3")])
+        return synthetic_result(request, 0)
+
+    _, client, _ = station(runner)
+    assert not trigger(client, "JOB-000001").isError()
+    b = wait_state(client, {DONE, FAULT})
+    assert (b["state"], b["fault_code"], b["result_valid"]) == (FAULT, 404, 0)
+    assert b["warning_bits"] == 1 << 0 | 1 << 3                                # FL and RR uncertain
+    codes = rm.UNCERTAIN_REASON_CODES
+    assert b["uncertain_reasons"] == codes["white_lip"] | codes["uneven_edge"] << 12
+    assert b["station_warning_bits"] == 1 << rm.ANY_WARNING_BIT | 1 << 1     # any, and a lip at the white
+    assert rm.uncertain_reasons_of(b["uncertain_reasons"]) == {"FL": "white_lip", "RR": "uneven_edge"}
+    assert not client.write_register(0, 3).isError()                          # reset the fault
+    assert not trigger(client, "JOB-000002").isError()
+    b = wait_state(client, {DONE, FAULT})
+    assert (b["state"], b["warning_bits"] & 0xF, b["uncertain_reasons"]) == (DONE, 0, 0)
+
+
+def test_every_uncertain_reason_has_a_plc_code():
+    from station.stated_uncertainty import UNCERTAIN_REASONS
+
+    assert set(rm.UNCERTAIN_REASON_CODES) == set(UNCERTAIN_REASONS)
+    assert sorted(rm.UNCERTAIN_REASON_CODES.values()) == list(range(1, len(UNCERTAIN_REASONS) + 1))
+    assert max(rm.UNCERTAIN_REASON_CODES.values()) < 1 << rm.UNCERTAIN_REASON_BITS

@@ -42,7 +42,7 @@ from station.plc.gates import LoopRollGate, LoopSteerGate
 from station.plc.handshake import (TRIGGERS, Event, PlcBadJobId, PlcCycleTimeout, State, event_for_command,
                                    modbus_exception, next_state, roll_timeout_error, steer_timeout_error)
 from station.plc.results import (cleared_registers, result_registers, roll_prompt_registers, steer_live_registers,
-                                 steer_prompt_registers)
+                                 steer_prompt_registers, warning_registers)
 from station.plc.roll_operator import RollPrompt
 from station.plc.runner import CycleRequest, CycleRunner
 from station.plc.steer_operator import SteerPrompt
@@ -281,17 +281,21 @@ class PlcDevice:
             if not result.valid:
                 failure = result.failure
                 code = failure.code if failure is not None and isinstance(failure.code, int) else MeasurementError.code
-                return self._fault(request, code, str((failure and failure.message) or "invalid result"), elapsed)
+                return self._fault(request, code, str((failure and failure.message) or "invalid result"), elapsed,
+                                   warning_registers(result))
             values = result_registers(result, request.job_id, request.command in ("measure", "measure_caster"),
                                       steering_required=request.command == "measure_caster")
         except StationError as e:
             return self._fault(request, e.code, str(e), elapsed)
         self._finish(request, Event.CYCLE_OK, values, elapsed)
 
-    def _fault(self, request: CycleRequest, code: int, reason: str, elapsed: float) -> None:
+    def _fault(self, request: CycleRequest, code: int, reason: str, elapsed: float,
+               warnings: dict | None = None) -> None:
+        """Publish a failed cycle: its code and reason, and ``warnings`` (a refused result's
+        warning registers, ``warning_registers``: which wheels a 404 refused and why)."""
         f = rm.FIELDS["fault_reason"]
         self._finish(request, Event.CYCLE_FAILED,
-                     {f.address: rm.ascii_to_regs(reason, f.count),
+                     {**(warnings or {}), f.address: rm.ascii_to_regs(reason, f.count),
                       rm.FIELDS["fault_code"].address: [code & 0xFFFF]}, elapsed)
         log.warning("cycle %d failed (%d): %s", request.cycle, code, reason)
 

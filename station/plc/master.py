@@ -68,6 +68,7 @@ class CycleReport:
     steers: list = field(default_factory=list)  # a steering sweep: the SteerStep of each steer seen
     steering_valid: int = 0  # steering_valid of the result
     steering: dict = field(default_factory=dict)  # FL, FR -> {caster, sai, included_angle, kingpin_offset_mm}
+    uncertain: dict = field(default_factory=dict)  # a 404: wheel -> why (register_map.uncertain_reasons_of)
 
     @property
     def handshake_s(self) -> float:
@@ -198,6 +199,7 @@ class PlcSimulator:
             rep.problems.append(f"cycle counter moved from {counter0} to {b['cycle_counter']}")
         rep.measure_s = b["cycle_time_us"] / 1e6
         rep.fault_code, rep.reason = b["fault_code"], b["fault_reason"] or ""
+        rep.uncertain = rm.uncertain_reasons_of(b["uncertain_reasons"])
         rep.angles = rm.angles_from_block(b, "f32")
         rep.pass_bits, rep.judged_bits = b["pass_bits"], b["judged_bits"]
         if steering:  # the steering block: a second read (other cycles leave it alone: one read less)
@@ -346,6 +348,8 @@ def format_row(i: int, rep: CycleReport) -> str:
     line = f"{i:>4} {rep.job_id:<12} {status:<9} {vals} {verdict:>4} {rep.handshake_s * 1e3:6.1f}"
     if rep.state == "fault":
         line += f"  {rep.reason}"
+    if rep.uncertain:
+        line += "\n       uncertain: " + ", ".join(f"{w} {why}" for w, why in rep.uncertain.items())
     if rep.steering_valid:
         line += "\n       " + format_steering(rep.steering)
     if rep.compensated:

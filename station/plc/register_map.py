@@ -50,7 +50,7 @@ COMMANDS = {0: "none", 1: "measure", 2: "calibration_check", 3: "reset_fault", 4
 COMMAND_CODES = {name: code for code, name in COMMANDS.items()}
 STATES = {0: "idle", 1: "busy", 2: "done", 3: "fault", 4: "roll", 5: "steer"}
 STATE_CODES = {name: code for code, name in STATES.items()}
-MAP_VERSION = 7  # 2: warning_bits (113) added; 3: station_warning_bits (114), and bit 15 of
+MAP_VERSION = 8  # 2: warning_bits (113) added; 3: station_warning_bits (114), and bit 15 of
                  # warning_bits is RR's runner-up alone (it also meant "any warning" in 2);
                  # 4: bit 4 of station_warning_bits (a rim another size than its axle partner's);
                  # 5: runout compensation (issue 32): command 5 measure compensated, command 6 in
@@ -61,6 +61,8 @@ MAP_VERSION = 7  # 2: warning_bits (113) added; 3: station_warning_bits (114), a
                  # each front wheel's caster, SAI, included angle and kingpin offset 232..256 (a
                  # second read, STEER_BLOCK: 100..224 stays one read); nothing moved;
                  # 7: bit 5 of station_warning_bits (a camera's grey not proportional to light)
+                 # 8: uncertain_reasons (119), and warning_bits and station_warning_bits of a refused
+                 # cycle as well (a 404 sets the refused wheels' bits 0-3); nothing moved
 # bits of warning_bits: (first bit, kind of the result's warning_flags); bit first + i for wheel i
 # of WHEELS (FL, FR, RL, RR)
 WARNING_KINDS = ((0, "uncertain"), (4, "drift"), (8, "unchecked"), (12, "runner_up"))
@@ -68,6 +70,22 @@ WARNING_KINDS = ((0, "uncertain"), (4, "drift"), (8, "unchecked"), (12, "runner_
 # a wheel whose rim came out another size than its axle partner's (the texts name them)
 ANY_WARNING_BIT = 0
 STATION_WARNING_KINDS = ((1, "exposure"), (2, "focus"), (3, "small_rim"), (4, "rim_size"), (5, "response"))
+# uncertain_reasons: 4 bits per wheel (FL bits 0-3, FR 4-7, RL 8-11, RR 12-15), why the wheel was
+# stated beyond the uncertainty limit (the reason of its "uncertain" warning flag); 0: not refused
+UNCERTAIN_REASON_CODES = {"white_lip": 1, "dark_lip": 2, "faint_view": 3, "uneven_edge": 4, "faint_edge": 5,
+                          "calibration": 6}
+UNCERTAIN_REASON_BITS = 4
+
+
+def uncertain_reasons_of(value: int) -> dict[str, str]:
+    """uncertain_reasons -> {wheel: reason name} of the wheels refused (an unknown code: "code N")."""
+    names = {code: name for name, code in UNCERTAIN_REASON_CODES.items()}
+    out = {}
+    for i, w in enumerate(WHEELS):
+        code = (int(value) >> (UNCERTAIN_REASON_BITS * i)) & ((1 << UNCERTAIN_REASON_BITS) - 1)
+        if code:
+            out[w] = names.get(code, f"code {code}")
+    return out
 
 
 @dataclass(frozen=True)
@@ -188,12 +206,12 @@ STATION_FIELDS = [
     Field("judged_bits", 109, "bits", 1, "bit i: angle i was judged against a spec; bit 15: overall"),
     Field("cycle_time_us", 110, "u32", 2, "time the measurement itself took", unit="us"),
     Field("map_version", 112, "u16", 1, f"version of this register map ({MAP_VERSION})"),
-    Field("warning_bits", 113, "bits", 1, "warnings of the last valid result, bit first + wheel (FL 0, FR 1, "
-          "RL 2, RR 3): 0 the wheel's toe or camber is less certain than the limit, 4 the pair's "
+    Field("warning_bits", 113, "bits", 1, "warnings of the last finished cycle, valid or refused, bit first + "
+          "wheel (FL 0, FR 1, RL 2, RR 3): 0 the wheel's toe or camber is less certain than the limit, 4 the pair's "
           "calibration may have drifted, 8 the pair's calibration could not be checked, 12 a runner-up "
           "rim candidate was taken (the texts: the result's `warnings`)"),
-    Field("station_warning_bits", 114, "bits", 1, "warnings of the last valid result: bit 0 any warning "
-          "at all; bits 1-3 a camera's own: 1 its rim edge reaches the sensor's white (shorten the "
+    Field("station_warning_bits", 114, "bits", 1, "warnings of the last finished cycle, valid or refused: bit 0 "
+          "any warning at all; bits 1-3 a camera's own: 1 its rim edge reaches the sensor's white (shorten the "
           "exposure), 2 its rim edge is blurred (refocus), 3 its rim is too small in the image (the "
           "texts name the camera); 4 a wheel's rim came out another size than its axle partner's (its "
           "angles may be off: the texts name the wheel); 5 a camera's grey is not proportional to light as "
@@ -206,6 +224,14 @@ STATION_FIELDS = [
           "0 in any other state", unit="mm", scale=1),
     Field("roll_position_mm", 118, "i16", 1, "in state roll: where the car must stand after this roll, from "
           "where it stood at the trigger, + forward; 0 in any other state", unit="mm", scale=1),
+    Field("uncertain_reasons", 119, "u16", 1, "why each wheel of a cycle refused with fault 404 is less certain "
+          "than the limit, 4 bits per wheel (FL bits 0-3, FR 4-7, RL 8-11, RR 12-15): 0 not refused; its two "
+          "cameras see the rim's axis differently because 1 one camera's lip is at the sensor's white (shorten "
+          "its exposure, shade the wheel), 2 on arcs the lip is no brighter than the tyre (shade or light the "
+          "wheel evenly, clean the lip), 3 one camera's edge is fainter (clean and light the lip); 4 the lip's "
+          "edge wavers round the rim (clean it, light it evenly, diffuse light on a glossy lip); 5 the lip's "
+          "edge is faint or noisy (light the rim, a longer exposure, focus); 6 the calibration's share "
+          "(calibrate again). The texts: fault_reason and the result's warnings"),
     *_angle_fields(),
     Field("result_job_id", 160, "ascii", 16, "job id of the cycle the result belongs to"),
     Field("fault_reason", 176, "ascii", 32, "readable reason of the fault, up to 64 characters"),

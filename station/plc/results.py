@@ -70,6 +70,25 @@ def result_warning_bits(result: Measurement) -> int:
     return bits
 
 
+def result_uncertain_reasons(result: Measurement) -> int:
+    """uncertain_reasons: per wheel, 4 bits (register_map.UNCERTAIN_REASON_CODES) of the reason
+    of its ``uncertain`` flag; 0 for a wheel without one (or an unknown reason)."""
+    bits = 0
+    for flag in result.warning_flags:
+        code = rm.UNCERTAIN_REASON_CODES.get(flag.reason or "", 0) if flag.kind == "uncertain" else 0
+        if code and flag.wheel in WHEELS:
+            bits |= code << (rm.UNCERTAIN_REASON_BITS * WHEELS.index(flag.wheel))
+    return bits
+
+
+def warning_registers(result: Measurement) -> dict[int, list[int]]:
+    """{address: values} of warning_bits, station_warning_bits and uncertain_reasons: of a valid
+    result, and of a refused one (a 404 names its wheels and why)."""
+    return {rm.FIELDS["warning_bits"].address: [result_warning_bits(result)],
+            rm.FIELDS["station_warning_bits"].address: [result_station_warning_bits(result)],
+            rm.FIELDS["uncertain_reasons"].address: [result_uncertain_reasons(result)]}
+
+
 def result_station_warning_bits(result: Measurement) -> int:
     """station_warning_bits: ANY_WARNING_BIT for any warning (text or flag), and the bit of each
     kind of register_map.STATION_WARNING_KINDS among the ``warning_flags``."""
@@ -168,8 +187,7 @@ def result_registers(result: Measurement, job_id: str | None, angles_required: b
         out[rm.FIELDS[f"{key}_i16"].address] = [rm.deg_to_i16(value)]
     out[rm.FIELDS["pass_bits"].address] = [passed]
     out[rm.FIELDS["judged_bits"].address] = [judged]
-    out[rm.FIELDS["warning_bits"].address] = [result_warning_bits(result)]
-    out[rm.FIELDS["station_warning_bits"].address] = [result_station_warning_bits(result)]
+    out.update(warning_registers(result))
     out.update(runout_registers(result_runout(result), bool(result.runout_compensated)))
     out.update(steering_registers(result_steering(result, steering_required)))
     f = rm.FIELDS["result_job_id"]
@@ -188,6 +206,7 @@ def cleared_registers() -> dict[int, list[int]]:
     out[rm.FIELDS["judged_bits"].address] = [0]
     out[rm.FIELDS["warning_bits"].address] = [0]
     out[rm.FIELDS["station_warning_bits"].address] = [0]
+    out[rm.FIELDS["uncertain_reasons"].address] = [0]
     out[rm.FIELDS["result_job_id"].address] = [0] * rm.FIELDS["result_job_id"].count
     out.update(runout_registers({}, False))
     out.update(steering_registers(None))
