@@ -87,3 +87,29 @@ def test_mbpoll_over_rtu(tmp_path):
     finally:
         socat.terminate()
         socat.wait(5)
+
+
+def test_mbpoll_reads_which_wheels_a_refused_cycle_refused_and_why():
+    """A cycle refused for two uncertain wheels (fault 404): mbpoll reads the fault, warning_bits
+    with the two wheels' bits and uncertain_reasons with each one's reason code."""
+    from station.result import Failure, Measurement, WarningFlag
+
+    def refused(request):
+        return Measurement(station="test", failure=Failure(404, "FR, RL less certain than the 0.06 deg limit", None,
+                                                           "FR,RL"),
+                           warning_flags=[WarningFlag("uncertain", "FR", reason="dark_lip"),
+                                          WarningFlag("uncertain", "RL", reason="faint_edge")])
+
+    with BackgroundServer(PlcDevice(refused)) as bg:
+        target = ["-m", "tcp", "-p", str(bg.start_tcp()), "-a", "1", "127.0.0.1"]
+        assert mbpoll(target[:-1] + ["-r", "0", target[-1]], 1).returncode == 0  # measure
+        deadline = time.monotonic() + 10
+        while True:
+            status = parse(mbpoll(target[:-1] + ["-r", "100", "-c", "20", target[-1]]).stdout)
+            if status.get(100) == "3" or time.monotonic() > deadline:
+                break
+            time.sleep(0.05)
+        assert (status[100], status[101], status[104]) == ("3", "404", "0"), status  # fault 404, no result
+        assert int(status[113]) == 1 << 1 | 1 << 2  # FR and RL uncertain
+        codes = rm.UNCERTAIN_REASON_CODES
+        assert int(status[119]) == codes["dark_lip"] << 4 | codes["faint_edge"] << 8
