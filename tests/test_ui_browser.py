@@ -250,3 +250,43 @@ def test_a_wrong_password_is_refused_on_the_login_page_and_the_right_one_opens_t
         browser.close_target(tab.target_id)
     finally:
         ui.close()
+
+
+def test_a_cycle_refused_for_uncertain_wheels_shows_each_wheel_and_why(tmp_path, browser):
+    """A measurement refused because its wheels are less certain than the limit (error 404; here a
+    limit of 0.001 deg refuses every wheel): the outcome says so with what to do, and a table gives
+    each wheel and why, as the result's flags (and the PLC's uncertain_reasons) say it."""
+    config = small_station_config(tmp_path, measurement__uncertainty_limit_deg=0.001, capture__frames_averaged=1,
+                                  recording__enabled=False)
+    truth_calibration(config)
+    ui = UiServer(config, tmp_path, SEED)
+    try:
+        tab = browser.page()
+        tab.goto(ui.base + "/")
+        tab.wait("document.querySelectorAll('#vehicle-list div').length >= 3")
+        tab.type("#vehicle-search", "caravan")
+        tab.wait("document.querySelectorAll('#vehicle-list div').length === 1")
+        tab.click("#vehicle-list div")
+        tab.wait("document.querySelector('#vehicle-chosen').textContent === 'Dodge Caravan 2007'")
+        tab.type("#job-id", "BROWSER-VIN-404")
+        tab.click("#save-job")
+        tab.wait("document.querySelector('#message').textContent.startsWith('Job BROWSER-VIN-404 started')")
+        tab.goto(ui.base + "/procedure")
+        tab.wait("document.querySelector('#job-line').textContent.includes('BROWSER-VIN-404')")
+        tab.wait("!document.querySelector('button[data-key=measurement]').disabled")
+        tab.click("button[data-key=measurement]")
+        tab.wait("!!document.querySelector('#refused-table')", timeout=150)
+        outcome = tab.text("#outcome")
+        assert "Measurement failed (error 404)" in outcome and "less certain than the 0.001 deg" in outcome
+        rows = tab.js("[...document.querySelectorAll('#refused-table tr[data-wheel]')].map(r => "
+                      "[r.dataset.wheel, r.dataset.reason, r.children[1].textContent])")
+        assert [r[0] for r in rows] == ["FL", "FR", "RL", "RR"]
+        from station.stated_uncertainty import UNCERTAIN_REASONS
+        for wheel, reason, why in rows:
+            assert reason in UNCERTAIN_REASONS and why and not why.startswith(wheel)
+        assert not tab.js("!!document.querySelector('#result-table')")  # no angle shown
+        _shot(tab, "procedure-refused")
+        assert tab.console_errors() == []
+        browser.close_target(tab.target_id)
+    finally:
+        ui.close()

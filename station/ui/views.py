@@ -51,7 +51,8 @@ def _angle(value, std, window) -> dict:
 
 def measurement_view(result: Measurement, spec: VehicleSpec | None = None) -> dict:
     """A result as the procedure page shows it: each angle with its uncertainty and verdict, the
-    failure's message and what to do, the warnings."""
+    failure's message and what to do (and for a cycle refused for uncertain wheels, each wheel
+    and why: ``refused``), the warnings."""
     out = {"cycle_id": result.cycle_id, "job_id": result.job_id, "vehicle": result.vehicle_spec,
            "valid": result.valid, "time_utc": result.time_utc, "warnings": list(result.warnings),
            "runout_compensated": result.runout_compensated}
@@ -59,6 +60,10 @@ def measurement_view(result: Measurement, spec: VehicleSpec | None = None) -> di
         f = result.failure
         out["failure"] = {"code": f.code if f else None, "message": f.message if f else "the measurement failed",
                           "hint": f.hint if f else None}
+        # a cycle refused for uncertain wheels: each wheel and why, one row each
+        out["refused"] = [{"wheel": flag.wheel, "reason": flag.reason,
+                           "why": (flag.text or "").removeprefix(f"{flag.wheel}: ")}
+                          for flag in result.warning_flags if flag.kind == "uncertain"]
         return out
     out["wheels"] = {}
     for w in WHEELS:

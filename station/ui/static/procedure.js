@@ -45,7 +45,8 @@ function showRun(run) {
   if (run.state === "done") Station.message(outcome, "good", `${run.title}: done.`);
   else Station.message(outcome, "error", `${run.title} ${run.state === "error" ? "stopped by an error" : "failed"}${run.code ? ` (error ${run.code})` : ""}: ${run.message}`, run.hint);
   const result = document.getElementById("result");
-  if (!result.firstChild && run.summary && run.summary.valid) result.appendChild(resultTable(run.summary));
+  const s = run.summary;
+  if (!result.firstChild && s && (s.valid || (s.refused && s.refused.length))) result.appendChild(resultTable(s));
 }
 function update(data) {
   if (!built) buildSteps(data.steps);

@@ -11,7 +11,23 @@ function resultTable(summary) {
   const wrap = Station.el("div", { class: "card", id: "result-card" });
   if (!summary) return wrap;
   wrap.appendChild(Station.el("h2", {}, `Cycle ${summary.cycle_id || ""}${summary.overall === true ? " — PASS" : summary.overall === false ? " — FAIL" : ""}`));
-  if (!summary.valid) return wrap;
+  if (!summary.valid) {
+    // a cycle refused for uncertain wheels: each wheel and why (what to do is in the message above)
+    if (summary.refused && summary.refused.length) {
+      wrap.appendChild(Station.el("p", {}, "No angle of this cycle is valid. These wheels are less certain than the limit:"));
+      const table = Station.el("table", { id: "refused-table" });
+      const head = Station.el("tr");
+      for (const h of ["wheel", "why"]) head.appendChild(Station.el("th", {}, h));
+      table.appendChild(head);
+      for (const r of summary.refused) {
+        const tr = Station.el("tr", { "data-wheel": r.wheel, "data-reason": r.reason || "" });
+        tr.appendChild(Station.el("td", {}, r.wheel)); tr.appendChild(Station.el("td", { class: "warn" }, r.why));
+        table.appendChild(tr);
+      }
+      wrap.appendChild(table);
+    }
+    return wrap;
+  }
   wrap.appendChild(Station.el("p", {}, summary.runout_compensated ? "Toe and camber of the wheels' spin axes (runout compensated)." : "Toe and camber of the rim planes (runout not compensated)."));
   const table = Station.el("table", { id: "result-table" });
   const runout = Boolean(summary.runout_compensated);  // then each rim's runout (its tilt against the spin axis) too
