@@ -18,6 +18,17 @@ pytestmark = pytest.mark.skipif(shutil.which("mbpoll") is None, reason="mbpoll i
 JOB = "WVWZZZ1KZAW000017"
 
 
+def wait_state(target: list[str], state: str, count: int, timeout_s: float = 10.0) -> dict:
+    """Poll the status registers 100.. (``count`` of them) with mbpoll until ``state`` or the
+    timeout; the last read {address: text}."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        status = parse(mbpoll(target[:-1] + ["-r", "100", "-c", str(count), target[-1]]).stdout)
+        if status.get(100) == state or time.monotonic() > deadline:
+            return status
+        time.sleep(0.05)
+
+
 def drive_a_cycle(target: list[str]) -> None:
     """One handshake done entirely by mbpoll: job id, trigger, poll, read, acknowledge."""
     regs = rm.ascii_to_regs(JOB, 16)
@@ -25,12 +36,7 @@ def drive_a_cycle(target: list[str]) -> None:
     assert r.returncode == 0, r.stdout + r.stderr
     r = mbpoll(target[:-1] + ["-r", "0", target[-1]], 1)  # measure
     assert r.returncode == 0 and "Written 1 references" in r.stdout, r.stdout + r.stderr
-    deadline = time.monotonic() + 10
-    while True:
-        status = parse(mbpoll(target[:-1] + ["-r", "100", "-c", "8", target[-1]]).stdout)
-        if status.get(100) == "2" or time.monotonic() > deadline:
-            break
-        time.sleep(0.05)
+    status = wait_state(target, "2", count=8)
     assert status[100] == "2" and status[104] == "1" and status[101] == "0", status  # done, valid, no fault
     want = synthetic_result(CycleRequest("measure", JOB, None, 0), fail_every=10)
     floats = parse(mbpoll(target[:-1] + ["-r", "120", "-c", "11", "-t", "4:float", "-B", target[-1]]).stdout)
@@ -103,12 +109,7 @@ def test_mbpoll_reads_which_wheels_a_refused_cycle_refused_and_why():
     with BackgroundServer(PlcDevice(refused)) as bg:
         target = ["-m", "tcp", "-p", str(bg.start_tcp()), "-a", "1", "127.0.0.1"]
         assert mbpoll(target[:-1] + ["-r", "0", target[-1]], 1).returncode == 0  # measure
-        deadline = time.monotonic() + 10
-        while True:
-            status = parse(mbpoll(target[:-1] + ["-r", "100", "-c", "20", target[-1]]).stdout)
-            if status.get(100) == "3" or time.monotonic() > deadline:
-                break
-            time.sleep(0.05)
+        status = wait_state(target, "3", count=20)
         assert (status[100], status[101], status[104]) == ("3", "404", "0"), status  # fault 404, no result
         assert int(status[113]) == 1 << 1 | 1 << 2  # FR and RL uncertain
         codes = rm.UNCERTAIN_REASON_CODES
