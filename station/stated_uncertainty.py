@@ -118,12 +118,11 @@ def refuse_uncertain_wheels(result: Measurement, observations: dict, config: Sta
 
 def _why_uncertain(o: WheelObservation, angle: str, std_deg: float, config: StationConfig) -> tuple[str, str, str]:
     """(why the wheel's ``angle`` ("toe" or "camber") is stated ``std_deg``, what to do, which of
-    ``UNCERTAIN_REASONS``), from
-    the largest part of that statement (:func:`statement_parts`): the views' disagreement,
-    naming the camera whose edge is off (:func:`_edge_off`); an edge that wavers round the rim
-    beyond its noise, naming the camera whose edge wavers (:func:`_wavering`); the edges' noise, naming the
-    fainter edge and a camera whose edge points the 3-D rim rests on only in part; or the
-    calibration."""
+    ``UNCERTAIN_REASONS``), from the largest part of that statement (:func:`statement_parts`):
+    the views' disagreement, naming the camera whose edge is off (:func:`_edge_off`); an edge
+    that wavers round the rim beyond its noise, naming the camera whose edge wavers
+    (:func:`_wavering`); the edges' noise, naming the fainter edge and a camera whose edge
+    points the 3-D rim rests on only in part; or the calibration."""
     parts = statement_parts(o, angle, config)
     main = max(parts, key=parts.get)
     share = f"+/-{np.sqrt(parts[main]):.3f} deg on its own"
@@ -149,7 +148,7 @@ def _why_uncertain(o: WheelObservation, angle: str, std_deg: float, config: Stat
     weak = o.cams[int(np.argmin(kept))]
     why = (f"the lip's edge is faint or noisy: the 3-D rim's points lie {o.circle.reprojection_rms_px:.2f} px rms "
            f"off it, the fainter edge {cam}'s ({share})")
-    hint = (f"Light the rim or give {cam} a longer exposure, check its focus, and clean the lip.")
+    hint = f"Light the rim or give {cam} a longer exposure, check its focus, and clean the lip."
     if min(kept) < FULL_VIEW_COVERAGE:
         why += f"; the 3-D rim rests on {min(kept):.0%} of {weak}'s edge points"
         hint += f" Check that {weak} sees the whole rim (wheel position, tyre, arch)."
