@@ -125,6 +125,8 @@ def _why_uncertain(o: WheelObservation, angle: str, std_deg: float, config: Stat
     points the 3-D rim rests on only in part; or the calibration."""
     parts = statement_parts(o, angle, config)
     main = max(parts, key=parts.get)
+    if parts[main] <= 0.0 or (main == "views" and o.views is None):  # no part stated: the fit itself is in doubt
+        main = "edge"
     share = f"+/-{np.sqrt(parts[main]):.3f} deg on its own"
     if main == "views":
         why, hint, reason = _edge_off(o, config)
@@ -170,14 +172,16 @@ def statement_parts(o: WheelObservation, angle: str, config: StationConfig) -> d
     d = tilts[0] if angle == "toe" else tilts[1]
 
     def along(cov) -> float:
-        return float(d @ np.asarray(cov, float) @ d) if cov is not None else 0.0
+        with np.errstate(invalid="ignore"):  # a fit stating inf: nan, counted as no part
+            return float(d @ np.asarray(cov, float) @ d) if cov is not None else 0.0
 
     fit, noise = along(c.cov_axis), along(c.cov_axis_noise)
     calibration = c.calibration_share[1] / 2 if c.calibration_share else 0.0  # its trace over both directions
     parts = {"views": along(views_covariance(o, config)), "calibration": calibration,
              "noise": noise + along(unseen_axis_covariance(o, c.axis_station, config)),
              "edge": max(fit - noise - calibration, 0.0)}
-    return {k: float(np.degrees(np.sqrt(max(v, 0.0))) ** 2) if np.isfinite(v) else 0.0 for k, v in parts.items()}
+    return {k: (float(np.degrees(np.sqrt(max(v, 0.0))) ** 2) if np.isfinite(v) else float("inf") if v > 0 else 0.0)
+            for k, v in parts.items()}
 
 
 WAVERING_RATIO = 2.0  # one camera's edge-bias part this many times its partner's: that camera's edge wavers

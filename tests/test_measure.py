@@ -203,6 +203,10 @@ def test_a_refused_wheels_reason_is_the_largest_part_of_its_statement(sim):
     alike = dataclasses.replace(big, cov_axis_bias_views=(0.8 * wavy[1], wavy[1]))
     why, _, _ = _why_uncertain(dataclasses.replace(o, circle=alike), "toe", 0.3, cfg)
     assert f"in {o.cams[0]} and {o.cams[1]} alike" in why
+    broken = dataclasses.replace(circle, cov_axis=np.full((3, 3), np.inf), cov_axis_noise=None,
+                                 cov_axis_bias_views=None, calibration_share=None)
+    why, hint, reason = _why_uncertain(dataclasses.replace(o, circle=broken, views=None), "toe", float("inf"), cfg)
+    assert reason in ("uneven_edge", "faint_edge") and why and hint  # a fit stating nothing finite: a reason too
     across = np.cross(circle.axis_station, [0, 0, 1])
     apart = dataclasses.replace(o.views, disagreement_station=np.radians(1.0) * across / np.linalg.norm(across))
     why, _, reason = _why_uncertain(dataclasses.replace(o, views=apart), "toe", 0.5, cfg)
