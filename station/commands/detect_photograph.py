@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from station.commands.photo_files import file_response, read_image
+from station.commands.photo_files import read_photograph
 from station.errors import RimNotFound, sentence_without
 
 SEARCHES = ("auto", "station", "photo")
@@ -189,10 +189,10 @@ def _found_by(search: str, det):
 
 def detect_file(path: str | Path, gamma: float | None, equalization: str = "clahe", search: str = "auto"):
     """(image as read, RimDetection, the response gamma used and where it came from, seconds of
-    search) of one image file; ImageError / RimNotFound as ``read_image`` and
+    search) of one image file, read once; ImageError / RimNotFound as ``read_image`` and
     ``detect_photograph`` raise them."""
-    image = read_image(path)
-    gamma, source = file_response(path) if gamma is None else (gamma, "--response-gamma")
+    image, said = read_photograph(path)
+    gamma, source = said if gamma is None else (gamma, "--response-gamma")
     t0 = time.perf_counter()
     det = detect_photograph(image, gamma, Path(path).name, equalization, search)
     det.details.update(response_gamma=gamma, response_from=source)

@@ -19,17 +19,31 @@ def read_image(path: str | Path) -> np.ndarray:
     """Read an image file as it is stored (grey, BGR or 16-bit; an alpha channel dropped), turned
     upright as its EXIF orientation says; ImageError for anything unusable, including a truncated
     PNG or JPEG (which decoders otherwise half-decode silently)."""
-    import cv2
+    return _decoded(_file_bytes(path), Path(path))
 
+
+def read_photograph(path: str | Path) -> tuple[np.ndarray, tuple[float, str]]:
+    """(the image as ``read_image`` reads it, (gamma, where from) as ``file_response`` gives it),
+    the file read once."""
+    data = _file_bytes(path)
+    return _decoded(data, Path(path)), bytes_response(data[:RESPONSE_HEAD_BYTES])
+
+
+def _file_bytes(path: str | Path) -> bytes:
     path = Path(path)
     try:
-        data = path.read_bytes()
+        return path.read_bytes()
     except FileNotFoundError:
         raise ImageError(f"{path}: no such file", hint="check the path") from None
     except IsADirectoryError:
         raise ImageError(f"{path}: is a directory, not an image") from None
     except OSError as e:
         raise ImageError(f"{path}: cannot be read ({e.strerror})") from e
+
+
+def _decoded(data: bytes, path: Path) -> np.ndarray:
+    import cv2
+
     if not data:
         raise ImageError(f"{path}: the file is empty")
     if data.startswith(PNG_MAGIC) and b"IEND" not in data[-64:]:
@@ -87,13 +101,21 @@ def default_gamma(path: str | Path) -> float:
     return file_response(path)[0]
 
 
+RESPONSE_HEAD_BYTES = 1 << 16  # a file's start, where a PNG's colour chunks sit (before its image data)
+
+
 def file_response(path: str | Path) -> tuple[float, str]:
-    """(gamma, where it comes from) of a file's grey levels, grey = light^gamma: a JPEG is a
-    photograph's format, sRGB-encoded (SRGB_GAMMA); a PNG as its colour chunks say (``png_response``),
-    linear (1) without one (a machine-vision camera's grey, as `station capture` writes it);
-    any other file linear."""
+    """(gamma, where it comes from) of a file's grey levels, grey = light^gamma (``bytes_response``
+    of its first RESPONSE_HEAD_BYTES)."""
     with open(path, "rb") as f:
-        head = f.read(1 << 16)
+        return bytes_response(f.read(RESPONSE_HEAD_BYTES))
+
+
+def bytes_response(head: bytes) -> tuple[float, str]:
+    """(gamma, where it comes from) of the grey levels of a file starting with ``head``: a JPEG is
+    a photograph's format, sRGB-encoded (SRGB_GAMMA); a PNG as its colour chunks say
+    (``png_response``), linear (1) without one (a machine-vision camera's grey, as `station
+    capture` writes it); any other file linear."""
     if head.startswith(JPEG_MAGIC):
         return SRGB_GAMMA, "a JPEG: sRGB"
     if head.startswith(PNG_MAGIC):
