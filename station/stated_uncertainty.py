@@ -2,7 +2,8 @@
 ``measurement.uncertainty_limit_deg``.
 
 * :func:`unseen_axis_covariance` - what no single cycle's residuals show, grown with the edges'
-  noise; :func:`views_covariance` - the pair's two views' disagreement about the rim's axis;
+  noise; :func:`views_covariance` - the pair's two views' disagreement about the rim's axis, and
+  :func:`views_bound_covariance` - the bound on it a wheel is refused by;
 * :func:`statement_parts` - a wheel's stated toe or camber split into its parts;
 * :func:`refuse_uncertain_wheels` - the cycle's failure naming each wheel stated beyond the
   limit, why (the largest part) and what to do (docs/measurement.md, "Too uncertain to trust").
@@ -17,7 +18,7 @@ from station.config import StationConfig
 from station.errors import WheelUncertain
 from station.result import Failure, Measurement, WarningFlag
 from station.wheel.pair import FULL_VIEW_COVERAGE, WheelObservation, kept_fractions
-from station.wheel.view_agreement import disagreement_covariance
+from station.wheel.view_agreement import disagreement_bound_covariance, disagreement_covariance
 
 
 def unseen_axis_variance(o: WheelObservation, config: StationConfig) -> float:
@@ -48,6 +49,12 @@ def views_covariance(o: WheelObservation, config: StationConfig) -> np.ndarray:
     finds from the lip, not to each capture: the arc a view sees off the edge stays where the
     light puts it while the wheel rolls or steers, so it weighs every capture alike."""
     return disagreement_covariance(o.views, config.measurement.view_edge_bias_px)
+
+
+def views_bound_covariance(o: WheelObservation, config: StationConfig) -> np.ndarray:
+    """(3,3) the bound on :func:`views_covariance` a wheel is refused by
+    (station/wheel/view_agreement.py, ``disagreement_bound_covariance``)."""
+    return disagreement_bound_covariance(o.views, config.measurement.view_edge_bias_px)
 
 
 def unseen_axis_shape(axis_station: np.ndarray, toe_scale: float) -> np.ndarray:
@@ -97,7 +104,8 @@ def refuse_uncertain_wheels(result: Measurement, observations: dict, config: Sta
     refused = []
     for w in WHEELS:
         r = result.wheels[w]
-        worst = max(("toe", r.toe_std_deg), ("camber", r.camber_std_deg), key=lambda kv: kv[1])
+        worst = max(((a, _bounded_std_deg(observations[w], a, std, config))
+                     for a, std in (("toe", r.toe_std_deg), ("camber", r.camber_std_deg))), key=lambda kv: kv[1])
         if worst[1] > limit:
             refused.append((w, worst))
     if not refused:
@@ -116,6 +124,15 @@ def refuse_uncertain_wheels(result: Measurement, observations: dict, config: Sta
                    wheels[0] if len(wheels) == 1 else ",".join(wheels), camera)
 
 
+def _bounded_std_deg(o: WheelObservation, angle: str, std_deg: float, config: StationConfig) -> float:
+    """A wheel's stated ``angle`` ("toe" or "camber") ``std_deg`` with its views' share
+    (:func:`views_covariance`) raised to the bound (:func:`views_bound_covariance`): what the
+    wheel is refused by."""
+    stated = statement_parts(o, angle, config).get("views", 0.0)
+    bound = statement_parts(o, angle, config, bound=True).get("views", 0.0)
+    return float(np.sqrt(max(std_deg ** 2 + bound - stated, 0.0)))
+
+
 def _why_uncertain(o: WheelObservation, angle: str, std_deg: float, config: StationConfig) -> tuple[str, str, str]:
     """(why the wheel's ``angle`` ("toe" or "camber") is stated ``std_deg``, what to do, which of
     ``UNCERTAIN_REASONS``), from the largest part of that statement (:func:`statement_parts`):
@@ -123,7 +140,7 @@ def _why_uncertain(o: WheelObservation, angle: str, std_deg: float, config: Stat
     that wavers round the rim beyond its noise, naming the camera whose edge wavers
     (:func:`_wavering`); the edges' noise, naming the fainter edge and a camera whose edge
     points the 3-D rim rests on only in part; or the calibration."""
-    parts = statement_parts(o, angle, config)
+    parts = statement_parts(o, angle, config, bound=True)
     main = max(parts, key=parts.get)
     if parts[main] <= 0.0 or (main == "views" and o.views is None):  # no part stated: the fit itself is in doubt
         main = "edge"
@@ -157,10 +174,10 @@ def _why_uncertain(o: WheelObservation, angle: str, std_deg: float, config: Stat
     return why, hint, "faint_edge"
 
 
-def statement_parts(o: WheelObservation, angle: str, config: StationConfig) -> dict[str, float]:
+def statement_parts(o: WheelObservation, angle: str, config: StationConfig, bound: bool = False) -> dict[str, float]:
     """What makes up a wheel's stated ``angle`` ("toe" or "camber"): variance (deg^2) along
     the direction that turns its axis in that angle, per part: "views" (their disagreement,
-    :func:`views_covariance`), "calibration" (the calibration's share), "noise" (the points'
+    :func:`views_covariance`, or with ``bound`` :func:`views_bound_covariance`), "calibration" (the calibration's share), "noise" (the points'
     noise and the unseen share that grows with it, :func:`unseen_axis_covariance`) and "edge"
     (the rest of the fit's: the edge biases that vary slowly round the rim, and fits with and
     without some arcs that disagree). A procedure's spin axis states its own covariance; its
@@ -177,7 +194,8 @@ def statement_parts(o: WheelObservation, angle: str, config: StationConfig) -> d
 
     fit, noise = along(c.cov_axis), along(c.cov_axis_noise)
     calibration = c.calibration_share[1] / 2 if c.calibration_share else 0.0  # its trace over both directions
-    parts = {"views": along(views_covariance(o, config)), "calibration": calibration,
+    views = views_bound_covariance(o, config) if bound else views_covariance(o, config)
+    parts = {"views": along(views), "calibration": calibration,
              "noise": noise + along(unseen_axis_covariance(o, c.axis_station, config)),
              "edge": max(fit - noise - calibration, 0.0)}
     return {k: (float(np.degrees(np.sqrt(max(v, 0.0))) ** 2) if np.isfinite(v) else float("inf") if v > 0 else 0.0)

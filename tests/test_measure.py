@@ -173,10 +173,11 @@ def test_a_pair_that_did_not_see_the_rim_where_the_epipolar_planes_touch_it_is_u
 
 
 @pytest.mark.slow
-def test_a_refused_wheels_reason_is_the_largest_part_of_its_statement(sim):
+def test_a_refused_wheels_reason_is_the_largest_part_of_its_statement(sim, monkeypatch):
     """``statement_parts`` splits a wheel's stated toe and camber into the views' disagreement,
     the calibration, the edges' noise and their slow unevenness; in quadrature they make up the
-    statement (the centres' share aside), and the reason names the largest part."""
+    statement (the centres' share aside), and the reason names the largest part. A wheel is
+    refused by its views' bound, not by the share of their disagreement it states."""
     import dataclasses
 
     from station.stated_uncertainty import _why_uncertain, statement_parts
@@ -212,6 +213,18 @@ def test_a_refused_wheels_reason_is_the_largest_part_of_its_statement(sim):
     why, _, reason = _why_uncertain(dataclasses.replace(o, views=apart), "toe", 0.5, cfg)
     assert "each see the rim's axis differently, by 1.00 deg" in why
     assert reason in ("white_lip", "dark_lip", "faint_view")
+    # views 1 deg apart, a limit between the wheel's toe with the share the pair follows and
+    # with the bound (half of it, all in toe): the wheel is refused by the bound
+    from station.stated_uncertainty import refuse_uncertain_wheels
+
+    doubted = dataclasses.replace(o, views=apart)
+    stated, bound = (statement_parts(doubted, "toe", cfg, bound=b)["views"] for b in (False, True))
+    assert 0 < stated < 0.8 * bound
+    toe2 = result.wheels["FR"].toe_std_deg ** 2
+    monkeypatch.setattr(cfg.measurement, "uncertainty_limit_deg", float(np.sqrt(toe2 + (stated + bound) / 2)))
+    failure = refuse_uncertain_wheels(result, {**result.observations, "FR": doubted}, cfg)
+    assert failure is not None and failure.code == 404 and failure.wheel == "FR"
+    assert refuse_uncertain_wheels(result, result.observations, cfg) is None
 
 
 @pytest.mark.slow

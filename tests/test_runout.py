@@ -198,7 +198,7 @@ def test_a_lip_whose_two_views_disagree_weighs_less_against_the_faces_axis():
     by what the face knows, not by the lip's doubt added afterwards."""
     from station.procedures.runout import lip_spin_axis
     from station.wheel.face_motion import FaceSpin, with_face
-    from station.wheel.view_agreement import ViewAgreement, disagreement_covariance
+    from station.wheel.view_agreement import ViewAgreement, disagreement_bound_covariance
 
     rng = np.random.default_rng(4)
     a, m = _rim(rng, 0.2)
@@ -209,7 +209,7 @@ def test_a_lip_whose_two_views_disagree_weighs_less_against_the_faces_axis():
     views = ViewAgreement(np.array([a, a]), np.zeros(2), np.zeros(2), np.radians(0.16) * across)
     agreeing = lip_spin_axis(rotate(a, theta, m), theta, cov, 0.22, None, 0.05)
     doubted = lip_spin_axis(rotate(a, theta, m), theta, cov, 0.22, views, 0.05)
-    np.testing.assert_allclose(doubted.cov_axis - agreeing.cov_axis, disagreement_covariance(views, 0.05), atol=1e-15)
+    np.testing.assert_allclose(doubted.cov_axis - agreeing.cov_axis, disagreement_bound_covariance(views, 0.05), atol=1e-15)
     assert np.sqrt(np.trace(doubted.cov_axis) / 2) > np.radians(0.16 / 2) * 0.99     # half the disagreement
     # a face axis 0.02 deg off the lip's, as sure as the lip's fit alone
     face_axis = a + np.radians(0.02) * np.cross(a, across)

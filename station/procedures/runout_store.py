@@ -31,7 +31,7 @@ from station.procedures.runout import (MIN_PATTERN_PEAK, PATTERN_AGREEMENT_DEG, 
 from station.records.atomic_file import write_text_atomic
 from station.result import Measurement, WarningFlag
 from station.rim.camera_response import linear_images
-from station.stated_uncertainty import unseen_axis_covariance, views_covariance
+from station.stated_uncertainty import unseen_axis_covariance, views_bound_covariance
 from station.wheel.rim_pattern import FacePose, angular_profile, ring_basis, rotation_between
 from station.wheel.runout import SpinAxis, rotation_matrix
 
@@ -166,7 +166,7 @@ def apply_kept_runout_to(config: StationConfig, result: Measurement, images: dic
             return _not_applied(result, f"{w}: its cameras disagree on how far the wheel turned")
         turn = float(np.radians(np.mean(angles)))
         spins[w] = spin_from_runout(pose.axis_station, k, turn,
-                                    np.asarray(c.cov_axis, float) + views_covariance(result.observations[w], config)
+                                    np.asarray(c.cov_axis, float) + views_bound_covariance(result.observations[w], config)
                                     + unseen_axis_covariance(result.observations[w], pose.axis_station, config))
         # the lip centre's offset from the hub turns with the wheel, as its tilt does
         R = rotation_matrix(spins[w].axis_station, turn)

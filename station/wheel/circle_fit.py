@@ -29,7 +29,8 @@ from station.wheel.fit import WheelFit, outward_sign
 from station.wheel.fit_compare import (inconsistent, moved_beyond_subset, toward, toward_subset_weight,
                                        with_disagreement)
 from station.wheel.robust_lsq import soft_l1_least_squares
-from station.wheel.uncertainty import axis_basis, axis_covariance, bias_covariance, noise_covariance, normal_from
+from station.wheel.uncertainty import (axis_basis, axis_covariance, bias_covariance, noise_covariance, normal_from,
+                                      view_bias_tilt_per_px)
 
 single_thread_blas()  # small least-squares problems: OpenBLAS threads cost 40x here (station/compute/blas_threads.py)
 
@@ -359,7 +360,8 @@ def _wheel_fit(model: _CircleModel, sol, views: list[View], init: WheelFit, sett
                     reprojection_rms_px=float(np.sqrt(np.mean(r[inlier] ** 2))) if inlier.any() else float("nan"),
                     epipolar_rms_px=epipolar, n_points=(len(views[0][1]), len(views[1][1])),
                     cov_axis_noise=axis_covariance(n, model.e1, model.e2, cov_noise[:2, :2]),
-                    cov_axis_bias_views=tuple(axis_covariance(n, model.e1, model.e2, c[:2, :2]) for c in own) or None)
+                    cov_axis_bias_views=tuple(axis_covariance(n, model.e1, model.e2, c[:2, :2]) for c in own) or None,
+                    tilt_per_px_views=view_bias_tilt_per_px(sol, views, model.n0, model.e1, model.e2))
 
 
 def _with_subset_fit(fit: WheelFit, subset: WheelFit) -> WheelFit:

@@ -34,6 +34,7 @@ class WheelFit:
     other_contour_mm: float | None = None  # some on another concentric contour, this much outside (station/wheel/other_contour.py)
     cov_axis_noise: np.ndarray | None = None  # (3,3) the part of cov_axis from the points' noise alone
     cov_axis_bias_views: tuple | None = None  # ((3,3), (3,3)) each view's own edge-bias part of cov_axis
+    tilt_per_px_views: tuple | None = None  # (2,) deg the axis turns per px of one view's slow edge bias
 
 
 

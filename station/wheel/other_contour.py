@@ -33,7 +33,8 @@ from station.wheel.epipolar import epipolar_tangency_px
 from station.wheel.circle_fit import MIN_VIEW_POINTS, CircleFitSettings, contrast_weights, tangent_gaps
 from station.wheel.conics import circle_conics, sampson_jacobian
 from station.wheel.fit import WheelFit
-from station.wheel.uncertainty import axis_basis, axis_covariance, bias_covariance, noise_covariance, normal_from
+from station.wheel.uncertainty import (axis_basis, axis_covariance, bias_covariance, noise_covariance, normal_from,
+                                      view_bias_tilt_per_px)
 from station.wheel.arcs import rim_angles
 
 WINDOWS = 4               # half-rim windows, centred 90 degrees apart
@@ -227,7 +228,8 @@ def fit_two_contours(views, labels, init, loss_scale_px: float = CircleFitSettin
                     cov_center=cov_p[2:5, 2:5], cov_axis=axis_covariance(n, e1, e2, cov_p[:2, :2]),
                     reprojection_rms_px=float(np.sqrt(np.mean(r[inlier] ** 2))),
                     epipolar_rms_px=init.epipolar_rms_px, n_points=(len(used[0][1]), len(used[1][1])),
-                    other_contour_mm=float(1e3 * (sol.x[6] - sol.x[5])) if second else None)
+                    other_contour_mm=float(1e3 * (sol.x[6] - sol.x[5])) if second else None,
+                    tilt_per_px_views=view_bias_tilt_per_px(sol, fviews, n0, e1, e2))
 
 
 def refit_other_contour(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: CameraModel, cam_r: CameraModel,

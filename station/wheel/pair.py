@@ -129,7 +129,7 @@ def reconstruct_wheel(wheel: str, cams: tuple[str, str], detections: dict, camer
         circle.cov_axis = circle.cov_axis + ca
         circle.calibration_share = (float(np.trace(cc)), float(np.trace(ca)))
     views = view_agreement((det_l.points_px, det_r.points_px), (cam_l, cam_r), circle.center_station,
-                           circle.axis_station, circle.radius_m)
+                           circle.axis_station, circle.radius_m, circle.tilt_per_px_views)
     return WheelObservation(wheel, cams, (det_l, det_r), paper, circle, views)
 
 

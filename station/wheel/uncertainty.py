@@ -89,6 +89,27 @@ def bias_covariance(sol, views, n0, e1, e2, n_modes: int, n_sectors: int = 18, o
     return cov + common @ common.T
 
 
+def view_bias_tilt_per_px(sol, views, n0, e1, e2) -> tuple[float, ...]:
+    """Per view, how far (deg, per direction across the axis) the fit's axis turns per pixel of
+    a slowly varying edge bias in that view alone: modes 1 and 2 of the rim angle at random
+    phases, through the solution dp = (J^T J)^-1 J^T dr, as ``view_agreement.view_axis`` turns a
+    view's own axis for the same bias. Their ratio is how much of a view's own tilt the pair's
+    axis follows."""
+    c = sol.x[2:5]
+    n = normal_from(sol.x[:2], n0, e1, e2)
+    J = sol.jac
+    pinv = np.linalg.pinv(J.T @ J) @ J.T                                  # (P, N)
+    Jn = (np.eye(3) - np.outer(n, n)) @ np.stack([e1, e2], axis=1)       # (3,2) d n / d (a, b)
+    bounds = np.cumsum([0] + [len(v[1]) for v in views])
+    out = []
+    for (cam, xy, _f, w), a, b in zip(views, bounds[:-1], bounds[1:]):
+        phi = rim_angles(cam, xy, c, n)
+        modes = np.stack([np.cos(phi), np.sin(phi), np.cos(2 * phi), np.sin(2 * phi)], axis=1)  # (N_k,4)
+        tilts = Jn @ (pinv[:2, a:b] @ (modes * np.asarray(w, float)[:, None]))            # (3,4)
+        out.append(float(np.degrees(np.sqrt(np.sum(tilts ** 2) / 2 / 2))))
+    return tuple(out)
+
+
 def sector_bias_rms(meds: np.ndarray, se2: np.ndarray) -> float:
     """RMS bias of sector medians (S,) whose squared standard errors from noise are se2 (S,)."""
     return float(np.sqrt(max(np.mean(meds ** 2 - se2), 0.0))) if len(meds) else 0.0

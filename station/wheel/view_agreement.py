@@ -8,8 +8,11 @@ also determines the rim's axis: the circle of the pair's radius whose projection
 view's edge points best (its centre and axis free, five parameters). On a clean rim the two
 views' axes agree within what a slowly varying edge bias of a few hundredths of a pixel turns
 them by (a hundredth of a degree to a tenth: the nearer a view looks along the axis, the more);
-a biased arc in one view turns its axis by tenths. The pair's axis lies between them, and which view is right the pair cannot tell: the
-axis is uncertain by half their disagreement (:func:`disagreement_covariance`).
+a biased arc in one view turns its axis by tenths. The pair's axis lies between them, and which view
+is right the pair cannot tell. It follows a view's own tilt by a share the pair's fit gives (for a
+slow edge bias in that view alone, its tilt per pixel over the view's own): that share of the
+excess disagreement is the axis's stated uncertainty (:func:`disagreement_covariance`); half of
+it in whichever direction is the bound a wheel is refused by (:func:`disagreement_bound_covariance`).
 """
 
 from __future__ import annotations
@@ -32,12 +35,24 @@ class ViewAgreement:
     direction. ``axes_station``: (2,3), (precision, reference); ``std_deg``: (2,) each own axis's
     standard deviation from its points' noise, ``bias_deg_per_px`` (2,) per pixel of a slowly
     varying edge bias; ``disagreement_station``: (3,) the precision view's
-    axis minus the reference view's (radians, across the pair's axis)."""
+    axis minus the reference view's (radians, across the pair's axis); ``pair_deg_per_px``:
+    (2,) how far the pair's axis turns per pixel of the same bias in each view alone
+    (``station.wheel.uncertainty.view_bias_tilt_per_px``), None where the pair's fit did not
+    say."""
 
     axes_station: np.ndarray
     std_deg: np.ndarray
     bias_deg_per_px: np.ndarray
     disagreement_station: np.ndarray
+    pair_deg_per_px: np.ndarray | None = None
+
+    @property
+    def follow(self) -> float:
+        """The share of a view's own tilt the pair's axis follows, RMS over the two views
+        (either may be the one that is off); 1/sqrt(2) where the pair's fit did not say."""
+        if self.pair_deg_per_px is None or not np.all(self.bias_deg_per_px > 0):
+            return float(np.sqrt(0.5))
+        return float(np.sqrt(np.mean((np.asarray(self.pair_deg_per_px, float) / self.bias_deg_per_px) ** 2)))
 
     @property
     def angle_deg(self) -> float:
@@ -100,8 +115,11 @@ def view_axis(points_px: np.ndarray, camera: CameraModel, center_station: np.nda
 
 
 def view_agreement(points_px: tuple[np.ndarray, np.ndarray], cameras: tuple[CameraModel, CameraModel],
-                   center_station: np.ndarray, axis_station: np.ndarray, radius_m: float) -> ViewAgreement | None:
-    """Both views' own axes (:func:`view_axis`) for the pair's circle, or None if a view has none."""
+                   center_station: np.ndarray, axis_station: np.ndarray, radius_m: float,
+                   pair_deg_per_px: tuple[float, float] | None = None) -> ViewAgreement | None:
+    """Both views' own axes (:func:`view_axis`) for the pair's circle, or None if a view has
+    none; ``pair_deg_per_px``: the pair's fit's tilt per pixel of each view's slow edge bias
+    (``WheelFit.tilt_per_px_views``)."""
     center = np.asarray(center_station, float)
     axis = np.asarray(axis_station, float)
     own = [view_axis(p, cam, center, axis, radius_m) for p, cam in zip(points_px, cameras)]
@@ -111,31 +129,59 @@ def view_agreement(points_px: tuple[np.ndarray, np.ndarray], cameras: tuple[Came
     d = axes[0] - axes[1]
     d -= axis * (d @ axis)  # across the pair's axis
     return ViewAgreement(axes_station=axes, std_deg=np.array([o[1] for o in own]),
-                         bias_deg_per_px=np.array([o[2] for o in own]), disagreement_station=d)
+                         bias_deg_per_px=np.array([o[2] for o in own]), disagreement_station=d,
+                         pair_deg_per_px=None if pair_deg_per_px is None else np.asarray(pair_deg_per_px, float))
 
 
 def disagreement_covariance(agreement: ViewAgreement | None, edge_bias_px: float) -> np.ndarray:
-    """(3,3) the axis covariance (rad^2) that two disagreeing views add: half the part of their
-    disagreement beyond what their own noise and a slowly varying edge bias of ``edge_bias_px``
-    (``measurement.view_edge_bias_px``) explain, as a standard deviation in every direction
+    """(3,3) the axis covariance (rad^2) that two disagreeing views add to the pair's axis: the
+    part of their disagreement beyond what their own noise and a slowly varying edge bias of
+    ``edge_bias_px`` (``measurement.view_edge_bias_px``) explain, times the share of a view's own
+    tilt the pair's axis follows (``ViewAgreement.follow``), spread over the two directions
     across the axis. The pair's fit errs toward the wrong view's arc, whose bias tilts it in a
     direction of its own (on the simulated station's dark rims mostly in camber where the views
     disagreed in toe): the disagreement says how much, not which way. Zero when they agree.
 
-    What is subtracted from the squared disagreement (two directions) is one direction's
-    expected variance, half its expected square: on gunmetal and polished rims a disagreement
-    just beyond its expected size already marks a biased arc (subtracting the whole expected
-    square took wheels 0.1-0.2 deg off: docs/history/accuracy.md, "Why held-out B states toe
-    1.7 times its error"), while on clean rims it states a few wheels' toe more cautiously
-    than their error."""
-    if agreement is None:
+    The pair's fit rests on both views, so it follows a view's own tilt by 0.38-0.5 of it (the
+    median wheel of six rim scenarios); taken as half the disagreement in each direction, the
+    statement counted that share twice over and stated the wheels whose views disagree 1.7-3
+    times their error (docs/history/accuracy.md, "Stop 60")."""
+    excess2 = _excess2(agreement, edge_bias_px)
+    if excess2 <= 0:
         return np.zeros((3, 3))
+    return (excess2 * agreement.follow ** 2 / 2) * _across(agreement)
+
+
+def disagreement_bound_covariance(agreement: ViewAgreement | None, edge_bias_px: float) -> np.ndarray:
+    """(3,3) the bound a wheel is refused by (station/stated_uncertainty.py): half the excess
+    disagreement (:func:`disagreement_covariance`) as a standard deviation in every direction
+    across the axis, the pair's fit as far as halfway toward the view that is off and all of it
+    in the angle at hand. On gunmetal and polished rims a disagreement just beyond its expected
+    size already marks a biased arc; refused by the stated share instead, a gunmetal wheel 0.027
+    deg off in camber was reported at 0.008 (docs/history/accuracy.md, "Stop 60")."""
+    excess2 = _excess2(agreement, edge_bias_px)
+    if excess2 <= 0:
+        return np.zeros((3, 3))
+    return (excess2 / 4) * _across(agreement)
+
+
+def _excess2(agreement: ViewAgreement | None, edge_bias_px: float) -> float:
+    """The squared disagreement (rad^2) beyond what the views' noise and an edge bias of
+    ``edge_bias_px`` explain, 0 without an agreement. What is subtracted from the squared
+    disagreement (two directions) is one direction's expected variance, half its expected
+    square: on gunmetal and polished rims a disagreement just beyond its expected size already
+    marks a biased arc (subtracting the whole expected square took wheels 0.1-0.2 deg off:
+    docs/history/accuracy.md, "Why held-out B states toe 1.7 times its error")."""
+    if agreement is None:
+        return 0.0
     size = float(np.linalg.norm(agreement.disagreement_station))
     expected2 = float(np.sum(np.radians(agreement.std_deg) ** 2)
                       + np.sum(np.radians(edge_bias_px * agreement.bias_deg_per_px) ** 2))
-    excess2 = size * size - expected2
-    if excess2 <= 0:
-        return np.zeros((3, 3))
+    return size * size - expected2
+
+
+def _across(agreement: ViewAgreement) -> np.ndarray:
+    """(3,3) the projector across the views' mean axis."""
     a = agreement.axes_station.sum(axis=0)
     a /= np.linalg.norm(a)
-    return (excess2 / 4) * (np.eye(3) - np.outer(a, a))
+    return np.eye(3) - np.outer(a, a)
