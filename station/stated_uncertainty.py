@@ -177,11 +177,11 @@ def _why_uncertain(o: WheelObservation, angle: str, std_deg: float, config: Stat
 def statement_parts(o: WheelObservation, angle: str, config: StationConfig, bound: bool = False) -> dict[str, float]:
     """What makes up a wheel's stated ``angle`` ("toe" or "camber"): variance (deg^2) along
     the direction that turns its axis in that angle, per part: "views" (their disagreement,
-    :func:`views_covariance`, or with ``bound`` :func:`views_bound_covariance`), "calibration" (the calibration's share), "noise" (the points'
-    noise and the unseen share that grows with it, :func:`unseen_axis_covariance`) and "edge"
-    (the rest of the fit's: the edge biases that vary slowly round the rim, and fits with and
-    without some arcs that disagree). A procedure's spin axis states its own covariance; its
-    capture's parts still say which part dominates."""
+    :func:`views_covariance`, or with ``bound`` :func:`views_bound_covariance`), "calibration"
+    (the calibration's share), "noise" (the points' noise and the unseen share that grows with
+    it, :func:`unseen_axis_covariance`) and "edge" (the rest of the fit's: the edge biases that
+    vary slowly round the rim, and fits with and without some arcs that disagree). A procedure's
+    spin axis states its own covariance; its capture's parts still say which part dominates."""
     c = o.circle
     tilts = tilt_directions(c.axis_station)
     if tilts is None:
