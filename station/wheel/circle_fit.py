@@ -29,8 +29,7 @@ from station.wheel.fit import WheelFit, outward_sign
 from station.wheel.fit_compare import (inconsistent, moved_beyond_subset, toward, toward_subset_weight,
                                        with_disagreement)
 from station.wheel.robust_lsq import soft_l1_least_squares
-from station.wheel.uncertainty import (axis_basis, axis_covariance, bias_covariance, noise_covariance, normal_from,
-                                      view_bias_tilt_per_px)
+from station.wheel.uncertainty import axis_basis, axis_covariance, bias_covariance, noise_covariance, normal_from
 
 single_thread_blas()  # small least-squares problems: OpenBLAS threads cost 40x here (station/compute/blas_threads.py)
 
@@ -339,9 +338,10 @@ def _wheel_fit(model: _CircleModel, sol, views: list[View], init: WheelFit, sett
     cov_p, inlier = noise_covariance(sol, views)
     if cov_p is None:
         cov_p = np.full((6, 6), np.nan)
-    cov_noise, own = cov_p, []
+    cov_noise, own, tilts = cov_p, [], []
     if settings.bias_modes:
-        cov_p = cov_p + bias_covariance(sol, views, model.n0, model.e1, model.e2, settings.bias_modes, own=own)
+        cov_p = cov_p + bias_covariance(sol, views, model.n0, model.e1, model.e2, settings.bias_modes, own=own,
+                                        tilt_per_px=tilts)
     # the pair's epipolar check on the points the circle was fitted to: an arc left out
     # (hidden, another contour) would otherwise move a tangent plane of its view's ellipse
     epipolar = init.epipolar_rms_px
@@ -361,7 +361,7 @@ def _wheel_fit(model: _CircleModel, sol, views: list[View], init: WheelFit, sett
                     epipolar_rms_px=epipolar, n_points=(len(views[0][1]), len(views[1][1])),
                     cov_axis_noise=axis_covariance(n, model.e1, model.e2, cov_noise[:2, :2]),
                     cov_axis_bias_views=tuple(axis_covariance(n, model.e1, model.e2, c[:2, :2]) for c in own) or None,
-                    tilt_per_px_views=view_bias_tilt_per_px(sol, views, model.n0, model.e1, model.e2))
+                    tilt_per_px_views=tuple(tilts) or None)
 
 
 def _with_subset_fit(fit: WheelFit, subset: WheelFit) -> WheelFit:

@@ -33,8 +33,7 @@ from station.wheel.epipolar import epipolar_tangency_px
 from station.wheel.circle_fit import MIN_VIEW_POINTS, CircleFitSettings, contrast_weights, tangent_gaps
 from station.wheel.conics import circle_conics, sampson_jacobian
 from station.wheel.fit import WheelFit
-from station.wheel.uncertainty import (axis_basis, axis_covariance, bias_covariance, noise_covariance, normal_from,
-                                      view_bias_tilt_per_px)
+from station.wheel.uncertainty import axis_basis, axis_covariance, bias_covariance, noise_covariance, normal_from
 from station.wheel.arcs import rim_angles
 
 WINDOWS = 4               # half-rim windows, centred 90 degrees apart
@@ -216,8 +215,9 @@ def fit_two_contours(views, labels, init, loss_scale_px: float = CircleFitSettin
     cov_p, inlier = noise_covariance(sol, fviews)
     if cov_p is None:
         return None
+    tilts = []
     if bias_modes:
-        cov_p = cov_p + bias_covariance(sol, fviews, n0, e1, e2, bias_modes)
+        cov_p = cov_p + bias_covariance(sol, fviews, n0, e1, e2, bias_modes, tilt_per_px=tilts)
     n = normal_from(sol.x[:2], n0, e1, e2)
     if n @ init.axis_station < 0:
         n = -n
@@ -229,7 +229,7 @@ def fit_two_contours(views, labels, init, loss_scale_px: float = CircleFitSettin
                     reprojection_rms_px=float(np.sqrt(np.mean(r[inlier] ** 2))),
                     epipolar_rms_px=init.epipolar_rms_px, n_points=(len(used[0][1]), len(used[1][1])),
                     other_contour_mm=float(1e3 * (sol.x[6] - sol.x[5])) if second else None,
-                    tilt_per_px_views=view_bias_tilt_per_px(sol, fviews, n0, e1, e2))
+                    tilt_per_px_views=tuple(tilts) or None)
 
 
 def refit_other_contour(points_l_px: np.ndarray, points_r_px: np.ndarray, cam_l: CameraModel, cam_r: CameraModel,

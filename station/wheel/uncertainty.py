@@ -19,7 +19,8 @@ from station.rim.npfast import sector_medians
 from station.wheel.arcs import rim_angles, sector_labels
 
 
-def bias_covariance(sol, views, n0, e1, e2, n_modes: int, n_sectors: int = 18, own: list | None = None) -> np.ndarray:
+def bias_covariance(sol, views, n0, e1, e2, n_modes: int, n_sectors: int = 18, own: list | None = None,
+                    tilt_per_px: list | None = None) -> np.ndarray:
     """(P,P) covariance of the circle parameters (P = 6, or more for a model whose first six
     parameters are the circle's) from slowly varying edge biases in each view.
 
@@ -58,17 +59,28 @@ def bias_covariance(sol, views, n0, e1, e2, n_modes: int, n_sectors: int = 18, o
     issue set (with a 0.010 deg floor), 1.26 with the weighted modes.
 
     ``own``: a list that receives each view's own part (P,P) (modes 1-2, the common offset
-    left out), in the order of ``views``: which camera's edge wavers."""
+    left out), in the order of ``views``: which camera's edge wavers.
+
+    ``tilt_per_px``: a list that receives, per view, how far (deg, per direction across the
+    axis) the fit's axis turns per pixel of a slowly varying edge bias in that view alone
+    (modes 1 and 2 at random phases, as ``view_agreement.view_axis`` turns a view's own axis
+    for the same bias): their ratio is the share of a view's own tilt the pair's axis follows."""
     c = sol.x[2:5]
     n = normal_from(sol.x[:2], n0, e1, e2)
     J = sol.jac
     pinv = np.linalg.pinv(J.T @ J) @ J.T                                  # (P, N)
+    Jn = (np.eye(3) - np.outer(n, n)) @ np.stack([e1, e2], axis=1)       # (3,2) d n / d (a, b)
     bounds = np.cumsum([0] + [len(v[1]) for v in views])
     cov = np.zeros((J.shape[1], J.shape[1]))
     common = np.zeros((J.shape[1], 1))
-    for (cam, xy, *_), a, b in zip(views, bounds[:-1], bounds[1:]):
+    for (cam, xy, *rest), a, b in zip(views, bounds[:-1], bounds[1:]):
         r = sol.fun[a:b]
         phi = rim_angles(cam, xy, c, n)
+        if tilt_per_px is not None:  # a bias of 1 px, weighted as the view's residuals are
+            w = np.asarray(rest[1], float)[:, None] if len(rest) > 1 else 1.0
+            unit = np.stack([np.cos(phi), np.sin(phi), np.cos(2 * phi), np.sin(2 * phi)], axis=1)  # (N_k,4)
+            tilts = Jn @ (pinv[:2, a:b] @ (unit * w))                                           # (3,4)
+            tilt_per_px.append(float(np.degrees(np.sqrt(np.sum(tilts ** 2) / 2 / 2))))
         med, count = sector_medians(r, sector_labels(phi, n_sectors), n_sectors)
         full = np.nonzero(count >= 3)[0]
         noise = 1.4826 * np.median(np.abs(r - np.median(r)))  # the part of each median that is noise:
@@ -87,27 +99,6 @@ def bias_covariance(sol, views, n0, e1, e2, n_modes: int, n_sectors: int = 18, o
         if own is not None:
             own.append(dp[:, 1:] @ dp[:, 1:].T)
     return cov + common @ common.T
-
-
-def view_bias_tilt_per_px(sol, views, n0, e1, e2) -> tuple[float, ...]:
-    """Per view, how far (deg, per direction across the axis) the fit's axis turns per pixel of
-    a slowly varying edge bias in that view alone: modes 1 and 2 of the rim angle at random
-    phases, through the solution dp = (J^T J)^-1 J^T dr, as ``view_agreement.view_axis`` turns a
-    view's own axis for the same bias. Their ratio is how much of a view's own tilt the pair's
-    axis follows."""
-    c = sol.x[2:5]
-    n = normal_from(sol.x[:2], n0, e1, e2)
-    J = sol.jac
-    pinv = np.linalg.pinv(J.T @ J) @ J.T                                  # (P, N)
-    Jn = (np.eye(3) - np.outer(n, n)) @ np.stack([e1, e2], axis=1)       # (3,2) d n / d (a, b)
-    bounds = np.cumsum([0] + [len(v[1]) for v in views])
-    out = []
-    for (cam, xy, _f, w), a, b in zip(views, bounds[:-1], bounds[1:]):
-        phi = rim_angles(cam, xy, c, n)
-        modes = np.stack([np.cos(phi), np.sin(phi), np.cos(2 * phi), np.sin(2 * phi)], axis=1)  # (N_k,4)
-        tilts = Jn @ (pinv[:2, a:b] @ (modes * np.asarray(w, float)[:, None]))            # (3,4)
-        out.append(float(np.degrees(np.sqrt(np.sum(tilts ** 2) / 2 / 2))))
-    return tuple(out)
 
 
 def sector_bias_rms(meds: np.ndarray, se2: np.ndarray) -> float:

@@ -36,9 +36,9 @@ class ViewAgreement:
     standard deviation from its points' noise, ``bias_deg_per_px`` (2,) per pixel of a slowly
     varying edge bias; ``disagreement_station``: (3,) the precision view's
     axis minus the reference view's (radians, across the pair's axis); ``pair_deg_per_px``:
-    (2,) how far the pair's axis turns per pixel of the same bias in each view alone
-    (``station.wheel.uncertainty.view_bias_tilt_per_px``), None where the pair's fit did not
-    say."""
+    (2,) how far the pair's axis turns per pixel of the same bias in each view alone (the
+    ``tilt_per_px`` of ``station.wheel.uncertainty.bias_covariance``), None where the pair's fit
+    did not say."""
 
     axes_station: np.ndarray
     std_deg: np.ndarray
