@@ -128,9 +128,12 @@ def _bounded_std_deg(o: WheelObservation, angle: str, std_deg: float, config: St
     """A wheel's stated ``angle`` ("toe" or "camber") ``std_deg`` with its views' share
     (:func:`views_covariance`) raised to the bound (:func:`views_bound_covariance`): what the
     wheel is refused by."""
-    stated = statement_parts(o, angle, config).get("views", 0.0)
-    bound = statement_parts(o, angle, config, bound=True).get("views", 0.0)
-    return float(np.sqrt(max(std_deg ** 2 + bound - stated, 0.0)))
+    tilts = tilt_directions(o.circle.axis_station)
+    if tilts is None:
+        return std_deg
+    d = tilts[0] if angle == "toe" else tilts[1]
+    extra = float(d @ (views_bound_covariance(o, config) - views_covariance(o, config)) @ d)  # rad^2
+    return float(np.sqrt(std_deg ** 2 + np.degrees(np.sqrt(max(extra, 0.0))) ** 2))
 
 
 def _why_uncertain(o: WheelObservation, angle: str, std_deg: float, config: StationConfig) -> tuple[str, str, str]:

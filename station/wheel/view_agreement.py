@@ -143,9 +143,9 @@ def disagreement_covariance(agreement: ViewAgreement | None, edge_bias_px: float
     disagreed in toe): the disagreement says how much, not which way. Zero when they agree.
 
     The pair's fit rests on both views, so it follows a view's own tilt by 0.38-0.5 of it (the
-    median wheel of six rim scenarios); taken as half the disagreement in each direction, the
-    statement counted that share twice over and stated the wheels whose views disagree 1.7-3
-    times their error (docs/history/accuracy.md, "Stop 60")."""
+    median wheel of six rim scenarios); half the disagreement in each direction would count
+    that share about twice over, and would state the wheels whose views disagree 1.7-3 times their
+    error (docs/history/accuracy.md)."""
     excess2 = _excess2(agreement, edge_bias_px)
     if excess2 <= 0:
         return np.zeros((3, 3))
@@ -158,7 +158,7 @@ def disagreement_bound_covariance(agreement: ViewAgreement | None, edge_bias_px:
     across the axis, the pair's fit as far as halfway toward the view that is off and all of it
     in the angle at hand. On gunmetal and polished rims a disagreement just beyond its expected
     size already marks a biased arc; refused by the stated share instead, a gunmetal wheel 0.027
-    deg off in camber was reported at 0.008 (docs/history/accuracy.md, "Stop 60")."""
+    deg off in camber would be reported at 0.008 (docs/history/accuracy.md)."""
     excess2 = _excess2(agreement, edge_bias_px)
     if excess2 <= 0:
         return np.zeros((3, 3))
