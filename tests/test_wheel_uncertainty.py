@@ -46,8 +46,25 @@ def test_high_mode_amplitude_measures_modes_3_4_above_the_noise():
     smooth = 0.02 + 0.03 * np.cos(angle) + 0.05 * np.cos(3 * angle) + 0.03 * np.sin(4 * angle)
     amp = high_mode_amplitude(smooth + rng.normal(0, 0.002, 18), sectors, se2, 18)
     assert amp == pytest.approx(np.sqrt((0.05 ** 2 + 0.03 ** 2) / 4), rel=0.1)  # one function's share
-    assert high_mode_amplitude(rng.normal(0, 0.002, 18), sectors, se2, 18) == 0.0  # noise only
     assert high_mode_amplitude(smooth[:10], sectors[:10], se2[:10], 18) == 0.0       # a short arc
+
+
+def test_high_mode_amplitude_keeps_weak_modes():
+    """A power at modes 3-4 below what one view's noise could tell is still estimated, not
+    judged zero: over many noise draws its mean square comes back, and on noise alone it
+    stays well under it."""
+    from station.wheel.uncertainty import high_mode_amplitude
+    sectors = np.arange(18)
+    angle = (sectors + 0.5) * (2 * np.pi / 18) - np.pi
+    sigma = 0.008
+    se2 = np.full(18, sigma ** 2)
+    weak = 0.003 * np.cos(3 * angle) + 0.003 * np.sin(4 * angle)
+    rng = np.random.default_rng(1)
+    power = [high_mode_amplitude(weak + rng.normal(0, sigma, 18), sectors, se2, 18) ** 2 for _ in range(4000)]
+    noise = [high_mode_amplitude(rng.normal(0, sigma, 18), sectors, se2, 18) ** 2 for _ in range(4000)]
+    true_power = (0.003 ** 2 + 0.003 ** 2) / 4   # one function's share
+    assert 0.9 * true_power < np.mean(power) < 1.6 * true_power  # clipped at 0: a little above the truth
+    assert np.mean(noise) < 0.6 * true_power
 
 
 def test_a_fit_kept_against_a_disagreeing_one_states_their_difference():
@@ -87,7 +104,8 @@ def test_the_grazing_choice_moves_smoothly_toward_the_subset_fit():
 
     V = 2 * (np.radians(0.05) ** 2 - np.radians(0.03) ** 2)
     assert toward_subset_weight(full, subset(0.0)) == 0.0                      # no bias shown
-    assert toward_subset_weight(full, replace(subset(0.0), cov_axis=cov(0.02))) == 1.0  # the subset surer
+    less_noisy = replace(subset(0.0), cov_axis=cov(0.02), cov_axis_noise=cov(0.02))
+    assert toward_subset_weight(full, less_noisy) == 1.0                      # the subset surer
     # a difference whose excess over the noise equals V: exactly half way
     deg = np.degrees(np.sqrt(2 * V))
     w = toward_subset_weight(full, subset(deg))
