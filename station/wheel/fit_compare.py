@@ -80,16 +80,19 @@ def toward_subset_weight(fit: WheelFit, subset: WheelFit) -> float:
     points, to minimise the expected squared axis error.
 
     Write fit = truth + b + e and subset = truth + e + u: the extra points add a bias b and
-    take away the noise u, of variance V = tr(N_subset) - tr(N_fit) (the points' noise
-    covariances, ``cov_axis_noise``; the edge biases the two fits state are those of the
-    points they share, in e). fit + l (subset - fit) has the expected squared error
-    (1 - l)^2 |b|^2 + tr(C_fit) + l^2 V, least at l = |b|^2 / (|b|^2 + V), with |b|^2 from
-    ``extra_points_bias2``. l = 1 when the subset is the less noisy anyway (V <= 0),
+    take away u, of variance V = tr(C_subset) - tr(C_fit) (the stated covariances: the
+    subset's weaker geometry states its shared biases larger too), and at least the noise
+    they take away, tr(N_subset) - tr(N_fit) (``cov_axis_noise``): a weak edge-bias power
+    estimated on the full fit's views and none on the subset's short arcs must not make the
+    subset look surer than fewer points can be. fit + l (subset - fit) has the expected
+    squared error (1 - l)^2 |b|^2 + tr(C_fit) + l^2 V, least at l = |b|^2 / (|b|^2 + V), with |b|^2 from
+    ``extra_points_bias2``. l = 1 when the subset is the better determined anyway (V <= 0),
     0 when the extra points show no bias, 1/2 where a choice of the smaller expected error
     would flip: near there, a hard choice moves the result by the whole difference between
     the fits on an immaterial change of the points."""
     bias2 = extra_points_bias2(fit, subset)
-    var = float(np.trace(subset.cov_axis_noise) - np.trace(fit.cov_axis_noise))
+    var = max(float(np.trace(subset.cov_axis) - np.trace(fit.cov_axis)),
+              float(np.trace(subset.cov_axis_noise) - np.trace(fit.cov_axis_noise)))
     if not (np.isfinite(bias2) and np.isfinite(var)):
         return 0.0
     if var <= 0:
