@@ -124,14 +124,20 @@ def refuse_uncertain_wheels(result: Measurement, observations: dict, config: Sta
                    wheels[0] if len(wheels) == 1 else ",".join(wheels), camera)
 
 
+def _angle_direction(axis_station: np.ndarray, angle: str) -> np.ndarray | None:
+    """(3,) the direction across the unit axis (3,) that turns it in ``angle`` ("toe" or
+    "camber", :func:`tilt_directions`), or None where they are undefined."""
+    tilts = tilt_directions(axis_station)
+    return None if tilts is None else tilts[0] if angle == "toe" else tilts[1]
+
+
 def _bounded_std_deg(o: WheelObservation, angle: str, std_deg: float, config: StationConfig) -> float:
     """A wheel's stated ``angle`` ("toe" or "camber") ``std_deg`` with its views' share
     (:func:`views_covariance`) raised to the bound (:func:`views_bound_covariance`): what the
     wheel is refused by."""
-    tilts = tilt_directions(o.circle.axis_station)
-    if tilts is None:
+    d = _angle_direction(o.circle.axis_station, angle)
+    if d is None:
         return std_deg
-    d = tilts[0] if angle == "toe" else tilts[1]
     extra = float(d @ (views_bound_covariance(o, config) - views_covariance(o, config)) @ d)  # rad^2
     return float(np.sqrt(std_deg ** 2 + np.degrees(np.sqrt(max(extra, 0.0))) ** 2))
 
@@ -186,10 +192,9 @@ def statement_parts(o: WheelObservation, angle: str, config: StationConfig, boun
     vary slowly round the rim, and fits with and without some arcs that disagree). A procedure's
     spin axis states its own covariance; its capture's parts still say which part dominates."""
     c = o.circle
-    tilts = tilt_directions(c.axis_station)
-    if tilts is None:
+    d = _angle_direction(c.axis_station, angle)
+    if d is None:
         return {"edge": 1.0}
-    d = tilts[0] if angle == "toe" else tilts[1]
 
     def along(cov) -> float:
         with np.errstate(invalid="ignore"):  # a fit stating inf: nan, counted as no part

@@ -23,6 +23,12 @@ def _axis_difference(fit: WheelFit, other: WheelFit) -> np.ndarray:
     return other.axis_station * np.sign(other.axis_station @ fit.axis_station) - fit.axis_station
 
 
+def _noise_added(fit: WheelFit, subset: WheelFit) -> float:
+    """tr(N_subset) - tr(N_fit) (rad^2): the noise the points ``subset`` lacks take away, from
+    the two nested fits' noise covariances (``cov_axis_noise``)."""
+    return float(np.trace(subset.cov_axis_noise) - np.trace(fit.cov_axis_noise))
+
+
 def extra_points_bias2(fit: WheelFit, subset: WheelFit) -> float:
     """The squared axis error (rad^2) that the points ``fit`` has and ``subset`` (the fit of a
     subset of them) has not are estimated to add: the squared angle between the two axes
@@ -30,8 +36,7 @@ def extra_points_bias2(fit: WheelFit, subset: WheelFit) -> float:
     covariance ``subset.cov_axis_noise - fit.cov_axis_noise``), at least 0 (a Hausman-style
     estimate of their bias)."""
     d = _axis_difference(fit, subset)
-    excess = float(np.trace(subset.cov_axis_noise) - np.trace(fit.cov_axis_noise))
-    return max(float(d @ d) - max(excess, 0.0), 0.0)
+    return max(float(d @ d) - max(_noise_added(fit, subset), 0.0), 0.0)
 
 
 INCONSISTENT_CHI2 = 9.21  # chi-square, 2 degrees of freedom, 99 %
@@ -82,7 +87,7 @@ def toward_subset_weight(fit: WheelFit, subset: WheelFit) -> float:
     Write fit = truth + b + e and subset = truth + e + u: the extra points add a bias b and
     take away u, of variance V = tr(C_subset) - tr(C_fit) (the stated covariances: the
     subset's weaker geometry states its shared biases larger too), and at least the noise
-    they take away, tr(N_subset) - tr(N_fit) (``cov_axis_noise``): a weak edge-bias power
+    they take away (``_noise_added``): a weak edge-bias power
     estimated on the full fit's views and none on the subset's short arcs must not make the
     subset look surer than fewer points can be. fit + l (subset - fit) has the expected
     squared error (1 - l)^2 |b|^2 + tr(C_fit) + l^2 V, least at l = |b|^2 / (|b|^2 + V), with |b|^2 from
@@ -91,8 +96,7 @@ def toward_subset_weight(fit: WheelFit, subset: WheelFit) -> float:
     would flip: near there, a hard choice moves the result by the whole difference between
     the fits on an immaterial change of the points."""
     bias2 = extra_points_bias2(fit, subset)
-    var = max(float(np.trace(subset.cov_axis) - np.trace(fit.cov_axis)),
-              float(np.trace(subset.cov_axis_noise) - np.trace(fit.cov_axis_noise)))
+    var = max(float(np.trace(subset.cov_axis) - np.trace(fit.cov_axis)), _noise_added(fit, subset))
     if not (np.isfinite(bias2) and np.isfinite(var)):
         return 0.0
     if var <= 0:

@@ -125,11 +125,10 @@ def high_mode_amplitude(meds: np.ndarray, sectors: np.ndarray, se2: np.ndarray, 
     (from se2 (S,)) subtracted from its square, the mean power kept where positive, however
     weak. A significance test before it would set the weak ones to 0, and a clean rim's
     modes 3-4 are weak in about half of its views, where the low modes that tilt the axis
-    are not (on clean rims they are the larger ones). 0 when
-    fewer than MIN_SPECTRUM_SECTORS sectors are seen: on a short arc the modes cannot be told
-    apart, and modes 0-1 already stand for the arc's smooth bias (with the sector RMS as mode
-    2's size there, a wheel seen on 10 of 18 sectors stated 0.34 deg of camber for an error
-    of 0.04)."""
+    are not (on clean rims they are the larger ones). 0 when fewer than MIN_SPECTRUM_SECTORS
+    sectors are seen: on a short arc the modes cannot be told apart, and modes 0-1 already
+    stand for the arc's smooth bias (with the sector RMS as mode 2's size there, a wheel seen
+    on 10 of 18 sectors stated 0.34 deg of camber for an error of 0.04)."""
     if len(meds) < MIN_SPECTRUM_SECTORS:
         return 0.0
     P = _FOURIER_PINV.get((n_sectors, sectors.tobytes()), lambda: _fourier_pinv(sectors, n_sectors))  # (9, S)
