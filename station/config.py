@@ -271,6 +271,7 @@ SCHEMA = {
         "uncertainty_floor_deg": Field(_number(0, 1), default=0.015),
         "uncertainty_noise_gain": Field(_number(0, 100), default=0.0),
         "uncertainty_toe_scale": Field(_number(0, 10), default=1.0),
+        "uncertainty_blur_gain": Field(_number(0, 100), default=0.0),
         "view_edge_bias_px": Field(_number(0, 10), default=0.05),
         "edge_blur_limit_px": Field(_number(0.3, 10), default=1.3),
         "min_rim_axis_px": Field(_number(0, 10000), default=180.0),

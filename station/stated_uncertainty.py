@@ -25,16 +25,36 @@ def unseen_axis_variance(o: WheelObservation, config: StationConfig) -> float:
     """The variance (rad^2) added across a wheel's axis for what no single cycle's residuals
     show: ``measurement.uncertainty_floor_deg`` squared, plus (``uncertainty_noise_gain`` k)
     (k q / a)^2, q the circle's reprojection RMS (px) and a the rim's mean semi-axis in its two
-    views (px). Decisions that a noisier capture takes the other way (which arcs, which edge
-    model) move whole arcs, and the noisier its edges the more of them: at 1.3 Mpx a constant
-    floor stated sigma-2 toe 1.5 times its error and sigma-5 camber 0.65 times; scaled by the
-    edges' noise, both within 0.77-1.49 on every set (docs/measurement.md, "Uncertainty of
-    every angle"; the comparison in docs/history/accuracy.md)."""
+    views (px), plus (``uncertainty_blur_gain`` g) (g e / a)^2, e the blur beyond
+    ``edge_blur_limit_px`` of the blurrier view (px, :func:`blur_excess_px`). Decisions that a
+    noisier capture takes the other way (which arcs, which edge model) move whole arcs, and the
+    noisier its edges the more of them: at 1.3 Mpx a constant floor stated sigma-2 toe 1.5
+    times its error and sigma-5 camber 0.65 times; scaled by the edges' noise, both within
+    0.77-1.49 on every set (docs/measurement.md, "Uncertainty of every angle"; the comparison in
+    docs/history/accuracy.md). A lens out of focus widens the edge model's windows, which then
+    take in the lip's neighbouring contours (its inner edge, the tyre's bead): a bias that
+    grows with the blur and that the residuals do not show."""
     m = config.measurement
     q = o.circle.reprojection_rms_px
     a = float(np.mean([np.sqrt(np.prod(d.ellipse.axes_px)) for d in o.detections]))
-    noise = m.uncertainty_noise_gain * q / a if np.isfinite(q) and a > 0 else 0.0
-    return float(np.radians(m.uncertainty_floor_deg) ** 2 + noise ** 2)
+    if not a > 0:
+        return float(np.radians(m.uncertainty_floor_deg) ** 2)
+    noise = m.uncertainty_noise_gain * q / a if np.isfinite(q) else 0.0
+    blur = m.uncertainty_blur_gain * blur_excess_px(o, m.edge_blur_limit_px) / a
+    return float(np.radians(m.uncertainty_floor_deg) ** 2 + noise ** 2 + blur ** 2)
+
+
+def blur_excess_px(o: WheelObservation, limit_px: float) -> float:
+    """How far (px) the blurrier of a wheel's two views is blurred beyond ``limit_px``
+    (``measurement.edge_blur_limit_px``), 0 for views within it (:func:`blurred_views`)."""
+    return float(max((b - limit_px for b in blurred_views(o, limit_px).values()), default=0.0))
+
+
+def blurred_views(o: WheelObservation, limit_px: float) -> dict[str, float]:
+    """{camera: its edge blur (px, the detector's ``details["blur_px"]``)} of a wheel's views
+    blurred beyond ``limit_px``: cameras warned to be refocused (station/measure.py)."""
+    blur = {c: d.details.get("blur_px") or 0.0 for c, d in zip(o.cams, o.detections)}
+    return {c: float(b) for c, b in blur.items() if b > limit_px}
 
 
 def unseen_axis_covariance(o: WheelObservation, axis_station: np.ndarray, config: StationConfig) -> np.ndarray:
@@ -177,6 +197,11 @@ def _why_uncertain(o: WheelObservation, angle: str, std_deg: float, config: Stat
     why = (f"the lip's edge is faint or noisy: the 3-D rim's points lie {o.circle.reprojection_rms_px:.2f} px rms "
            f"off it, the fainter edge {cam}'s ({share})")
     hint = f"Light the rim or give {cam} a longer exposure, check its focus, and clean the lip."
+    blurred = blurred_views(o, config.measurement.edge_blur_limit_px)
+    if blurred:
+        why += "; " + " and ".join(f"{c}'s edge is blurred over {b:.1f} px" for c, b in blurred.items())
+        why += f" (limit {config.measurement.edge_blur_limit_px} px)"
+        hint = f"Refocus {' and '.join(blurred)} and check that the car stood still. " + hint
     if min(kept) < FULL_VIEW_COVERAGE:
         why += f"; the 3-D rim rests on {min(kept):.0%} of {weak}'s edge points"
         hint += f" Check that {weak} sees the whole rim (wheel position, tyre, arch)."
@@ -240,7 +265,8 @@ def _edge_off(o: WheelObservation, config: StationConfig) -> tuple[str, str, str
     read toward the tyre; a polished lip mirroring lamps puts both at the white in spots),
     else those with arcs whose bright side is not the rim's metal (a tyre lit past a shaded
     lip, a dirty lip, a glossy lip mirroring something dark: station/rim/metal_side.py; both
-    where both show it, the larger share first), else the one with the fainter edge."""
+    where both show it, the larger share first), else the blurrier one beyond the focus limit
+    (:func:`blurred_views`), else the one with the fainter edge."""
     white = {c: float(d.details.get("white_share", 0.0)) for c, d in zip(o.cams, o.detections)}
     dark = {c: float(d.details.get("metal_side_dark_share", 0.0)) for c, d in zip(o.cams, o.detections)}
     whiter, other = sorted(o.cams, key=lambda c: -white[c])
@@ -258,6 +284,11 @@ def _edge_off(o: WheelObservation, config: StationConfig) -> tuple[str, str, str
                 f"Look at the rim in {names}: a lamp or the sun at the side lights the tyre past a shaded lip, the "
                 f"lip is dirty there, or a glossy lip mirrors something dark. Shade the wheel from that light or "
                 f"light it evenly (a diffuse panel), and clean the lip.", "dark_lip")
+    blurred = blurred_views(o, config.measurement.edge_blur_limit_px)
+    if blurred:
+        cam = max(blurred, key=blurred.get)
+        return (f"{cam}'s edge is blurred over {blurred[cam]:.1f} px (limit {config.measurement.edge_blur_limit_px} px)",
+                f"Refocus {' and '.join(blurred)} and check that the car stood still.", "faint_view")
     cam = _fainter(o)
     return (f"the fainter edge is {cam}'s",
             f"Look at {cam}'s image of the rim's lip: clean the lip (brake dust, dirt), shade it from direct "
