@@ -200,7 +200,7 @@ def _why_uncertain(o: WheelObservation, angle: str, std_deg: float, config: Stat
     blurred = blurred_views(o, config.measurement.edge_blur_limit_px)
     if blurred:
         why += "; " + " and ".join(f"{c}'s edge is blurred over {b:.1f} px" for c, b in blurred.items())
-        why += f" (limit {config.measurement.edge_blur_limit_px} px)"
+        why += f", beyond the {config.measurement.edge_blur_limit_px} px focus limit"
         hint = f"Refocus {' and '.join(blurred)} and check that the car stood still. " + hint
     if min(kept) < FULL_VIEW_COVERAGE:
         why += f"; the 3-D rim rests on {min(kept):.0%} of {weak}'s edge points"
@@ -287,7 +287,8 @@ def _edge_off(o: WheelObservation, config: StationConfig) -> tuple[str, str, str
     blurred = blurred_views(o, config.measurement.edge_blur_limit_px)
     if blurred:
         cam = max(blurred, key=blurred.get)
-        return (f"{cam}'s edge is blurred over {blurred[cam]:.1f} px (limit {config.measurement.edge_blur_limit_px} px)",
+        return (f"{cam}'s edge is blurred over {blurred[cam]:.1f} px, beyond the "
+                f"{config.measurement.edge_blur_limit_px} px focus limit",
                 f"Refocus {' and '.join(blurred)} and check that the car stood still.", "faint_view")
     cam = _fainter(o)
     return (f"the fainter edge is {cam}'s",

@@ -53,7 +53,7 @@ def test_without_either_the_fainter_edge_is_named():
 
 def test_a_view_blurred_beyond_the_focus_limit_is_named_before_the_fainter_one():
     why, hint, reason = _edge_off(_pair(blur=(1.7, 1.0)), CONFIG)
-    assert why == "cam3's edge is blurred over 1.7 px (limit 1.3 px)" and hint.startswith("Refocus cam3 ")
+    assert why == "cam3's edge is blurred over 1.7 px, beyond the 1.3 px focus limit" and hint.startswith("Refocus cam3 ")
     assert reason == "faint_view"
     why, hint, _ = _edge_off(_pair(blur=(1.5, 1.9)), CONFIG)
     assert why.startswith("cam4's edge is blurred over 1.9 px") and "Refocus cam3 and cam4 " in hint
@@ -93,7 +93,7 @@ def test_a_faint_edge_that_is_blurred_names_the_camera_to_refocus(monkeypatch):
     monkeypatch.setattr(su, "statement_parts", lambda *a, **k: {"views": 0.0, "calibration": 0.0, "noise": 1.0,
                                                                 "edge": 0.0})
     why, hint, reason = su._why_uncertain(_blurred_wheel(blur=(1.0, 1.8)), "toe", 0.1, CONFIG)
-    assert reason == "faint_edge" and "cam4's edge is blurred over 1.8 px (limit 1.3 px)" in why
+    assert reason == "faint_edge" and "cam4's edge is blurred over 1.8 px, beyond the 1.3 px focus limit" in why
     assert "cam3's edge" not in why and hint.startswith("Refocus cam4 ")
     why, hint, _ = su._why_uncertain(_blurred_wheel(), "toe", 0.1, CONFIG)
     assert "blurred" not in why and "Refocus" not in hint
