@@ -18,11 +18,11 @@ Scenarios: sigma2 (the issue's), sigma5 (more sensor noise), dark-cam (cam2 20 %
 its pair), dark-rim (rim albedo 0.2-0.4: anthracite rims against black tyres). Outside the
 random vehicles' envelope, sigma 2 (not in "all"): the scenarios of bench/outside_envelope.py
 (big angles, odd rims and bodies, a soft focus, narrow lips, a big sidewall bulge, bright tyres,
-harsh light, strong vignetting, gamma-encoding cameras). Every rim a shop sees (issue 37), sigma
-2, not in "all": the scenarios of bench/rim_scenarios.py (rim finishes from silver to chrome,
-brake dust, dirt, tyre lettering, protector ridges, low contrast, the arch's shadow, a low sun
-with auto or fixed exposure, shop reflections in the paint, the glossy finishes under the
-station's diffuse light panels).
+harsh light, diffuse light, strong vignetting, gamma-encoding cameras). Every rim a shop sees
+(issue 37), sigma 2, not in "all": the scenarios of bench/rim_scenarios.py (rim finishes from
+silver to chrome, brake dust, dirt, tyre lettering, protector ridges, low contrast, the arch's
+shadow, a low sun with auto or fixed exposure, shop reflections in the paint, the glossy
+finishes under the station's diffuse light panels).
 
 Each table also counts the wheels refused (a cycle's failure 404 names them; any other failure
 refuses the cycle's four wheels), with their reasons, and the wheels silently wrong: off by

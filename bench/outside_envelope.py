@@ -13,6 +13,8 @@ gives the same car in every scenario:
 - bright-tyre: tyre albedo 0.2-0.3 (0.05-0.18): a worn or dusty tyre;
 - harsh-light: ambient 0.05-0.12 (0.2-0.45) and a key light 1.0-1.4 (0.45-0.95): one strong
   workshop lamp, deep shadows;
+- diffuse-light: ambient 0.45-0.75 and a key light 0-0.15: the wheel lit by diffuse panels
+  round it (as docs/accuracy.md recommends), what is left of a lamp's direction faint;
 - vignette: lens vignetting 0.6-0.8 (0.1-0.4);
 - gamma: every camera encodes its grey levels with gamma 1/2.2 (an sRGB webcam), not linearly,
   and the station is not told; gamma-known: the same images, the station configured with
@@ -51,6 +53,7 @@ WHEEL_RANGES = {"narrow-lip": ("flange_width_m", (0.004, 0.008)),
                 "big-bulge": ("sidewall_bulge_m", (0.030, 0.045)),
                 "bright-tyre": ("tyre_albedo", (0.2, 0.3))}
 LIGHT_RANGES = {"harsh-light": {"ambient": (0.05, 0.12), "key_strength": (1.0, 1.4)},
+                "diffuse-light": {"ambient": (0.45, 0.75), "key_strength": (0.0, 0.15)},
                 "vignette": {"vignetting": (0.6, 0.8)}}
 KINDS = ("big-angles", "odd-rims", "odd-body", "soft-focus", *WHEEL_RANGES, *LIGHT_RANGES, "gamma", "gamma-known")
 

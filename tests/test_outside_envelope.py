@@ -24,6 +24,9 @@ def test_each_scenario_changes_its_own_quantity_on_the_same_car(world):
     harsh = oe.scene_for(w, "harsh-light", 1000, cfg.nominal_vehicle)
     assert all(0.05 <= light.ambient <= 0.12 and 1.0 <= light.key_strength <= 1.4 for light in harsh.lighting.values())
     assert harsh.vehicle == plain.vehicle
+    diffuse = oe.scene_for(w, "diffuse-light", 1000, cfg.nominal_vehicle)
+    assert all(0.45 <= light.ambient <= 0.75 and light.key_strength <= 0.15 for light in diffuse.lighting.values())
+    assert diffuse.vehicle == plain.vehicle and "diffuse-light" in oe.KINDS
 
 
 def test_soft_focus_sets_the_lenses_and_the_next_scenario_restores_them(world):
