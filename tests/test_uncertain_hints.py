@@ -59,7 +59,6 @@ def test_a_view_blurred_beyond_the_focus_limit_is_named_before_the_fainter_one()
     assert why.startswith("cam4's edge is blurred over 1.9 px") and "Refocus cam3 and cam4 " in hint
 
 
-
 def _blurred_wheel(blur=(0.9, 1.0), rms_px=0.06, axes_px=(300.0, 290.0)):
     from station.rim.ellipse import Ellipse
 
