@@ -96,6 +96,24 @@ def test_job_page_finds_a_vehicle(server, page):
     assert page.console_errors() == []  # the CSP blocked nothing the page needs
 
 
+def test_a_change_sent_with_another_sessions_token_goes_through_with_the_cookies_own(server, browser):
+    """The station restarted, or a page's first requests each opened a session: the page's
+    token is not its cookie's session's. The change is refused (403) and sent again, once,
+    with the token the page then asks for."""
+    base, _ = server
+    tab = browser.page()
+    try:
+        tab.goto(base + "/")
+        tab.wait("Station.csrf !== null")
+        tab.js("Station.csrf = 'a-token-of-another-session';"
+               f"Station.api('/api/job', {{method: 'POST', body: {{job_id: '{JOB}', vehicle: '{VEHICLE}'}}}})"
+               ".then(r => { window.jobSaved = r.ok ? 'yes' : JSON.stringify(r.data); })")
+        assert tab.wait("window.jobSaved") == "yes"
+        assert tab.js("Station.csrf") not in (None, "a-token-of-another-session")
+    finally:
+        browser.close_target(tab.target_id)
+
+
 def test_a_measurement_runs_from_the_procedure_page_and_its_values_appear(server, page):
     from station.records.history import History
 

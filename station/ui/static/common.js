@@ -25,6 +25,13 @@ const Station = {
       return { ok: false, status: 0, data: { error: "the station does not answer", hint: "check that `station ui` runs; the page retries" } };
     }
     if (response.status === 401 && path !== "/login") { window.location.href = "/login"; }
+    if (response.status === 403 && init.method !== "GET" && !options.retried) {
+      // the token of another session than the cookie's (the station restarted, or requests sent
+      // before the page's cookie was set each opened one): take the cookie's session's token, once
+      const before = this.csrf;
+      await this.session();
+      if (this.csrf && this.csrf !== before) return this.api(path, { ...options, retried: true });
+    }
     let data = {};
     try { data = await response.json(); } catch (e) { data = { error: `the station answered ${response.status}` }; }
     return { ok: response.ok, status: response.status, data };
