@@ -1,8 +1,8 @@
 """What a wheel's stated uncertainty holds beyond its circle fit, and the wheels stated beyond
 ``measurement.uncertainty_limit_deg``.
 
-* :func:`unseen_axis_covariance` - what no single cycle's residuals show, grown with the edges'
-  noise; :func:`views_covariance` - the pair's two views' disagreement about the rim's axis, and
+* :func:`unseen_axis_covariance` - what no single cycle's residuals show, grown with how unevenly
+  the lip is lit and how blurred it is; :func:`views_covariance` - the pair's two views' disagreement about the rim's axis, and
   :func:`views_bound_covariance` - the bound on it a wheel is refused by;
 * :func:`statement_parts` - a wheel's stated toe or camber split into its parts;
 * :func:`refuse_uncertain_wheels` - the cycle's failure naming each wheel stated beyond the
@@ -23,25 +23,29 @@ from station.wheel.view_agreement import disagreement_bound_covariance, disagree
 
 def unseen_axis_variance(o: WheelObservation, config: StationConfig) -> float:
     """The variance (rad^2) added across a wheel's axis for what no single cycle's residuals
-    show: ``measurement.uncertainty_floor_deg`` squared, plus (``uncertainty_noise_gain`` k)
-    (k q / a)^2, q the circle's reprojection RMS (px) and a the rim's mean semi-axis in its two
-    views (px), plus (``uncertainty_blur_gain`` g) (g e / a)^2, e the blur beyond
-    ``edge_blur_limit_px`` of the blurrier view (px, :func:`blur_excess_px`). Decisions that a
-    noisier capture takes the other way (which arcs, which edge model) move whole arcs, and the
-    noisier its edges the more of them: at 1.3 Mpx a constant floor stated sigma-2 toe 1.5
-    times its error and sigma-5 camber 0.65 times; scaled by the edges' noise, both within
-    0.77-1.49 on every set (docs/measurement.md, "Uncertainty of every angle"; the comparison in
-    docs/history/accuracy.md). A lens out of focus widens the edge model's windows, which then
-    take in the lip's neighbouring contours (its inner edge, the tyre's bead): a bias that
-    grows with the blur and that the residuals do not show."""
+    show: ``measurement.uncertainty_floor_deg`` squared, plus (``uncertainty_light_gain`` l)
+    (l m / a)^2, m the lip's step modulation round the rim (:func:`step_modulation`) and a the
+    rim's mean semi-axis in its two views (px), plus (``uncertainty_blur_gain`` g) (g e / a)^2,
+    e the blur beyond ``edge_blur_limit_px`` of the blurrier view (px, :func:`blur_excess_px`).
+    A lamp on one side lights the lip's rounding there and shades it opposite, which moves the
+    edge by a part of a pixel once round the rim, alike in both views: a bias the residuals do
+    not show and the views' agreement does not test, as large as the light is uneven
+    (docs/measurement.md, "Uncertainty of every angle"). A lens out of focus widens the edge
+    model's windows, which then take in the lip's neighbouring contours (its inner edge, the
+    tyre's bead): a bias that grows with the blur."""
     m = config.measurement
-    q = o.circle.reprojection_rms_px
     a = float(np.mean([np.sqrt(np.prod(d.ellipse.axes_px)) for d in o.detections]))
     if not a > 0:
         return float(np.radians(m.uncertainty_floor_deg) ** 2)
-    noise = m.uncertainty_noise_gain * q / a if np.isfinite(q) else 0.0
+    light = m.uncertainty_light_gain * step_modulation(o) / a
     blur = m.uncertainty_blur_gain * blur_excess_px(o, m.edge_blur_limit_px) / a
-    return float(np.radians(m.uncertainty_floor_deg) ** 2 + noise ** 2 + blur ** 2)
+    return float(np.radians(m.uncertainty_floor_deg) ** 2 + light ** 2 + blur ** 2)
+
+
+def step_modulation(o: WheelObservation) -> float:
+    """The mean over a wheel's two views of how unevenly the lip's edge step is lit round the
+    rim (the detector's ``details["step_modulation"]``, station/rim/subpixel.py)."""
+    return float(np.mean([d.details.get("step_modulation") or 0.0 for d in o.detections]))
 
 
 def blur_excess_px(o: WheelObservation, limit_px: float) -> float:
@@ -212,8 +216,8 @@ def statement_parts(o: WheelObservation, angle: str, config: StationConfig, boun
     """What makes up a wheel's stated ``angle`` ("toe" or "camber"): variance (deg^2) along
     the direction that turns its axis in that angle, per part: "views" (their disagreement,
     :func:`views_covariance`, or with ``bound`` :func:`views_bound_covariance`), "calibration"
-    (the calibration's share), "noise" (the points' noise and the unseen share that grows with
-    it, :func:`unseen_axis_covariance`) and "edge" (the rest of the fit's: the edge biases that
+    (the calibration's share), "noise" (the points' noise and the unseen share,
+    :func:`unseen_axis_covariance`) and "edge" (the rest of the fit's: the edge biases that
     vary slowly round the rim, and fits with and without some arcs that disagree). A procedure's
     spin axis states its own covariance; its capture's parts still say which part dominates."""
     c = o.circle

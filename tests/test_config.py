@@ -157,7 +157,7 @@ def test_the_5mp_station_is_the_default_station_with_twice_the_resolution_and_fo
         big["cameras"][cid]["nominal"]["focal_px"] = cam["nominal"]["focal_px"]
     big["camera_defaults"]["resolution"] = base["camera_defaults"]["resolution"]
     assert big["data_dir"] != base["data_dir"]  # its own calibration and history
-    for key in ("uncertainty_floor_deg", "uncertainty_noise_gain", "uncertainty_toe_scale", "uncertainty_blur_gain"):
+    for key in ("uncertainty_floor_deg", "uncertainty_light_gain", "uncertainty_toe_scale", "uncertainty_blur_gain"):
         big["measurement"].pop(key, None), base["measurement"].pop(key, None)
     big["capture"].pop("frames_averaged", None), base["capture"].pop("frames_averaged", None)  # measured so
     for key in ("name", "data_dir"):

@@ -35,7 +35,7 @@ from station.rim.exposure import check_exposure
 from station.rim.metal_side import dark_side_share
 from station.rim.npfast import finite_rows, median, rows, sector_medians
 from station.rim.preprocess import PixelMap, detection_scale, downscale, equalize, noise_grey, to_grey
-from station.rim.subpixel import WIDE_BLUR_PX, edge_points, repositioned, window_scale
+from station.rim.subpixel import WIDE_BLUR_PX, edge_points, repositioned, step_modulation, window_scale
 from station.rim.white_edge import white_share
 
 
@@ -568,7 +568,8 @@ def _result(fit, samples, mask, info: dict, clock: _Clock, camera, pmap: PixelMa
         timing_s=dict(clock.stages), camera_id=camera_id,
         points_norm=pmap.normalized(pts) if camera is not None else None,
         ellipse_frame="pixels" if pmap.identity else "ideal_pixels",
-        coverage=coverage, contrast=float(median(samples.contrast[mask])), details=info,
+        coverage=coverage, contrast=float(median(samples.contrast[mask])),
+        details={**info, "step_modulation": step_modulation(samples.t[mask], samples.contrast[mask])},
         points_contrast=samples.contrast[mask].copy())
 
 

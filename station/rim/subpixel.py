@@ -51,6 +51,23 @@ class EdgeSamples:
     along: Ellipse | None = None
 
 
+def step_modulation(t: np.ndarray, contrast: np.ndarray) -> float:
+    """How unevenly the edge's step is lit round the rim: the amplitude of the once-round
+    harmonic of the step heights ``contrast`` (N,) against the ellipse parameter ``t`` (N,), rad
+    (least squares, so that a gap in the turn reads as no modulation), over their mean; at most
+    pi/2, a step lit on one half of the turn and none on the other (a fit over a short arc can
+    extrapolate beyond it). A lamp on one side lights the lip's rounding on that side and shades
+    it on the other: about 0.6-1.0 under the simulator's lamps, 0.03-0.12 under diffuse panels
+    (docs/measurement.md, "Uncertainty of every angle"). 0 for fewer than 8 points."""
+    c = np.asarray(contrast, float)
+    if len(c) < 8 or not np.mean(c) > 0:
+        return 0.0
+    t = np.asarray(t, float)
+    A = np.column_stack([np.ones_like(t), np.cos(t), np.sin(t)])  # (N,3)
+    coef, *_ = np.linalg.lstsq(A, c, rcond=None)
+    return float(min(np.hypot(coef[1], coef[2]) / np.mean(c), np.pi / 2))
+
+
 def sample_profiles(grey: np.ndarray, base_px: np.ndarray, normal_px: np.ndarray, s: np.ndarray,
                     interpolation: int = INTERPOLATION) -> np.ndarray:
     """Samples of ``grey`` (H,W) float32 at base + s * normal (bilinear unless told): (N,S)."""
