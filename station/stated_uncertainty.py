@@ -2,8 +2,9 @@
 ``measurement.uncertainty_limit_deg``.
 
 * :func:`unseen_axis_covariance` - what no single cycle's residuals show, grown with how unevenly
-  the lip is lit and how blurred it is; :func:`views_covariance` - the pair's two views' disagreement about the rim's axis, and
-  :func:`views_bound_covariance` - the bound on it a wheel is refused by;
+  the lip is lit, how noisy its edge and how blurred it is; :func:`views_covariance` - the pair's two views'
+  disagreement about the rim's axis, and :func:`views_bound_covariance` - the bound on it a
+  wheel is refused by;
 * :func:`statement_parts` - a wheel's stated toe or camber split into its parts;
 * :func:`refuse_uncertain_wheels` - the cycle's failure naming each wheel stated beyond the
   limit, why (the largest part) and what to do (docs/measurement.md, "Too uncertain to trust").
@@ -24,20 +25,22 @@ from station.wheel.view_agreement import disagreement_bound_covariance, disagree
 def unseen_axis_variance(o: WheelObservation, config: StationConfig) -> float:
     """The variance (rad^2) added across a wheel's axis for what no single cycle's residuals
     show: ``measurement.uncertainty_floor_deg`` squared, plus (``uncertainty_light_gain`` l)
-    (l m / a)^2, m the lip's step modulation round the rim (:func:`step_modulation`) and a the
-    rim's mean semi-axis in its two views (px), plus (``uncertainty_blur_gain`` g) (g e / a)^2,
-    e the blur beyond ``edge_blur_limit_px`` of the blurrier view (px, :func:`blur_excess_px`).
-    A lamp on one side lights the lip's rounding there and shades it opposite, which moves the
-    edge by a part of a pixel once round the rim, alike in both views: a bias the residuals do
-    not show and the views' agreement does not test, as large as the light is uneven
-    (docs/measurement.md, "Uncertainty of every angle"). A lens out of focus widens the edge
-    model's windows, which then take in the lip's neighbouring contours (its inner edge, the
-    tyre's bead): a bias that grows with the blur."""
+    (l m q / a)^2, m the lip's step modulation round the rim (:func:`step_modulation`), q the
+    circle's reprojection RMS (px) and a the rim's mean semi-axis in its two views (px), plus
+    (``uncertainty_blur_gain`` g) (g e / a)^2, e the blur beyond ``edge_blur_limit_px`` of the
+    blurrier view (px, :func:`blur_excess_px`). A lamp on one side leaves the lip's rounding
+    shaded on the other, where the step is faint; there the noise decides whole arcs (which
+    stay, which edge model they take) and moves their edge: a bias the residuals do not show,
+    as large as the light is uneven and the edges are noisy (docs/measurement.md, "Uncertainty
+    of every angle"). A lens out of focus widens the edge model's windows, which then take in
+    the lip's neighbouring contours (its inner edge, the tyre's bead): a bias that grows with
+    the blur."""
     m = config.measurement
+    q = o.circle.reprojection_rms_px
     a = float(np.mean([np.sqrt(np.prod(d.ellipse.axes_px)) for d in o.detections]))
     if not a > 0:
         return float(np.radians(m.uncertainty_floor_deg) ** 2)
-    light = m.uncertainty_light_gain * step_modulation(o) / a
+    light = m.uncertainty_light_gain * step_modulation(o) * q / a if np.isfinite(q) else 0.0
     blur = m.uncertainty_blur_gain * blur_excess_px(o, m.edge_blur_limit_px) / a
     return float(np.radians(m.uncertainty_floor_deg) ** 2 + light ** 2 + blur ** 2)
 

@@ -369,9 +369,10 @@ def test_the_toe_scale_shrinks_only_toes_unseen_share(sim, monkeypatch):
 
 @pytest.mark.slow
 def test_the_unseen_error_grows_with_how_unevenly_each_lip_is_lit(sim, monkeypatch):
-    """``uncertainty_light_gain`` l adds (l m / a) rad in quadrature, m the mean of the wheel's
-    two views' step modulation round the rim and a its rim's semi-axis (px): a lip lit from one
-    side states more, and no value moves (station.stated_uncertainty.unseen_axis_variance)."""
+    """``uncertainty_light_gain`` l adds (l m q / a) rad in quadrature, m the mean of the wheel's
+    two views' step modulation round the rim, q its circle's reprojection RMS and a its rim's
+    semi-axis (px): a lip lit from one side states more, the more so the noisier its edges, and
+    no value moves (station.stated_uncertainty.unseen_axis_variance)."""
     from station.stated_uncertainty import step_modulation, unseen_axis_variance
 
     cfg, world, _, images = sim
@@ -380,14 +381,14 @@ def test_the_unseen_error_grows_with_how_unevenly_each_lip_is_lit(sim, monkeypat
     monkeypatch.setattr(cfg.measurement, "view_edge_bias_px", 100.0)  # the views' disagreement aside
     monkeypatch.setattr(cfg.measurement, "uncertainty_light_gain", 0.0)
     plain = measure_frames(images, world.cameras, cfg)
-    monkeypatch.setattr(cfg.measurement, "uncertainty_light_gain", 0.05)
+    monkeypatch.setattr(cfg.measurement, "uncertainty_light_gain", 0.6)
     gained = measure_frames(images, world.cameras, cfg)
     for w in ("FL", "FR", "RL", "RR"):
         o = gained.observations[w]
         m = step_modulation(o)
         assert m > 0.1  # the simulator's lamps light each lip from one side
         a = np.mean([np.sqrt(np.prod(d.ellipse.axes_px)) for d in o.detections])
-        term = np.degrees(0.05 * m / a)
+        term = np.degrees(0.6 * m * o.circle.reprojection_rms_px / a)
         assert unseen_axis_variance(o, cfg) == pytest.approx(np.radians(term) ** 2)
         g, p = gained.wheels[w], plain.wheels[w]
         assert g.toe_deg == p.toe_deg and g.camber_deg == p.camber_deg

@@ -50,8 +50,9 @@ def _wheel(modulation=(0.4, 0.3), axes_px=(300.0, 290.0)):
 
 
 def test_an_unevenly_lit_lip_adds_to_what_no_residual_shows(monkeypatch):
-    """(gain x the views' mean modulation / the rim's semi-axis)^2 rad^2; an evenly lit lip adds
-    nothing, and without the gain nothing either."""
+    """(gain x the views' mean modulation x the circle's reprojection RMS / the rim's
+    semi-axis)^2 rad^2, twice the RMS four times the variance; an evenly lit lip adds nothing,
+    and without the gain nothing either."""
     from station.stated_uncertainty import unseen_axis_variance
 
     config = load_config()
@@ -60,7 +61,10 @@ def test_an_unevenly_lit_lip_adds_to_what_no_residual_shows(monkeypatch):
     even = unseen_axis_variance(_wheel(modulation=(0.0, 0.0)), config)
     lamp = unseen_axis_variance(_wheel(modulation=(0.4, 0.3)), config)
     a = np.sqrt(300.0 * 290.0)
-    assert lamp - even == pytest.approx((m.uncertainty_light_gain * 0.35 / a) ** 2, rel=1e-9)
+    assert lamp - even == pytest.approx((m.uncertainty_light_gain * 0.35 * 0.06 / a) ** 2, rel=1e-9)
+    noisier = _wheel(modulation=(0.4, 0.3))
+    noisier.circle.reprojection_rms_px = 0.12
+    assert unseen_axis_variance(noisier, config) - even == pytest.approx(4 * (lamp - even), rel=1e-9)
     monkeypatch.setattr(m, "uncertainty_light_gain", 0.0)
     assert unseen_axis_variance(_wheel(modulation=(0.4, 0.3)), config) == even
     # a detection made before the modulation was kept (an old recording) counts as evenly lit
