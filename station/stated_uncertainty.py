@@ -2,9 +2,9 @@
 ``measurement.uncertainty_limit_deg``.
 
 * :func:`unseen_axis_covariance` - what no single cycle's residuals show, grown with how unevenly
-  the lip is lit, how noisy its edge and how blurred it is; :func:`views_covariance` - the pair's two views'
-  disagreement about the rim's axis, and :func:`views_bound_covariance` - the bound on it a
-  wheel is refused by;
+  the lip is lit, how noisy its edge and how blurred it is; :func:`views_covariance` - the
+  pair's two views' disagreement about the rim's axis, and :func:`views_bound_covariance` - the
+  bound on it a wheel is refused by;
 * :func:`statement_parts` - a wheel's stated toe or camber split into its parts;
 * :func:`refuse_uncertain_wheels` - the cycle's failure naming each wheel stated beyond the
   limit, why (the largest part) and what to do (docs/measurement.md, "Too uncertain to trust").
@@ -25,8 +25,8 @@ from station.wheel.view_agreement import disagreement_bound_covariance, disagree
 def unseen_axis_variance(o: WheelObservation, config: StationConfig) -> float:
     """The variance (rad^2) added across a wheel's axis for what no single cycle's residuals
     show: ``measurement.uncertainty_floor_deg`` squared, plus (``uncertainty_light_gain`` l)
-    (l m q / a)^2, m the lip's step modulation round the rim (:func:`step_modulation`), q the
-    circle's reprojection RMS (px) and a the rim's mean semi-axis in its two views (px), plus
+    (l m q / a)^2, m the lip's step modulation round the rim (:func:`mean_step_modulation`), q
+    the circle's reprojection RMS (px) and a the rim's mean semi-axis in its two views (px), plus
     (``uncertainty_blur_gain`` g) (g e / a)^2, e the blur beyond ``edge_blur_limit_px`` of the
     blurrier view (px, :func:`blur_excess_px`). A lamp on one side leaves the lip's rounding
     shaded on the other, where the step is faint; there the noise decides whole arcs (which
@@ -40,12 +40,12 @@ def unseen_axis_variance(o: WheelObservation, config: StationConfig) -> float:
     a = float(np.mean([np.sqrt(np.prod(d.ellipse.axes_px)) for d in o.detections]))
     if not a > 0:
         return float(np.radians(m.uncertainty_floor_deg) ** 2)
-    light = m.uncertainty_light_gain * step_modulation(o) * q / a if np.isfinite(q) else 0.0
+    light = m.uncertainty_light_gain * mean_step_modulation(o) * q / a if np.isfinite(q) else 0.0
     blur = m.uncertainty_blur_gain * blur_excess_px(o, m.edge_blur_limit_px) / a
     return float(np.radians(m.uncertainty_floor_deg) ** 2 + light ** 2 + blur ** 2)
 
 
-def step_modulation(o: WheelObservation) -> float:
+def mean_step_modulation(o: WheelObservation) -> float:
     """The mean over a wheel's two views of how unevenly the lip's edge step is lit round the
     rim (the detector's ``details["step_modulation"]``, station/rim/subpixel.py)."""
     return float(np.mean([d.details.get("step_modulation") or 0.0 for d in o.detections]))

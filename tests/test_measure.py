@@ -373,7 +373,7 @@ def test_the_unseen_error_grows_with_how_unevenly_each_lip_is_lit(sim, monkeypat
     two views' step modulation round the rim, q its circle's reprojection RMS and a its rim's
     semi-axis (px): a lip lit from one side states more, the more so the noisier its edges, and
     no value moves (station.stated_uncertainty.unseen_axis_variance)."""
-    from station.stated_uncertainty import step_modulation, unseen_axis_variance
+    from station.stated_uncertainty import mean_step_modulation, unseen_axis_variance
 
     cfg, world, _, images = sim
     monkeypatch.setattr(cfg.measurement, "uncertainty_floor_deg", 0.0)
@@ -385,7 +385,7 @@ def test_the_unseen_error_grows_with_how_unevenly_each_lip_is_lit(sim, monkeypat
     gained = measure_frames(images, world.cameras, cfg)
     for w in ("FL", "FR", "RL", "RR"):
         o = gained.observations[w]
-        m = step_modulation(o)
+        m = mean_step_modulation(o)
         assert m > 0.1  # the simulator's lamps light each lip from one side
         a = np.mean([np.sqrt(np.prod(d.ellipse.axes_px)) for d in o.detections])
         term = np.degrees(0.6 * m * o.circle.reprojection_rms_px / a)

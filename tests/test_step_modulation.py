@@ -78,7 +78,6 @@ def test_an_unevenly_lit_lip_adds_to_what_no_residual_shows(monkeypatch):
 def test_a_lamp_on_one_side_modulates_the_step_and_diffuse_panels_do_not(tmp_path):
     """One camera of the small station, its rim lit by a strong lamp from above, then by an even
     surround: the detector's modulation tells them apart by several times."""
-    from simulators.scene import Lighting
     from simulators.world import SimWorld
     from station.rim import detect_rim
     from tests.station_fixtures import small_station_config
@@ -88,11 +87,9 @@ def test_a_lamp_on_one_side_modulates_the_step_and_diffuse_panels_do_not(tmp_pat
     base = world.vehicle_scene(3)
     cam = "cam3"
     found = {}
-    for name, light in (("lamp", Lighting(ambient=0.1, key_direction_station=(0.1, -0.2, -0.97), key_strength=1.1)),
-                        ("panels", Lighting(ambient=0.7, key_strength=0.0))):
-        scene = replace(base, lighting={**base.lighting, cam: replace(base.lighting[cam], ambient=light.ambient,
-                                                                     key_direction_station=light.key_direction_station,
-                                                                     key_strength=light.key_strength)})
+    for name, light in (("lamp", dict(ambient=0.1, key_direction_station=(0.1, -0.2, -0.97), key_strength=1.1)),
+                        ("panels", dict(ambient=0.7, key_strength=0.0))):
+        scene = replace(base, lighting={**base.lighting, cam: replace(base.lighting[cam], **light)})
         image = world.render(cam, np.random.default_rng(1), scene=scene)
         found[name] = detect_rim(image, camera=world.cameras[cam], camera_id=cam).details["step_modulation"]
     assert found["panels"] < 0.1
