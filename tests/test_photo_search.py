@@ -246,7 +246,9 @@ def test_a_large_photograph_with_no_rim_found_is_searched_again_smaller(monkeypa
     """A photograph over SEARCH_SIDE_PX where the search finds nothing (a phone's 28 Mpx: the lip's
     edge spread over more pixels than the photograph search's limits allow) is searched again
     shrunk by an integer factor, its rim returned in the full photograph's pixels. Here the
-    search at full size is made to fail; a station's search is never searched again."""
+    search at full size is made to fail; a station's search is never searched again, and the
+    shrunk photograph is searched by the photograph search alone (the station's, run there on a
+    near-frontal crop, took a tyre's outline that its roughness had refused at full size)."""
     from station.commands import detect_photograph as detect_cmd
 
     img, truth = _steep_wheel()
@@ -255,8 +257,11 @@ def test_a_large_photograph_with_no_rim_found_is_searched_again_smaller(monkeypa
     real = detect_cmd._searched_once
     sizes = []
 
+    searches = []
+
     def failing_at_full_size(light, name, equalization, search):
         sizes.append(max(light.shape[:2]))
+        searches.append(search)
         if max(light.shape[:2]) > detect_cmd.SEARCH_SIDE_PX:
             raise RimNotFound(f"{name}: nothing at full size")
         return real(light, name, equalization, search)
@@ -264,6 +269,7 @@ def test_a_large_photograph_with_no_rim_found_is_searched_again_smaller(monkeypa
     monkeypatch.setattr(detect_cmd, "_searched_once", failing_at_full_size)
     det = detect_cmd.detect_photograph(big, 1.0, "big")
     assert sizes[0] == 3150 and sizes[1] == 3150 // 2
+    assert searches[:2] == ["auto", "photo"]  # shrunk, only the photograph search's pixel limits are in question
     expected = Ellipse(truth.scaled(f).center_px + (f - 1) / 2, truth.axes_px * f, truth.angle_rad)  # pixel centres
     assert np.linalg.norm(det.ellipse.center_px - expected.center_px) < 2.0
     np.testing.assert_allclose(det.ellipse.axes_px, expected.axes_px, rtol=0.01)

@@ -271,7 +271,13 @@ def test_a_jpeg_is_read_upright_as_its_exif_orientation_says(tmp_path):
      "best candidate at (4879, 1734) px, 1112 px high, b/a 0.38: not one smooth contour (the edge points lie 2.8 px rms "
      "off their ellipse > 1.0); the photograph is blurred there (edge blur 4.9 px > 4)", "not one smooth contour, blurred"),
     ("1_045.jpg: the rim at (2361, 783) px, 363 px high, b/a 0.44 is not sure: another ellipse in the photograph 0.75 "
-     "times the size (at (2363, 806) px, 399 px high, back at this size)", "not sure: another ellipse at a smaller size"),
+     "times the size (at (2363, 806) px, 399 px high, back at this size), and not found again in the photograph 1.33 "
+     "times the size (no rim taken)", "not sure: another ellipse at a smaller size"),
+    ("1_016.jpg: the rim at (2257, 819) px, 409 px high, b/a 0.44 is not sure: not found again in the photograph 0.75 "
+     "times the size (no rim found)", "not sure: not found again at a smaller size"),
+    ("s.jpg: the rim at (257, 819) px, 209 px high, b/a 0.44 is not sure: another ellipse in the photograph 1.33 "
+     "times the size (at (263, 806) px, 299 px high, back at this size), and another again 0.75 times the size",
+     "not sure: another ellipse at a larger size"),
     ("/x/cut.png: the PNG file is truncated (no end chunk)", "the PNG file is truncated"),
 ])
 def test_a_refusal_is_counted_by_its_kind_without_its_figures(message, kind):

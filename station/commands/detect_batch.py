@@ -74,8 +74,9 @@ def refusal_kind(message: str) -> str:
     ellipse at a smaller size", ..."""
     text = message.split(": ", 1)[-1]
     if " is not sure: " in text:  # found, but not found again in the photograph resized
-        return "not sure: " + ("another ellipse" if ": another ellipse" in text else "not found again") + (
-            " at a larger size" if f" {LARGER:g} times" in text else " at a smaller size")
+        first = text.split(" times the size", 1)[0]  # the size looked at first
+        return "not sure: " + ("another ellipse" if ": another ellipse" in first else "not found again") + (
+            " at a larger size" if first.endswith(f" {LARGER:g}") else " at a smaller size")
     if "; the best candidate" in text:  # the photo search: what its best candidate was refused for
         text = text.split("; the photograph is blurred", 1)[0].split(". A dark photograph", 1)[0].rsplit(": ", 1)[-1]
     elif "; the photograph search: " in text:  # refused by both searches: the photograph search's reason

@@ -42,11 +42,13 @@ SEARCH_SIDE_PX = 3000  # a photograph larger than this is searched again smaller
 
 def _searched(light: np.ndarray, name: str, equalization: str, search: str):
     """The rim ``search`` finds in ``light``, and where it finds none in a photograph larger than
-    ``SEARCH_SIDE_PX`` ("auto", "photo"), in the photograph shrunk below it by an integer factor
-    (area averages of light), in the full photograph's pixels. The photograph search's limits
-    (an edge within 1 px of one curve, blurred under 4 px) are set in the pixels of a 5-Mpx
-    photograph: in a 28-Mpx phone photograph the same lip's edge spreads over two or three
-    times as many pixels."""
+    ``SEARCH_SIDE_PX`` ("auto", "photo"), the photograph search's rim in the photograph shrunk
+    below it by an integer factor (area averages of light), in the full photograph's pixels.
+    The photograph search's limits (an edge within 1 px of one curve, blurred under 4 px) are
+    set in the pixels of a 5-Mpx photograph: in a 28-Mpx phone photograph the same lip's edge
+    spreads over two or three times as many pixels. The station's search has its own working
+    scale; shrunk, the one smooth edge it must show in a photograph would be judged in coarser
+    pixels (a tyre's outline in a near-frontal photograph passed so)."""
     from station.rim.detector import _rescaled
     from station.rim.preprocess import downscale, to_grey
 
@@ -57,7 +59,7 @@ def _searched(light: np.ndarray, name: str, equalization: str, search: str):
         if search == "station" or s == 1:
             raise
         try:
-            det = _searched_at(downscale(to_grey(light, name), s), name, equalization, search)
+            det = _searched_at(downscale(to_grey(light, name), s), name, equalization, "photo")
         except RimNotFound:
             raise e from None
         return _rescaled(det, s)
