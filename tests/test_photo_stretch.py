@@ -6,6 +6,8 @@ larger than its canvas can judge is not taken. Synthetic images only."""
 import numpy as np
 import pytest
 
+from station.errors import RimNotFound
+
 from station.rim import photo_candidates as pc
 from station.rim import photo_search as ps
 from station.rim.ellipse import Ellipse
@@ -70,6 +72,34 @@ def test_the_photograph_search_takes_the_stretched_rim_when_no_candidate_is_the_
     assert np.linalg.norm(det.ellipse.center_px - truth.center_px) < 1.5
     np.testing.assert_allclose(det.ellipse.axes_px, truth.axes_px, atol=1.5)
     assert det.details["path"] == "photo" and det.details["outside_share"] >= 0.5
+
+
+def test_a_rim_the_stations_search_took_twice_needs_no_2x_step_to_its_tyre(monkeypatch):
+    """A sunlit tyre beside a shaded lip is not twice darker than the lip on half the turn. A
+    rim the station's search took on two canvases (here both reaches round one candidate: once
+    with its tyre on the canvas, once too large for it) is taken without that step, the tyre
+    still rubber-dark for the photo and ending; the same rim seen on one canvas only is not."""
+    img, truth = _steep_wheel(seed=6)
+    L, s = pc.search_image(img.astype(np.float32))
+    inner = _about_centre(truth, 0.7).scaled(1 / s)
+    monkeypatch.setattr(pc, "candidates", lambda *a, **k: [{"ellipse": inner, "cover": 0.9, "support": 3,
+                                                             "level": 0.0}])
+    structure = _inner_fails(ps.structure, inner)
+
+    def sunlit(L, e, rubber_level):
+        st = structure(L, e, rubber_level)
+        return {**st, "dark": min(st["dark"], 0.2)}
+
+    monkeypatch.setattr(ps, "structure", sunlit)
+    det = ps.detect_in_photo(img, camera_id="sunlit")
+    assert np.linalg.norm(det.ellipse.center_px - truth.center_px) < 1.5
+    np.testing.assert_allclose(det.ellipse.axes_px, truth.axes_px, atol=1.5)
+
+    once = ps.stretched_search
+    monkeypatch.setattr(ps, "stretched_search", lambda grey, e, cut=None: once(grey, e)[:1])
+    with pytest.raises(RimNotFound) as ex:
+        ps.detect_in_photo(img, camera_id="sunlit")
+    assert "no dark tyre" in str(ex.value)
 
 
 def _inner_fails(structure, inner: Ellipse):

@@ -33,7 +33,10 @@ wheel's physical structure is there round it, and refuses, naming what it saw, o
 6. **Stretched**: the station's own search on the photograph warped round a candidate until
    it is a circle (``photo_stretch``: a spoke star, a disc or the lip's inner edge tells
    where the wheel is and how it is seen), its rim refined and judged as in steps 2-5, with
-   the tyre's far outline on half the turn: round each candidate of a wheel's shape, where
+   the tyre's far outline on half the turn (a rim the station's search took on two canvases -
+   round two candidates, or at both reaches round one - is not asked for the tyre's 2x step
+   against its lip: the search judged its tyre band against that rim's own lip on each, and a
+   sunlit tyre beside a shaded lip has less): round each candidate of a wheel's shape, where
    steps 1-5 took no rim (the candidate stretched round does not hide the rim found inside it:
    its own lip edge was not found, the station's search saw it whole and took the rim). Round
    each rim taken (by steps 1-5, or so): a larger rim round it that passes replaces it (it was
@@ -69,6 +72,7 @@ MIN_DARK_SHARE = 0.5      # of the turn: rubber just outside the lip (under the 
 MIN_OUTSIDE_SHARE = 0.25  # of the turn: brighter again beyond the tyre (its far side's outline)
 RUBBER_PERCENTILE = 35.0  # the tyre band's median light at most this percentile of the photo's
 MIN_COVERAGE = 0.5        # the sub-pixel lip edge on this share of the perimeter
+MIN_SIGHTINGS = 2         # canvases on which the station's search took one rim: seen again, see _after_stretch
 HELD_COVERAGE = 0.4       # a larger contour round a rim taken, its edge on this share: which is the rim is in doubt
 MAX_EDGE_RMS_PX = 1.0     # the lip edge's points off their ellipse (robust rms): a turned lip is one
 #                           smooth curve, its edge scatters by tenths of a pixel; a contour pieced from
@@ -133,11 +137,12 @@ def geometry_verdict(e: Ellipse) -> str | None:
     return None
 
 
-def structure_verdict(st: dict) -> str | None:
-    """Why the surroundings of a candidate are not a tyre's, or None."""
+def structure_verdict(st: dict, any_step: bool = False) -> str | None:
+    """Why the surroundings of a candidate are not a tyre's, or None; with ``any_step`` the
+    band's step against the lip (``dark``) is not asked."""
     if st["seen"] < 0.75:
         return f"cut by the photo's border ({st['seen']:.0%} of the tyre in view)"
-    if st["dark"] < MIN_DARK_SHARE:
+    if st["dark"] < MIN_DARK_SHARE and not any_step:
         return f"no dark tyre round it (rubber-dark on {st['dark']:.0%} of the turn < {MIN_DARK_SHARE:.0%})"
     if not st["rubber"]:
         return f"its dark band is not rubber-dark (lighter than {RUBBER_PERCENTILE:.0f} % of the photo, paint rather than a tyre)"
@@ -275,30 +280,38 @@ def _stretched(grey: np.ndarray, cands: list, s: int, L: np.ndarray, rubber_leve
     and not inside a larger candidate with a tyre round it other than the one stretched round:
     [(RimDetection, record)] as ``detect_in_photo`` takes them; the others go to ``refused``."""
     shaped = [c for c in cands if geometry_verdict(c["ellipse"].scaled(s)) is None][:MAX_STRETCHED]
-    tried: list[Ellipse] = []
-    out = []
+    found: list[tuple[Ellipse, dict, list]] = []  # (rim, the candidate, the larger ones that may hide it)
+    sightings: list[Ellipse] = []                 # every rim the station's search took, on any canvas
     for c in shaped:
         around = c["ellipse"].scaled(s)
         # the candidate stretched round does not hide what is found inside it: the station's
         # search, seeing it whole, took that rim (a candidate's lip edge not found is no rim)
         others = [t for t in larger if not pc.same_ellipse(t[0], around, 0.02)]
-        for e in stretched_search(grey, around):
-            if geometry_verdict(e) is not None or any(pc.same_ellipse(e, t, SAME_RIM) for t in tried):
-                continue
-            tried.append(e)
-            record = {**c, "ellipse": e.scaled(1 / s), "stretched": True}
-            try:
-                det, why = _refined(grey, e, camera_id, lambda d: _after_stretch(d, e, L, s, rubber_level))
-            except RimNotFound as ex:
-                refused.append((record, f"no sub-pixel lip edge ({str(ex).split(': ', 1)[-1]})", 2))
-                continue
-            o = hidden_by(det.ellipse, others) if why is None else None
-            if o is not None:
-                why = f"inside a larger candidate with a tyre round it ({where(o)}; a hub, a disc or the lip's inner edge)"
-            if why is None:
-                out.append((det, {**record, **structure(L, det.ellipse.scaled(1 / s), rubber_level)}))
-            else:
-                refused.append((record, why, 2))
+        too_large: list[Ellipse] = []
+        rims = stretched_search(grey, around, too_large)
+        found += [(e, c, others) for e in rims]
+        sightings += rims + too_large
+    tried: list[Ellipse] = []
+    out = []
+    for e, c, others in found:
+        if geometry_verdict(e) is not None or any(pc.same_ellipse(e, t, SAME_RIM) for t in tried):
+            continue
+        tried.append(e)
+        seen_on = sum(pc.same_ellipse(e, t, SAME_RIM) for t in sightings)
+        record = {**c, "ellipse": e.scaled(1 / s), "stretched": True}
+        try:
+            det, why = _refined(grey, e, camera_id,
+                                lambda d: _after_stretch(d, e, L, s, rubber_level, seen_on >= MIN_SIGHTINGS))
+        except RimNotFound as ex:
+            refused.append((record, f"no sub-pixel lip edge ({str(ex).split(': ', 1)[-1]})", 2))
+            continue
+        o = hidden_by(det.ellipse, others) if why is None else None
+        if o is not None:
+            why = f"inside a larger candidate with a tyre round it ({where(o)}; a hub, a disc or the lip's inner edge)"
+        if why is None:
+            out.append((det, {**record, **structure(L, det.ellipse.scaled(1 / s), rubber_level)}))
+        else:
+            refused.append((record, why, 2))
     return out
 
 
@@ -356,10 +369,13 @@ def _held_by_larger(grey: np.ndarray, det, cut: list, camera_id: str) -> str | N
     return None
 
 
-def _after_stretch(det, e: Ellipse, L: np.ndarray, s: int, rubber_level: float) -> str | None:
+def _after_stretch(det, e: Ellipse, L: np.ndarray, s: int, rubber_level: float, seen_again: bool = False) -> str | None:
     """Why a rim of the stretched search, refined, is not the rim (``_after_refinement``, and
-    the tyre's far outline on ``MIN_OUTLINE_SHARE`` of the turn), or None."""
-    why = _after_refinement(det, e, L, s, rubber_level)
+    the tyre's far outline on ``MIN_OUTLINE_SHARE`` of the turn), or None. A rim the station's
+    search took on ``MIN_SIGHTINGS`` canvases (``seen_again``) is not asked for a tyre
+    ``MIN_STEP`` darker than its lip: the station's search judged the tyre band against that
+    rim's own lip on each; the band must still be rubber-dark for the photo and end."""
+    why = _after_refinement(det, e, L, s, rubber_level, seen_again)
     if why is not None:
         return why
     outside = structure(L, det.ellipse.scaled(1 / s), rubber_level)["outside"]
@@ -408,12 +424,14 @@ def rough_edge_verdict(det) -> str | None:
     return None
 
 
-def _after_refinement(det, e: Ellipse, L: np.ndarray, s: int, rubber_level: float) -> str | None:
+def _after_refinement(det, e: Ellipse, L: np.ndarray, s: int, rubber_level: float,
+                      any_step: bool = False) -> str | None:
     """Why a refined candidate is not the rim, or None: the edge left the candidate, holds on
-    too little of it, or the tyre's structure fails round the refined ellipse."""
+    too little of it, or the tyre's structure fails round the refined ellipse (its step
+    against the lip not asked with ``any_step``)."""
     if not pc.same_ellipse(e, det.ellipse, MAX_EDGE_MOVE):
         return f"the sub-pixel edge left the candidate (now {where(det.ellipse)})"
     if det.coverage < MIN_COVERAGE:
         return f"no closed rim contour (sub-pixel edge on {det.coverage:.0%} of the perimeter)"
     why = rough_edge_verdict(det) or geometry_verdict(det.ellipse)
-    return why or structure_verdict(structure(L, det.ellipse.scaled(1 / s), rubber_level))
+    return why or structure_verdict(structure(L, det.ellipse.scaled(1 / s), rubber_level), any_step)
