@@ -255,9 +255,7 @@ def test_a_large_photograph_with_no_rim_found_is_searched_again_smaller(monkeypa
     f = 3.5  # 2450 x 3150 px: searched again at half
     big = cv2.resize(img.astype(np.float32), None, fx=f, fy=f, interpolation=cv2.INTER_CUBIC)
     real = detect_cmd._searched_once
-    sizes = []
-
-    searches = []
+    sizes, searches = [], []
 
     def failing_at_full_size(light, name, equalization, search):
         sizes.append(max(light.shape[:2]))

@@ -7,7 +7,6 @@ import numpy as np
 import pytest
 
 from station.errors import RimNotFound
-
 from station.rim import photo_candidates as pc
 from station.rim import photo_search as ps
 from station.rim.ellipse import Ellipse
